@@ -1,0 +1,1 @@
+"""In-process batch engine, Monte Carlo runner, experiments and plots."""

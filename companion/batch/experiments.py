@@ -1,0 +1,190 @@
+"""Studies built on the Monte Carlo runner: the algorithm comparison, parameter sweeps, benchmarks."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import msgspec
+import numpy as np
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from companion.batch import plots, report
+from companion.batch.engine import RunResult, simulate
+from companion.batch.montecarlo import RunSpec, run_specs, specs_for, summarize
+from companion.core.world import build_world
+from companion.mission import ALGORITHMS, Mission
+
+
+def _progress(enabled: bool) -> Progress:
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        disable=not enabled,
+        transient=False,
+    )
+
+
+def run_all(specs: list[RunSpec], workers: int | None, progress: bool, label: str) -> list[RunResult]:
+    """Run the specs with a progress bar; results in spec order."""
+    out: list[RunResult] = []
+    with _progress(progress) as bar:
+        task = bar.add_task(label, total=len(specs))
+        for result in run_specs(specs, workers):
+            out.append(result)
+            bar.advance(task)
+    return out
+
+
+def compare(
+    mission: Mission,
+    algorithms: Sequence[str],
+    runs: int,
+    steps: int,
+    seed: int,
+    out: Path,
+    workers: int | None = None,
+    save_trajectories: bool = False,
+    progress: bool = True,
+) -> dict:
+    """The paper's comparison (Figures 8-10): every algorithm on the same mission instances."""
+    for a in algorithms:
+        if a not in ALGORITHMS:
+            raise ValueError(f"unknown algorithm {a!r}; choose from {', '.join(ALGORITHMS)}")
+    out.mkdir(parents=True, exist_ok=True)
+    record: Callable[[int], bool] = lambda r: save_trajectories or runs == 1 or r == 0  # noqa: E731
+    specs = specs_for(mission, algorithms, runs, steps, seed, record)
+    flat = run_all(specs, workers, progress, f"{mission.name}: {len(specs)} runs")
+    results = {a: flat[i * runs : (i + 1) * runs] for i, a in enumerate(algorithms)}
+    meta = {
+        "mission": mission.name,
+        "seed": seed,
+        "runs": runs,
+        "steps": steps,
+        "algorithms": list(algorithms),
+    }
+    summary = report.write_summary(out, results, meta)
+    report.write_runs(out, results)
+    report.write_curves(out, results)
+    if save_trajectories or runs == 1:
+        report.write_trajectories(
+            out, {a: [r for r in rs if r.trajectory is not None] for a, rs in results.items()}
+        )
+    worlds = {a: build_world(mission.with_algorithm(a), seed, 0) for a in algorithms}
+    plots.plot_prior(out / "prior_cvt.png", build_world(mission.with_algorithm("proposed"), seed, 0))
+    plots.plot_trajectories(out / "trajectories.png", worlds, {a: results[a][0] for a in algorithms})
+    plots.plot_uncertainty(out / "uncertainty.png", results)
+    plots.plot_found(out / "targets_found.png", results)
+    return summary
+
+
+def _set_param(mission: Mission, param: str, value: str) -> Mission:
+    """A copy of the mission with one algorithm weight changed (validated by the mission schema)."""
+    raw = msgspec.to_builtins(mission)
+    if param not in raw["algorithm"]:
+        raise ValueError(f"unknown algorithm parameter {param!r}")
+    raw["algorithm"][param] = json.loads(value)
+    return msgspec.convert(raw, Mission)
+
+
+def sweep(
+    mission: Mission,
+    param: str,
+    values: Sequence[str],
+    runs: int,
+    steps: int,
+    seed: int,
+    out: Path,
+    workers: int | None = None,
+    progress: bool = True,
+) -> list[dict]:
+    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default)."""
+    out.mkdir(parents=True, exist_ok=True)
+    missions = [_set_param(mission.with_algorithm("proposed"), param, v) for v in values]
+    specs = [RunSpec(m, seed, r, steps) for m in missions for r in range(runs)]
+    flat = run_all(specs, workers, progress, f"{mission.name}: sweep {param}")
+    summaries = [
+        summarize(flat[i * runs : (i + 1) * runs]) | {param: json.loads(v)} for i, v in enumerate(values)
+    ]
+    (out / "sweep.json").write_text(json.dumps({"param": param, "points": summaries}, indent=2) + "\n")
+    plots.plot_sweep(
+        out / f"sweep_{param}.png", param, [json.loads(v) for v in values], summaries, mission.comms.safety
+    )
+    return summaries
+
+
+def bench(
+    missions: Sequence[Mission], runs: int = 3, steps: int = 1000, seed: int = 1, workers: int | None = None
+) -> dict:
+    """Compute time per 1,000 sampling moments (Table 2 setting) and Monte Carlo throughput."""
+    rows = []
+    for mission in missions:
+        for a in ALGORITHMS:
+            m = mission.with_algorithm(a)
+            simulate(m, seed, 0, 5)  # compile numba kernels and warm caches outside the timing
+            secs = [simulate(m, seed, r, steps).seconds for r in range(runs)]
+            rows.append(
+                {
+                    "mission": mission.name,
+                    "algorithm": a,
+                    "seconds_per_1000_steps": 1000 * float(np.mean(secs)) / steps,
+                }
+            )
+    workers = workers or os.cpu_count() or 1
+    n = 4 * workers
+    specs = [RunSpec(missions[0].with_algorithm("proposed"), seed, r, steps) for r in range(n)]
+    started = time.perf_counter()
+    list(run_specs(specs, workers))
+    wall = time.perf_counter() - started
+    per_run = wall / n
+    serial = rows[0]["seconds_per_1000_steps"] * steps / 1000  # proposed, first mission, one core
+    efficiency = per_run / (serial / workers)  # > 1: the pool loses time to overheads
+    mean_step = float(np.mean([r["seconds_per_1000_steps"] for r in rows]))
+    study = 3 * 3 * 1000 * mean_step / workers * efficiency
+    return {
+        "per_algorithm": rows,
+        "throughput": {
+            "workers": workers,
+            "runs": n,
+            "steps": steps,
+            "wall_seconds": wall,
+            "runs_per_minute": 60.0 / per_run,
+            "pool_overhead_factor": efficiency,
+        },
+        "paper_study_estimate_minutes": study / 60.0,
+        "paper_study_definition": "3 scenarios x 3 algorithms x 1,000 runs x 1,000 steps, on all workers",
+    }
+
+
+def format_bench(result: dict) -> str:
+    lines = ["mission     algorithm    s / 1,000 steps (one core)"]
+    for r in result["per_algorithm"]:
+        lines.append(f"{r['mission']:<11} {r['algorithm']:<12} {r['seconds_per_1000_steps']:.3f}")
+    t = result["throughput"]
+    lines.append(
+        f"Monte Carlo throughput: {t['runs_per_minute']:.1f} runs of {t['steps']} steps per minute "
+        f"on {t['workers']} workers ({t['runs']} runs in {t['wall_seconds']:.1f} s)"
+    )
+    lines.append(f"paper's whole study (estimate): {result['paper_study_estimate_minutes']:.1f} min")
+    return "\n".join(lines)
+
+
+def sweep_values(text: str) -> list[str]:
+    """'10,20,30' -> ['10', '20', '30'] (each parsed as JSON when applied)."""
+    values = [v.strip() for v in text.split(",") if v.strip()]
+    if not values:
+        raise ValueError("--values needs at least one value")
+    return values

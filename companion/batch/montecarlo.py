@@ -1,0 +1,95 @@
+"""Monte Carlo runner: many runs of the batch engine across a process pool, and their summary.
+
+A run is a pure function of (mission, algorithm, seed, run index), so a `RunSpec` is all a worker
+needs: the local process pool is the default executor, and any executor with `map` (a Dask or
+Ray client's) can take the same specs.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.batch.engine import RunResult, simulate
+from companion.mission import Mission
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything that defines one run."""
+
+    mission: Mission
+    seed: int
+    run: int
+    steps: int
+    record: bool = False
+
+
+def execute(spec: RunSpec) -> RunResult:
+    """Run one spec (top level, so that worker processes can import it)."""
+    return simulate(spec.mission, spec.seed, spec.run, spec.steps, record=spec.record)
+
+
+def specs_for(
+    mission: Mission,
+    algorithms: Iterable[str],
+    runs: int,
+    steps: int,
+    seed: int,
+    record: Callable[[int], bool],
+) -> list[RunSpec]:
+    """One spec per (algorithm, run): run r of every algorithm sees the same targets and radio draws."""
+    return [
+        RunSpec(mission.with_algorithm(a), seed, r, steps, record(r)) for a in algorithms for r in range(runs)
+    ]
+
+
+def run_specs(
+    specs: list[RunSpec], workers: int | None = None, executor: Executor | None = None
+) -> Iterator[RunResult]:
+    """Results in the order of `specs`, computed on `executor` or a local pool of `workers` processes."""
+    workers = workers or os.cpu_count() or 1
+    if executor is not None:
+        yield from executor.map(execute, specs)
+        return
+    if workers == 1:
+        yield from map(execute, specs)
+        return
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        chunk = max(1, min(8, len(specs) // (4 * workers)))
+        yield from pool.map(execute, specs, chunksize=chunk)
+
+
+def ci95(values: np.ndarray) -> float:
+    """Half-width of the normal 95 % confidence interval of the mean."""
+    return float(1.96 * values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
+
+
+def summarize(results: list[RunResult]) -> dict[str, float | int]:
+    """The summary.json entry of one algorithm."""
+    times = np.array([r.target_times().mean() if len(r.target_steps) else 0.0 for r in results])
+    found = np.array([np.mean(r.target_steps >= 0) if len(r.target_steps) else 1.0 for r in results])
+    final_unc = np.array([r.uncertainty[-1] for r in results])
+    mean_unc = np.array([r.uncertainty.mean() for r in results])
+    return {
+        "runs": len(results),
+        "steps": int(results[0].steps),
+        "mean_target_time": float(times.mean()),
+        "mean_target_time_ci95": ci95(times),
+        "targets_found_fraction": float(found.mean()),
+        "final_mean_uncertainty": float(final_unc.mean()),
+        "final_mean_uncertainty_ci95": ci95(final_unc),
+        "mean_uncertainty_over_run": float(mean_unc.mean()),
+        "mean_uncertainty_over_run_ci95": ci95(mean_unc),
+        "final_coverage": float(np.mean([r.coverage[-1] for r in results])),
+        "min_lambda2": float(min(r.lambda2.min() for r in results)),
+        "min_distance": float(min(r.min_distance.min() for r in results)),
+        "seconds_per_1000_steps": float(np.mean([1000.0 * r.seconds / r.steps for r in results])),
+    }

@@ -1,0 +1,163 @@
+"""PNG plots of the paper's figure panels (Figures 8-11)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import LineCollection
+
+from companion.batch.engine import RunResult
+from companion.batch.report import mean_band
+from companion.core.world import World
+
+COLOURS = {"proposed": "tab:red", "no-ta": "tab:blue", "pheromone": "tab:green"}
+
+
+def _lattice_image(world: World, values: np.ndarray) -> np.ndarray:
+    g = world.grid
+    img = np.full(g.lattice.shape, np.nan)
+    inside = g.lattice >= 0
+    img[inside] = values[g.lattice[inside]]
+    return img
+
+
+def _extent(world: World) -> tuple[float, float, float, float]:
+    g = world.grid
+    h = g.cell_size / 2
+    return (g.x0 - h, g.x0 + g.cell_size * g.nx - h, g.y0 - h, g.y0 + g.cell_size * g.ny - h)
+
+
+def _draw_prior(ax: plt.Axes, world: World) -> None:
+    ax.imshow(
+        _lattice_image(world, world.prior), origin="lower", extent=_extent(world), cmap="Greys", alpha=0.8
+    )
+    for c in world.mission.prior.centres:
+        ax.plot(c.x, c.y, "*", color="red", markersize=10)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+
+
+def _draw_regions(ax: plt.Axes, world: World) -> None:
+    t = world.tessellation
+    if t is None:
+        return
+    g = world.grid
+    lab = np.where(g.lattice >= 0, t.labels[g.lattice], -1)
+    h = g.cell_size / 2
+    segments = []
+    rows, cols = np.nonzero(lab[:, 1:] != lab[:, :-1])  # vertical edges between columns c and c + 1
+    for r, c in zip(rows, cols, strict=True):
+        x = g.x0 + g.cell_size * c + h
+        y = g.y0 + g.cell_size * r
+        segments.append([(x, y - h), (x, y + h)])
+    rows, cols = np.nonzero(lab[1:, :] != lab[:-1, :])  # horizontal edges between rows r and r + 1
+    for r, c in zip(rows, cols, strict=True):
+        x = g.x0 + g.cell_size * c
+        y = g.y0 + g.cell_size * r + h
+        segments.append([(x - h, y), (x + h, y)])
+    ax.add_collection(LineCollection(segments, colors="tab:orange", linewidths=0.8))
+    ax.plot(t.generators[:, 0], t.generators[:, 1], ".", color="tab:orange", markersize=4)
+
+
+def plot_prior(path: Path, world: World) -> None:
+    """Figure 8(a)-10(a): the prior (eq. 1) with the CVT regions of Algorithm 1 and the start poses."""
+    fig, ax = plt.subplots(figsize=(6, 6))
+    _draw_prior(ax, world)
+    _draw_regions(ax, world)
+    for v in world.mission.vehicles:
+        ax.plot(v.x, v.y, "^", color="black")
+    ax.set_title(f"{world.mission.name}: prior and CVT regions (n_g = {world.mission.algorithm.n_g})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_trajectories(path: Path, worlds: Mapping[str, World], runs: Mapping[str, RunResult]) -> None:
+    """Figures 8(b)-(d): one run's trajectories per algorithm over the prior, with the targets."""
+    fig, axes = plt.subplots(1, len(runs), figsize=(5.5 * len(runs), 5.5), squeeze=False)
+    for ax, (name, r) in zip(axes[0], runs.items(), strict=True):
+        world = worlds[name]
+        _draw_prior(ax, world)
+        if name == "proposed":
+            _draw_regions(ax, world)
+        assert r.trajectory is not None
+        for i in range(r.trajectory.shape[1]):
+            ax.plot(r.trajectory[:, i, 0], r.trajectory[:, i, 1], linewidth=0.8)
+            ax.plot(r.trajectory[0, i, 0], r.trajectory[0, i, 1], "^", color="black")
+        t = world.grid.centres[r.target_cells]
+        ax.plot(t[:, 0], t[:, 1], "s", color="tab:blue", markersize=6, markerfacecolor="none")
+        ax.set_title(f"{name} (run {r.run}, {r.steps} steps)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _band(ax: plt.Axes, name: str, curves: np.ndarray) -> None:
+    mean, ci = mean_band(curves)
+    steps = np.arange(len(mean))
+    ax.plot(steps, mean, color=COLOURS.get(name), label=name)
+    ax.fill_between(steps, mean - ci, mean + ci, color=COLOURS.get(name), alpha=0.25)
+
+
+def plot_uncertainty(path: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
+    """Figures 8(e)-10(e): mean global average uncertainty (eq. 30) with its 95 % confidence band."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, runs in results.items():
+        _band(ax, name, np.array([r.uncertainty for r in runs]))
+    ax.set_xlabel("sampling moment k")
+    ax.set_ylabel("global average uncertainty")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_found(path: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
+    """Figures 8(f)-10(f): targets found vs step (mean over runs, 95 % band)."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, runs in results.items():
+        _band(ax, name, np.array([r.found for r in runs], dtype=float))
+    ax.set_xlabel("sampling moment k")
+    ax.set_ylabel("targets found")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_sweep(
+    path: Path, param: str, values: Sequence[float], summaries: Sequence[dict], safety: float
+) -> None:
+    """Figure 11: coverage and search efficiency, min lambda_2 and min distance against a parameter."""
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7))
+    panels = [
+        ("mean_uncertainty_over_run", "mean global average uncertainty", "(a) coverage efficiency"),
+        ("mean_target_time", "mean time to find a target (steps)", "(b) search efficiency"),
+        ("min_lambda2", "min lambda_2", "(c) connectivity"),
+        ("min_distance", "min inter-UAV distance (m)", "(d) collision avoidance"),
+    ]
+    for ax, (key, label, title) in zip(axes.ravel(), panels, strict=True):
+        y = [s[key] for s in summaries]
+        err = [s.get(f"{key}_ci95", 0.0) for s in summaries]
+        ax.errorbar(values, y, yerr=err, marker="o", capsize=3)
+        if key == "min_distance":
+            ax.axhline(safety, color="black", linestyle="--", label="R_s")
+            ax.legend()
+        if key == "min_lambda2":
+            ax.axhline(0.0, color="black", linestyle="--")
+        ax.set_xlabel(param)
+        ax.set_ylabel(label)
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,136 @@
+"""Files a Monte Carlo study writes: summary.json, runs.csv, curves.csv, trajectories.csv."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from companion.batch.engine import RunResult
+from companion.batch.montecarlo import summarize
+
+TRAJECTORY_COLUMNS = ("algorithm", "run", "step", "uav", "x", "y", "heading", "task")
+
+
+def write_summary(out: Path, results: Mapping[str, Sequence[RunResult]], extra: dict | None = None) -> dict:
+    """summary.json: one entry per algorithm (see `montecarlo.summarize`), plus optional metadata."""
+    summary: dict = {name: summarize(list(runs)) for name, runs in results.items()}
+    if extra:
+        summary["_meta"] = extra
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
+    """runs.csv: one row of metrics per run."""
+    with (out / "runs.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(
+            [
+                "algorithm",
+                "run",
+                "seed",
+                "steps",
+                "mean_target_time",
+                "targets_found",
+                "targets",
+                "final_uncertainty",
+                "final_coverage",
+                "min_lambda2",
+                "min_distance",
+                "seconds",
+            ]
+        )
+        for name, runs in results.items():
+            for r in runs:
+                tt = float(r.target_times().mean()) if len(r.target_steps) else 0.0
+                w.writerow(
+                    [
+                        name,
+                        r.run,
+                        r.seed,
+                        r.steps,
+                        f"{tt:.3f}",
+                        int(np.sum(r.target_steps >= 0)),
+                        len(r.target_steps),
+                        f"{r.uncertainty[-1]:.6f}",
+                        f"{r.coverage[-1]:.6f}",
+                        f"{r.lambda2.min():.6f}",
+                        f"{r.min_distance.min():.3f}",
+                        f"{r.seconds:.4f}",
+                    ]
+                )
+
+
+def mean_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over runs (rows) and the half-width of its 95 % confidence interval, per step."""
+    mean = curves.mean(axis=0)
+    if curves.shape[0] < 2:
+        return mean, np.zeros_like(mean)
+    return mean, 1.96 * curves.std(axis=0, ddof=1) / math.sqrt(curves.shape[0])
+
+
+def write_curves(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
+    """curves.csv: per algorithm and step, the mean and 95 % CI of uncertainty (eq. 30), targets found
+    and coverage, and the minimum over runs of lambda_2 and of the inter-UAV distance."""
+    with (out / "curves.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(
+            [
+                "algorithm",
+                "step",
+                "uncertainty",
+                "uncertainty_ci95",
+                "found",
+                "found_ci95",
+                "coverage",
+                "coverage_ci95",
+                "min_lambda2",
+                "min_distance",
+            ]
+        )
+        for name, runs in results.items():
+            unc, unc_ci = mean_band(np.array([r.uncertainty for r in runs]))
+            found, found_ci = mean_band(np.array([r.found for r in runs]))
+            cov, cov_ci = mean_band(np.array([r.coverage for r in runs]))
+            lam = np.min([r.lambda2 for r in runs], axis=0)
+            dist = np.min([r.min_distance for r in runs], axis=0)
+            for k in range(len(unc)):
+                w.writerow(
+                    [
+                        name,
+                        k,
+                        f"{unc[k]:.6f}",
+                        f"{unc_ci[k]:.6f}",
+                        f"{found[k]:.4f}",
+                        f"{found_ci[k]:.4f}",
+                        f"{cov[k]:.6f}",
+                        f"{cov_ci[k]:.6f}",
+                        f"{lam[k]:.6f}",
+                        f"{dist[k]:.3f}",
+                    ]
+                )
+
+
+def write_trajectories(out: Path, results: Mapping[str, Sequence[RunResult]]) -> int:
+    """trajectories.csv for every recorded run; returns the number of runs written."""
+    written = 0
+    with (out / "trajectories.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(TRAJECTORY_COLUMNS)
+        for name, runs in results.items():
+            for r in runs:
+                if r.trajectory is None or r.tasks is None:
+                    continue
+                written += 1
+                for k in range(r.steps):
+                    for i in range(r.trajectory.shape[1]):
+                        x, y, h = r.trajectory[k, i]
+                        w.writerow(
+                            [name, r.run, k, i, f"{x:.3f}", f"{y:.3f}", f"{h:.6f}", int(r.tasks[k, i])]
+                        )
+    return written

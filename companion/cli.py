@@ -1,0 +1,159 @@
+"""`uavsearch`: the project's command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from companion.mission import MissionError, load_mission
+
+
+def _mc(args: argparse.Namespace) -> int:
+    from companion.batch.experiments import compare
+
+    mission = load_mission(args.mission)
+    algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
+    seed = mission.seed if args.seed is None else args.seed
+    steps = args.steps or mission.steps
+    summary = compare(
+        mission,
+        algorithms,
+        args.runs,
+        steps,
+        seed,
+        Path(args.out),
+        args.workers,
+        args.save_trajectories,
+        not args.quiet,
+    )
+    _print_summary(summary)
+    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv and plots")
+    return 0
+
+
+def _print_summary(summary: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="Monte Carlo summary")
+    for col in (
+        "algorithm",
+        "runs",
+        "mean target time",
+        "found",
+        "final uncertainty",
+        "min lambda_2",
+        "min distance (m)",
+        "s / 1,000 steps",
+    ):
+        table.add_column(col, justify="right")
+    for name, s in summary.items():
+        if name.startswith("_"):
+            continue
+        table.add_row(
+            name,
+            str(s["runs"]),
+            f"{s['mean_target_time']:.1f} ± {s['mean_target_time_ci95']:.1f}",
+            f"{100 * s['targets_found_fraction']:.1f} %",
+            f"{s['final_mean_uncertainty']:.4f} ± {s['final_mean_uncertainty_ci95']:.4f}",
+            f"{s['min_lambda2']:.4f}",
+            f"{s['min_distance']:.1f}",
+            f"{s['seconds_per_1000_steps']:.3f}",
+        )
+    Console().print(table)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from companion.batch.experiments import sweep, sweep_values
+
+    mission = load_mission(args.mission)
+    seed = mission.seed if args.seed is None else args.seed
+    points = sweep(
+        mission,
+        args.param,
+        sweep_values(args.values),
+        args.runs,
+        args.steps or mission.steps,
+        seed,
+        Path(args.out),
+        args.workers,
+        not args.quiet,
+    )
+    for p in points:
+        print(
+            f"{args.param}={p[args.param]}: mean target time {p['mean_target_time']:.1f}, "
+            f"mean uncertainty {p['mean_uncertainty_over_run']:.4f}, min lambda_2 {p['min_lambda2']:.4f}, "
+            f"min distance {p['min_distance']:.1f} m"
+        )
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from companion.batch.experiments import bench, format_bench
+
+    missions = [load_mission(m) for m in args.missions]
+    result = bench(missions, args.runs, args.steps, args.seed, args.workers)
+    print(format_bench(result))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="uavsearch", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    mc = sub.add_parser("mc", help="Monte Carlo comparison of algorithms (the paper's Figures 8-10)")
+    mc.add_argument("--mission", required=True)
+    mc.add_argument("--algorithms", default="proposed,no-ta,pheromone")
+    mc.add_argument("--runs", type=int, default=20)
+    mc.add_argument("--steps", type=int, default=None, help="sampling moments per run (default: mission)")
+    mc.add_argument("--seed", type=int, default=None, help="default: the mission's seed")
+    mc.add_argument("--out", default="out/mc")
+    mc.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    mc.add_argument("--save-trajectories", action="store_true")
+    mc.add_argument("--quiet", action="store_true", help="no progress bar")
+    mc.set_defaults(func=_mc)
+
+    sw = sub.add_parser("sweep", help="sweep one algorithm parameter (the paper's Figure 11)")
+    sw.add_argument("--mission", required=True)
+    sw.add_argument("--param", default="n_g")
+    sw.add_argument("--values", default="10,20,30,40,50,60,70,80,90")
+    sw.add_argument("--runs", type=int, default=20)
+    sw.add_argument("--steps", type=int, default=None)
+    sw.add_argument("--seed", type=int, default=None)
+    sw.add_argument("--out", default="out/sweep")
+    sw.add_argument("--workers", type=int, default=None)
+    sw.add_argument("--quiet", action="store_true")
+    sw.set_defaults(func=_sweep)
+
+    be = sub.add_parser("bench", help="time per 1,000 sampling moments and Monte Carlo throughput")
+    be.add_argument("--missions", nargs="+", default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)])
+    be.add_argument("--runs", type=int, default=3)
+    be.add_argument("--steps", type=int, default=1000)
+    be.add_argument("--seed", type=int, default=1)
+    be.add_argument("--workers", type=int, default=None)
+    be.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    be.set_defaults(func=_bench)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except MissionError as exc:
+        print(f"error: mission file {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

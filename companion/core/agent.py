@@ -1,0 +1,288 @@
+"""The per-UAV agent: `step(observation, inbox) -> (command, outbox)`.
+
+One Agent runs the whole distributed algorithm for one UAV. It keeps its own uncertainty map and
+its knowledge of the other UAVs, and cooperates only through the messages of
+`companion.core.messages`, so the batch engine and the companion process drive it identically.
+
+Timing: the observation of step k carries the UAV's pose and camera detections at t_k; the inbox
+holds what neighbours sent at step k-1 (one step of radio latency); the command is the turn for
+[t_k, t_{k+1}], and the outbox is stamped k.
+
+Mission planning (algorithm "proposed"): a UAV without a task announces its bids (eq. 15) at step
+k; at k+1 every bidder runs the same local auction (Algorithm 2) over the bids it heard and the
+tasks not held by anyone it knows of, and takes the task the auction gives it. Claims travel
+multi-hop in ClaimsMsg; when two UAVs claim one task the lower claim priority drops it and bids
+again (synchronisation). A held task is reevaluated every step (eqs. 20-21).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import msgspec
+import numpy as np
+from numba import njit
+
+from companion.core import pheromone as phero
+from companion.core.auction import claim_priority, local_auction
+from companion.core.connectivity import kruskal_mst, mst_neighbours
+from companion.core.geometry import FloatArray
+from companion.core.messages import (
+    BidsMsg,
+    ClaimsMsg,
+    CoverageMsg,
+    Message,
+    StateMsg,
+    UavState,
+)
+from companion.core.rhc import grid_path_cells, path_expense, search_benefit, select_path
+from companion.core.tasks import keep_task, task_completion, task_income, total_cost
+from companion.core.uncertainty import apply_looks, mark_seen
+from companion.core.world import World
+
+
+class Observation(msgspec.Struct, frozen=True, kw_only=True):
+    """The UAV's own pose at step k (local frame, heading CCW from east) and its camera's detections."""
+
+    step: int
+    x: float
+    y: float
+    heading: float
+    detections: tuple[tuple[float, float], ...] = ()
+
+
+class Command(msgspec.Struct, frozen=True, kw_only=True):
+    """The first step of the chosen path: turn over the step, and the path for waypoint autopilots."""
+
+    step: int
+    turn: float
+    heading_rate: float
+    heading: float
+    waypoint: tuple[float, float]
+    path: tuple[tuple[float, float], ...]
+    task: int = -1
+
+
+@njit(cache=True)
+def predict_tracks(seqs: FloatArray, stamps: np.ndarray, first: int, count: int) -> FloatArray:
+    """Positions of UAVs at steps first..first+count-1 from their last states.
+
+    `seqs[u]` is UAV u's position at its stamp followed by its planned path; past the plan the
+    UAV is assumed to keep its last planned velocity.
+    """
+    n, length = seqs.shape[0], seqs.shape[1]
+    out = np.empty((n, count, 2))
+    for u in range(n):
+        for t in range(count):
+            i = first + t - stamps[u]
+            c = min(max(i, 0), length - 1)
+            for a in range(2):
+                out[u, t, a] = seqs[u, c, a]
+                if length >= 2:
+                    out[u, t, a] += (i - c) * (seqs[u, length - 1, a] - seqs[u, length - 2, a])
+    return out
+
+
+class Agent:
+    """The distributed cooperative search algorithm for UAV `uav` (0-based)."""
+
+    def __init__(self, world: World, uav: int) -> None:
+        m = world.mission
+        self.world, self.uav = world, uav
+        self.algorithm = m.algorithm.name
+        n = world.grid.n_cells
+        self.eta = np.full(n, m.uncertainty.eta0)
+        self._values = np.zeros(n + 1)  # padded map gathered by the RHC (eq. 25)
+        self.seen = np.zeros(n, dtype=bool)
+        self.found: set[int] = set()
+        self.peers: dict[int, UavState] = {}
+        self.rejected = 0
+        self.task = -1
+        self.task_reward = 0.0
+        self.bids: tuple[float, ...] | None = None  # announced at self.bid_stamp
+        self.bid_stamp = -1
+        tess = world.tessellation
+        self.covered = np.zeros(tess.n_tasks if tess else 0, dtype=np.int64)
+        self._labels = np.append(tess.labels, -1) if tess else np.zeros(n + 1, dtype=np.int64)
+        self.phi = np.zeros(n) if self.algorithm == "pheromone" else None
+
+    # -- inbox ---------------------------------------------------------------------------------
+    def _accept(self, msg: Message, k: int) -> bool:
+        """Messages are validated where they enter (`messages.check`); here only their timing counts."""
+        timeout = self.world.mission.comms.peer_timeout_steps
+        return msg.sender != self.uav and k - timeout <= msg.stamp <= k
+
+    def _remember(self, state: UavState) -> None:
+        old = self.peers.get(state.uav)
+        if state.uav != self.uav and (old is None or state.stamp > old.stamp):
+            self.peers[state.uav] = state
+
+    def _ingest(
+        self, inbox: Iterable[Message], k: int
+    ) -> tuple[list[np.ndarray], dict[int, tuple[float, ...]]]:
+        looks: list[np.ndarray] = []
+        bids: dict[int, tuple[float, ...]] = {}
+        for msg in inbox:
+            if not self._accept(msg, k):
+                self.rejected += 1
+                continue
+            if isinstance(msg, StateMsg):
+                self._remember(msg.state)
+            elif isinstance(msg, CoverageMsg):
+                looks.append(np.asarray(msg.cells, dtype=np.int64))
+                self.found.update(msg.detections)
+            elif isinstance(msg, BidsMsg):
+                if msg.stamp == k - 1:
+                    bids[msg.sender] = msg.rewards
+            else:
+                for state in msg.known:
+                    self._remember(state)
+        timeout = self.world.mission.comms.peer_timeout_steps
+        self.peers = {u: s for u, s in self.peers.items() if s.stamp >= k - timeout}
+        return looks, bids
+
+    # -- map -----------------------------------------------------------------------------------
+    def _update_map(self, looks: list[np.ndarray]) -> None:
+        """Eqs. 10-11 and the covered-cell count of each task (eq. 20)."""
+        cells = np.concatenate(looks)
+        apply_looks(self.eta, cells, self.world.mission.uncertainty.gamma)
+        mark_seen(self.seen, self.covered, self._labels, cells)
+
+    # -- mission planning ----------------------------------------------------------------------
+    def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> tuple[float, ...]:
+        """Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21): complete or too costly."""
+        w, tess = self.world, self.world.tessellation
+        assert tess is not None
+        a = w.mission.algorithm
+        done = self.covered > a.v_max * tess.cell_counts
+        if done.all():
+            return ()
+        cost = total_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs)
+        reward = task_income(self.eta * w.prior, tess) / cost
+        return tuple(np.where(done | (cost > a.c_max), 0.0, reward).tolist())
+
+    def _plan_task(self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict) -> bool:
+        """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step."""
+        w, tess = self.world, self.world.tessellation
+        assert tess is not None
+        a = w.mission.algorithm
+        if self.task < 0 and self.bids is not None and self.bid_stamp == k - 1:
+            bidders = [self.uav, *sorted(bids)]
+            table = np.array([self.bids, *(bids[u] for u in sorted(bids))])
+            available = np.ones(tess.n_tasks, dtype=bool)
+            for u, s in self.peers.items():
+                if s.task >= 0 and u not in bids:
+                    available[s.task] = False
+            won = local_auction(bidders, table, available).get(self.uav)
+            if won is not None:
+                self.task, self.task_reward = won
+        elif self.task >= 0:
+            mine = claim_priority(self.task_reward, self.uav)
+            lost = any(
+                s.task == self.task and claim_priority(s.task_reward, u) > mine for u, s in self.peers.items()
+            )
+            j = self.task
+            completion = task_completion(int(self.covered[j]), int(tess.cell_counts[j]))
+            cost = float(
+                total_cost(position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs)[0]
+            )
+            if lost or not keep_task(completion, cost, a.v_max, a.c_max):
+                self.task, self.task_reward = -1, 0.0
+        self.bids = None
+        if self.task < 0:
+            bids = self._my_bids(position, mst_nbrs)
+            if max(bids, default=0.0) > 0:  # nothing left to win: no auction
+                self.bids, self.bid_stamp = bids, k
+        return self.bids is not None
+
+    # -- step ----------------------------------------------------------------------------------
+    def _path_cells(self, pts: FloatArray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell under each path point, the FOV cells of each point (eq. 3), and the in-region prefix."""
+        grid = self.world.grid
+        if self.world.kinematics.mode == "grid":
+            return grid_path_cells(pts, grid.x0, grid.y0, grid.cell_size, grid.lattice, grid.fov_table)
+        cells = grid.cell_at(pts)
+        inside = np.asarray(grid.region.contains(pts[..., 0], pts[..., 1]))
+        return cells, grid.fov_cells(pts), np.cumprod(inside, axis=1).sum(axis=1)
+
+    def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """MST (eq. 26) over this UAV and the UAVs it knows of at t_k.
+
+        Returns the MST neighbours' positions at t_k and their tracks over t_k..t_{k+M}.
+        """
+        horizon = self.world.mission.algorithm.horizon
+        if not self.peers:
+            return np.zeros((0, 2)), np.zeros((0, horizon + 1, 2))
+        states = [self.peers[u] for u in sorted(self.peers)]
+        seqs = np.array([[(s.x, s.y), *s.plan] for s in states])
+        stamps = np.array([s.stamp for s in states])
+        tracks = predict_tracks(seqs, stamps, k, horizon + 1)
+        now = np.concatenate((position[None, :], tracks[:, 0, :]))
+        rows = mst_neighbours(kruskal_mst(now), 0) - 1
+        return tracks[rows, 0, :], tracks[rows]
+
+    def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
+        w, m = self.world, self.world.mission
+        grid, k, a = w.grid, obs.step, m.algorithm
+        position = np.array([obs.x, obs.y])
+        own_cells = grid.fov_cell_list(position)
+        looks, bids = self._ingest(inbox, k)
+        self._update_map([own_cells, *looks])
+        if obs.detections:
+            detected = grid.cell_at(np.array(obs.detections, dtype=float))
+            own_detections = tuple(sorted({int(c) for c in detected if c >= 0}))
+            self.found.update(own_detections)
+        else:
+            own_detections = ()
+        mst_now, nbr_tracks = self._swarm(k, position)
+        announce = self._plan_task(k, position, mst_now, bids) if self.algorithm == "proposed" else False
+
+        # RHC: eq. 24 over every path of eq. 23, eq. 22 picks the best
+        pts = w.paths.expand(obs.x, obs.y, obs.heading)
+        cells, fov, prefix = self._path_cells(pts)
+        if self.algorithm == "no-ta":
+            self._values[:-1] = self.eta * w.prior
+        elif self.phi is not None:
+            p = a.pheromone
+            self.phi = phero.step_field(
+                grid, self.phi, self.eta * w.prior, p.deposit, p.evaporation, p.diffusion
+            )
+            self._values[:-1] = self.eta + p.weight * self.phi
+        else:
+            self._values[:-1] = self.eta
+        tess = w.tessellation
+        if self.task >= 0 and tess is not None:
+            labels = self._labels[cells]  # cell -1 (outside) reads the trailing -1
+            region = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
+        else:
+            labels, region = cells, (-1, position, 1.0)
+        benefit = search_benefit(pts, fov, self._values, a.delta[0], labels, *region, a.delta[1])
+        c = m.comms
+        expense = path_expense(
+            pts, nbr_tracks, w.paths.max_step, c.range, c.attraction, c.safety, c.repulsion
+        )
+        best = select_path(a.chi[0] * benefit - a.chi[1] * expense, prefix)
+
+        turn = float(w.paths.sequences[best, 0])
+        plan = tuple((float(px), float(py)) for px, py in pts[best])
+        command = Command(
+            step=k,
+            turn=turn,
+            heading_rate=turn / w.kinematics.dt,
+            heading=w.paths.heading_after(obs.heading, best),
+            waypoint=plan[0],
+            path=plan,
+            task=self.task,
+        )
+        me = UavState(self.uav, k, obs.x, obs.y, obs.heading, plan, self.task, self.task_reward)
+        head = {"sender": self.uav, "stamp": k, "x": obs.x, "y": obs.y}
+        outbox: list[Message] = [
+            StateMsg(**head, state=me),
+            CoverageMsg(**head, cells=tuple(own_cells.tolist()), detections=own_detections),
+        ]
+        if self.peers:
+            outbox.append(ClaimsMsg(**head, known=tuple(self.peers[u] for u in sorted(self.peers))))
+        if announce:
+            assert self.bids is not None
+            outbox.append(BidsMsg(**head, rewards=self.bids))
+        return command, outbox

@@ -1,0 +1,79 @@
+"""Communication graph (eqs. 4-7), algebraic connectivity, and the Kruskal MST (eq. 26)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from companion.core.geometry import FloatArray
+
+
+def pairwise_distances(positions: FloatArray) -> FloatArray:
+    """||mu_i - mu_j|| for every pair."""
+    diff = positions[:, None, :] - positions[None, :, :]
+    return np.sqrt(np.sum(diff * diff, axis=-1))
+
+
+def weighted_adjacency(positions: FloatArray, comm_range: float) -> FloatArray:
+    """Eq. 5: A = [w_ij a_ij] with a_ij = 1 iff d_ij <= R_c and w_ij = exp(-d_ij / R_c)^3."""
+    d = pairwise_distances(positions)
+    a = (d <= comm_range) & ~np.eye(len(positions), dtype=bool)
+    return np.where(a, np.exp(-d / comm_range) ** 3, 0.0)
+
+
+def laplacian(positions: FloatArray, comm_range: float) -> FloatArray:
+    """Eqs. 4, 6, 7: L = D - A, D the diagonal degree matrix of the weighted adjacency."""
+    a = weighted_adjacency(positions, comm_range)
+    return np.diag(a.sum(axis=1)) - a
+
+
+def algebraic_connectivity(positions: FloatArray, comm_range: float) -> float:
+    """lambda_2(L): the second-smallest Laplacian eigenvalue; > 0 iff the range graph is connected."""
+    if len(positions) < 2:
+        return 0.0
+    return float(np.linalg.eigvalsh(laplacian(positions, comm_range))[1])
+
+
+@njit(cache=True)
+def kruskal_mst(positions: FloatArray) -> np.ndarray:
+    """Eq. 26: Kruskal's minimum spanning tree of the complete distance graph.
+
+    Edges are taken by increasing length, ties broken by (i, j), so every UAV that knows the same
+    positions builds the same tree. Returns the N - 1 edges as rows (i, j), i < j.
+    """
+    n = positions.shape[0]
+    m = n * (n - 1) // 2
+    ii = np.empty(m, dtype=np.int64)
+    jj = np.empty(m, dtype=np.int64)
+    dd = np.empty(m)
+    e = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            ii[e], jj[e] = i, j
+            dd[e] = math.hypot(positions[i, 0] - positions[j, 0], positions[i, 1] - positions[j, 1])
+            e += 1
+    order = np.argsort(dd, kind="mergesort")  # stable: equal lengths keep (i, j) order
+    parent = np.arange(n)
+    edges = np.empty((max(n - 1, 0), 2), dtype=np.int64)
+    taken = 0
+    for e in order:
+        a, b = ii[e], jj[e]
+        while parent[a] != a:
+            a = parent[a]
+        while parent[b] != b:
+            b = parent[b]
+        if a != b:
+            parent[a] = b
+            edges[taken, 0], edges[taken, 1] = ii[e], jj[e]
+            taken += 1
+            if taken == n - 1:
+                break
+    return edges
+
+
+def mst_neighbours(edges: np.ndarray, node: int) -> np.ndarray:
+    """Ñ_i: the nodes joined to `node` by an MST edge, ascending."""
+    found = [j if i == node else i for i, j in edges.tolist() if node in (i, j)]
+    return np.array(sorted(found), dtype=np.int64)

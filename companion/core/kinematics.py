@@ -1,0 +1,155 @@
+"""UAV kinematics (eq. 2): constant speed, bounded turn per sampling step, constant altitude.
+
+Two modes share one interface. *grid* (the paper's simulations): the UAV sits on cell centres,
+its heading is a multiple of 45 degrees, and each step it turns by a multiple of 45 degrees within
+the limit and moves to the adjacent cell in the new direction. *continuous*: eq. 2 integrated
+exactly with a constant turn rate over the step (a circular arc); `arc_advance` is the integrator
+the simulator uses at its physics rate too.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from companion.core.geometry import FloatArray
+
+_EIGHTH = math.pi / 4
+
+
+def arc_advance(
+    x: FloatArray | float,
+    y: FloatArray | float,
+    heading: FloatArray | float,
+    omega: FloatArray | float,
+    speed: float,
+    dt: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Eq. 2 integrated exactly over dt with constant turn rate omega (rad/s): a circular arc."""
+    x, y, h, w = (np.asarray(a, dtype=float) for a in (x, y, heading, omega))
+    h1 = h + w * dt
+    straight = np.abs(w) < 1e-12
+    w_safe = np.where(straight, 1.0, w)
+    dx = np.where(straight, speed * dt * np.cos(h), speed / w_safe * (np.sin(h1) - np.sin(h)))
+    dy = np.where(straight, speed * dt * np.sin(h), speed / w_safe * (np.cos(h) - np.cos(h1)))
+    return x + dx, y + dy, h1
+
+
+def wrap_angle(a: FloatArray | float) -> FloatArray:
+    """Angle wrapped to [-pi, pi)."""
+    return (np.asarray(a, dtype=float) + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """Eq. 2 per sampling step dT: turn options, one-step advance, and M-step path enumeration."""
+
+    mode: str
+    speed: float
+    dt: float
+    turn_limit: float
+    cell_size: float
+
+    @property
+    def turn_options(self) -> FloatArray:
+        """Admissible turns per step (rad), straight first: |turn| <= omega_max."""
+        if self.mode == "grid":
+            k = math.floor(self.turn_limit / _EIGHTH + 1e-9)
+            steps = [0] + [s for i in range(1, k + 1) for s in (-i, i)]
+            return np.array(steps, dtype=float) * _EIGHTH
+        return np.array([0.0, -self.turn_limit, self.turn_limit])
+
+    def turn_sequences(self, horizon: int) -> FloatArray:
+        """All turn sequences over the horizon (n_l = n_turns^M rows), fewest turns first.
+
+        The order is the deterministic tie-break of the RHC: among equal scores the straightest
+        path wins.
+        """
+        seqs = np.array(list(itertools.product(self.turn_options, repeat=horizon)), dtype=float)
+        order = np.argsort(np.sum(np.abs(seqs), axis=1), kind="stable")
+        return seqs[order]
+
+    def advance(
+        self,
+        x: FloatArray | float,
+        y: FloatArray | float,
+        heading: FloatArray | float,
+        turn: FloatArray | float,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Pose after one sampling step with the given turn (rad)."""
+        if self.mode == "grid":
+            h1 = np.round((np.asarray(heading, dtype=float) + turn) / _EIGHTH) * _EIGHTH
+            return (
+                np.asarray(x, dtype=float) + self.cell_size * np.round(np.cos(h1)),
+                np.asarray(y, dtype=float) + self.cell_size * np.round(np.sin(h1)),
+                wrap_angle(h1),
+            )
+        x1, y1, h1 = arc_advance(x, y, heading, np.asarray(turn) / self.dt, self.speed, self.dt)
+        return x1, y1, wrap_angle(h1)
+
+    def paths(
+        self, x: float, y: float, heading: float, sequences: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Eq. 23: predicted path points w(k+m|k), m = 1..M, for every turn sequence.
+
+        Returns (points of shape (n_l, M, 2), headings of shape (n_l, M)).
+        """
+        n_paths, horizon = sequences.shape
+        px, py, ph = np.full(n_paths, x), np.full(n_paths, y), np.full(n_paths, heading)
+        pts = np.empty((n_paths, horizon, 2))
+        heads = np.empty((n_paths, horizon))
+        for m in range(horizon):
+            px, py, ph = self.advance(px, py, ph, sequences[:, m])
+            pts[:, m, 0], pts[:, m, 1], heads[:, m] = px, py, ph
+        return pts, heads
+
+
+@dataclass(frozen=True)
+class PathTree:
+    """Every M-step path of eq. 23 relative to the UAV's pose, precomputed once.
+
+    Grid mode keeps one table per 45-degree heading; continuous mode keeps the paths for heading 0
+    and rotates them, since an arc of eq. 2 turns with the heading it starts from.
+    """
+
+    kinematics: Kinematics
+    sequences: FloatArray
+    offsets: FloatArray  # (headings, n_l, M, 2)
+    turned: FloatArray  # (headings, n_l, M): heading change after each step
+
+    @classmethod
+    def build(cls, kin: Kinematics, horizon: int) -> PathTree:
+        seqs = kin.turn_sequences(horizon)
+        starts = np.arange(8) * _EIGHTH if kin.mode == "grid" else np.zeros(1)
+        offsets = np.empty((len(starts), len(seqs), horizon, 2))
+        turned = np.empty((len(starts), len(seqs), horizon))
+        for i, h0 in enumerate(starts):
+            pts, heads = kin.paths(0.0, 0.0, float(h0), seqs)
+            offsets[i], turned[i] = pts, heads - h0
+        return cls(kin, seqs, offsets, turned)
+
+    @cached_property
+    def max_step(self) -> float:
+        """The longest distance a UAV can move in one step (grid: a diagonal)."""
+        return float(np.max(np.linalg.norm(self.offsets[:, :, 0, :], axis=-1)))
+
+    def _table(self, heading: float) -> int:
+        return round(heading / _EIGHTH) % 8 if self.kinematics.mode == "grid" else 0
+
+    def expand(self, x: float, y: float, heading: float) -> FloatArray:
+        """Path points w(k+m|k) of shape (n_l, M, 2) from the pose (x, y, heading)."""
+        o = self.offsets[self._table(heading)]
+        if self.kinematics.mode == "grid":
+            return o + np.array((x, y))
+        c, s = math.cos(heading), math.sin(heading)
+        return np.stack([x + c * o[..., 0] - s * o[..., 1], y + s * o[..., 0] + c * o[..., 1]], axis=-1)
+
+    def heading_after(self, heading: float, path: int, step: int = 0) -> float:
+        """Heading after `step` + 1 steps along path `path` from `heading`."""
+        i = self._table(heading)
+        start = i * _EIGHTH if self.kinematics.mode == "grid" else heading
+        return float(wrap_angle(start + self.turned[i, path, step]))

@@ -1,0 +1,124 @@
+"""Versioned mesh messages between agents: state, coverage/detections, bids and claims.
+
+Every message carries the protocol version, its sender's id, the step it was produced at (its
+sequence number) and the sender's position at that step (for range gating on receipt). Messages
+are immutable msgspec structs; `encode`/`decode` give the msgpack wire form, and `check` rejects
+anything that decodes but makes no sense for the mission (ids, sizes, non-finite numbers).
+"""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+
+PROTOCOL_VERSION = 1
+MAX_PLAN = 16
+
+
+class MessageError(ValueError):
+    """A mesh message that must be dropped, with the reason."""
+
+
+class UavState(msgspec.Struct, frozen=True, array_like=True):
+    """What a UAV tells about itself: pose at `stamp`, its planned path, and its task claim."""
+
+    uav: int
+    stamp: int
+    x: float
+    y: float
+    heading: float
+    plan: tuple[tuple[float, float], ...]
+    task: int = -1
+    task_reward: float = 0.0
+
+
+class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
+    v: int = PROTOCOL_VERSION
+    sender: int
+    stamp: int
+    x: float
+    y: float
+
+
+class StateMsg(_Header, tag="state"):
+    """The sender's own state (pose, plan, task)."""
+
+    state: UavState
+
+
+class CoverageMsg(_Header, tag="coverage"):
+    """Cells in the sender's FOV at `stamp` (eq. 11 looks) and the target cells its camera detected."""
+
+    cells: tuple[int, ...]
+    detections: tuple[int, ...] = ()
+
+
+class BidsMsg(_Header, tag="bids"):
+    """The sender's rewards R_ij for every task (eq. 15): its bids for the next local auction."""
+
+    rewards: tuple[float, ...]
+
+
+class ClaimsMsg(_Header, tag="claims"):
+    """The latest state the sender knows of other UAVs: multi-hop relay of positions and claims."""
+
+    known: tuple[UavState, ...]
+
+
+Message = StateMsg | CoverageMsg | BidsMsg | ClaimsMsg
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(Message)
+
+
+def encode(msg: Message) -> bytes:
+    return _encoder.encode(msg)
+
+
+def decode(data: bytes) -> Message:
+    """Wire bytes to a message; raises MessageError for anything malformed."""
+    try:
+        return _decoder.decode(data)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        raise MessageError(f"undecodable: {exc}") from None
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def _check_state(s: UavState, n_uavs: int, n_tasks: int) -> None:
+    if not 0 <= s.uav < n_uavs:
+        raise MessageError(f"state of unknown uav {s.uav}")
+    if s.stamp < 0 or not _finite(s.x, s.y, s.heading, s.task_reward):
+        raise MessageError(f"state of uav {s.uav}: bad stamp or non-finite value")
+    if not -1 <= s.task < n_tasks:
+        raise MessageError(f"state of uav {s.uav}: task {s.task} out of range")
+    if len(s.plan) > MAX_PLAN or not all(_finite(px, py) for px, py in s.plan):
+        raise MessageError(f"state of uav {s.uav}: bad plan")
+
+
+def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
+    """Raise MessageError unless `msg` is a well-formed message of this mission."""
+    if msg.v != PROTOCOL_VERSION:
+        raise MessageError(f"protocol version {msg.v}, expected {PROTOCOL_VERSION}")
+    if not 0 <= msg.sender < n_uavs:
+        raise MessageError(f"unknown sender {msg.sender}")
+    if msg.stamp < 0 or not _finite(msg.x, msg.y):
+        raise MessageError("bad stamp or position")
+    if isinstance(msg, StateMsg):
+        _check_state(msg.state, n_uavs, n_tasks)
+        if msg.state.uav != msg.sender:
+            raise MessageError("state of another uav in a state message")
+    elif isinstance(msg, CoverageMsg):
+        if len(msg.cells) > n_cells or any(not 0 <= c < n_cells for c in msg.cells + msg.detections):
+            raise MessageError("cell index out of range")
+    elif isinstance(msg, BidsMsg):
+        if len(msg.rewards) != n_tasks or not _finite(*msg.rewards) or min(msg.rewards, default=0) < 0:
+            raise MessageError("bids must be one finite non-negative reward per task")
+    elif isinstance(msg, ClaimsMsg):
+        if len(msg.known) > n_uavs:
+            raise MessageError("more relayed states than uavs")
+        for s in msg.known:
+            _check_state(s, n_uavs, n_tasks)

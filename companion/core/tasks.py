@@ -1,0 +1,85 @@
+"""Task evaluation (eqs. 13-18) and reevaluation (eqs. 20-21) of the mission planning system."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from companion.core.cvt import Tessellation
+from companion.core.geometry import FloatArray
+from companion.core.potential import link_cost
+
+
+class CostWeights(NamedTuple):
+    """beta_1, beta_2 (eq. 18), kappa (eq. 16), the FOV area S_A, the cell diagonal, R_c, R'_c and the
+    exponent cap of eq. 17."""
+
+    beta1: float
+    beta2: float
+    kappa: float
+    fov_area: float
+    diagonal: float
+    r_c: float
+    r_c_attr: float
+    comm_cap: float
+
+
+def task_income(importance: FloatArray, tess: Tessellation) -> FloatArray:
+    """r_ij = sum over the cells of V_j of s_{i,p,k} (income of eq. 15)."""
+    return np.bincount(tess.labels, weights=importance, minlength=tess.n_tasks)
+
+
+@njit(cache=True)
+def time_cost(position: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights) -> FloatArray:
+    """Eq. 16: C^t_ij = d_ij / sqrt(Dx^2 + Dy^2) + kappa * S_j / S_A (arrival + search)."""
+    out = np.empty(generators.shape[0])
+    for j in range(generators.shape[0]):
+        d = math.hypot(generators[j, 0] - position[0], generators[j, 1] - position[1])
+        out[j] = d / w.diagonal + w.kappa * areas[j] / w.fov_area
+    return out
+
+
+@njit(cache=True)
+def communication_cost(neighbours: FloatArray, generators: FloatArray, w: CostWeights) -> FloatArray:
+    """Eq. 17: C^c_ij = sum over MST neighbours l of (exp(max(0, (d_lj - R'_c)/(R_c - d_lj))) - 1).
+
+    Each neighbour's term saturates at exp(comm_cap) - 1: a task beyond R_c of a neighbour is
+    expensive, not impossible, since the swarm moves as a whole and the RHC (eq. 29) keeps the links.
+    """
+    out = np.zeros(generators.shape[0])
+    cap = math.expm1(w.comm_cap)
+    for j in range(generators.shape[0]):
+        for n in range(neighbours.shape[0]):
+            d = math.hypot(generators[j, 0] - neighbours[n, 0], generators[j, 1] - neighbours[n, 1])
+            out[j] += min(link_cost(d, w.r_c, w.r_c_attr), cap)
+    return out
+
+
+@njit(cache=True)
+def total_cost(
+    position: FloatArray, neighbours: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights
+) -> FloatArray:
+    """Eq. 18: C_ij = beta_1 C^t_ij + beta_2 C^c_ij for the tasks given by their generators and areas."""
+    return w.beta1 * time_cost(position, generators, areas, w) + w.beta2 * communication_cost(
+        neighbours, generators, w
+    )
+
+
+def rewards(
+    importance: FloatArray, position: FloatArray, neighbours: FloatArray, tess: Tessellation, w: CostWeights
+) -> FloatArray:
+    """Eq. 15: R_ij = r_ij / C_ij for every task j."""
+    return task_income(importance, tess) / total_cost(position, neighbours, tess.generators, tess.areas, w)
+
+
+def task_completion(covered_cells: int, task_cells: int) -> float:
+    """Eq. 20 (read as intended): v_i = S^A_{i,k} / S*_i, the covered share of the task's area."""
+    return covered_cells / task_cells if task_cells else 1.0
+
+
+def keep_task(completion: float, cost: float, v_max: float, c_max: float) -> bool:
+    """Eq. 21: the task is kept while v_i <= v_max and C*_{i,k} <= C_max."""
+    return completion <= v_max and cost <= c_max and math.isfinite(cost)

@@ -1,0 +1,92 @@
+"""Everything an agent derives from the mission before the first step: grid, prior, tasks, weights.
+
+A `World` is immutable and a pure function of (mission, seed, run index): every companion of a
+mission computes the same one, and the batch engine builds it once per run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from companion.core.cvt import Tessellation, lloyd_cvt
+from companion.core.geometry import ConvexPolygon, FloatArray, Grid
+from companion.core.kinematics import Kinematics, PathTree
+from companion.core.prior import prior_map
+from companion.core.tasks import CostWeights
+from companion.mission import Mission
+
+
+class Stream(IntEnum):
+    """Independent random streams of one mission instance."""
+
+    CVT = 0
+    TARGETS = 1
+    RADIO = 2
+    CAMERA = 3
+
+
+def instance_rng(seed: int, run: int, stream: Stream) -> np.random.Generator:
+    """The generator of one random stream of run `run` of seed `seed` (independent of any batch)."""
+    return np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(run, int(stream))))
+
+
+@dataclass(frozen=True)
+class World:
+    mission: Mission
+    grid: Grid
+    prior: FloatArray
+    kinematics: Kinematics
+    paths: PathTree
+    tessellation: Tessellation | None
+    costs: CostWeights
+
+    @property
+    def n_uavs(self) -> int:
+        return self.mission.n_uavs
+
+
+def build_grid(mission: Mission) -> Grid:
+    region = ConvexPolygon.from_vertices(mission.region.polygon)
+    return Grid.build(region, mission.region.cell_size, mission.sensor.radius)
+
+
+def build_prior(mission: Mission, grid: Grid) -> FloatArray:
+    centres = [(c.x, c.y, c.peak) for c in mission.prior.centres]
+    return prior_map(grid.centres, centres, mission.prior.sigma)
+
+
+def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> World:
+    """Grid, prior (eq. 1), kinematics (eq. 2), and for the proposed algorithm the CVT (Alg. 1)."""
+    seed = mission.seed if seed is None else seed
+    grid = build_grid(mission)
+    prior = build_prior(mission, grid)
+    k = mission.kinematics
+    kin = Kinematics(k.mode, k.speed, k.step, math.radians(k.turn_limit_deg), grid.cell_size)
+    a = mission.algorithm
+    tess = None
+    if a.name == "proposed":
+        tess = lloyd_cvt(
+            grid.centres,
+            prior,
+            a.n_g,
+            instance_rng(seed, run, Stream.CVT),
+            grid.cell_area,
+            a.lloyd_tolerance,
+            a.lloyd_max_iterations,
+        )
+    c = mission.comms
+    costs = CostWeights(
+        beta1=a.beta[0],
+        beta2=a.beta[1],
+        kappa=a.kappa,
+        fov_area=math.pi * mission.sensor.radius**2,
+        diagonal=grid.diagonal,
+        r_c=c.range,
+        r_c_attr=c.attraction,
+        comm_cap=a.comm_cost_cap,
+    )
+    return World(mission, grid, prior, kin, PathTree.build(kin, a.horizon), tess, costs)

@@ -1,0 +1,279 @@
+"""Mission files: TOML validated into typed, immutable objects.
+
+One mission file drives the batch engine, the simulator and the companions. Every user error
+(syntax, a missing or mistyped field, an inconsistent value) is raised as `MissionError`, which
+names the file, the field and the reason.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+import msgspec
+
+ALGORITHMS = ("proposed", "no-ta", "pheromone")
+
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0)]
+Probability = Annotated[float, msgspec.Meta(ge=0, le=1)]
+Port = Annotated[int, msgspec.Meta(ge=1, le=65535)]
+
+
+class MissionError(ValueError):
+    """A mission file is unusable: names the file, the field and the reason."""
+
+    def __init__(self, source: str, field: str, reason: str) -> None:
+        self.source, self.field, self.reason = source, field, reason
+        super().__init__(f"{source}: {field}: {reason}")
+
+
+class _Base(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    pass
+
+
+class Origin(_Base, kw_only=True):
+    """Geodetic origin of the local frame (x east, y north, metres)."""
+
+    lat: Annotated[float, msgspec.Meta(ge=-90, le=90)]
+    lon: Annotated[float, msgspec.Meta(ge=-180, le=180)]
+    alt: float = 0.0
+
+
+class Region(_Base, kw_only=True):
+    """Convex search polygon in local metres and the cell size of the search grid."""
+
+    polygon: list[tuple[float, float]]
+    cell_size: Positive
+    origin: Origin
+
+
+class Centre(_Base, kw_only=True):
+    """A distribution centre of eq. 1; `peak` is Pr_{p,z} at the centre (K_z / (sqrt(2 pi) sigma))."""
+
+    x: float
+    y: float
+    peak: Annotated[float, msgspec.Meta(gt=0, le=1)]
+
+
+class Prior(_Base, kw_only=True):
+    sigma: Positive
+    centres: list[Centre]
+    targets: Annotated[int, msgspec.Meta(ge=0)]
+
+
+class Sensor(_Base, kw_only=True):
+    """Downward camera: FOV radius R_A (eq. 3) and detector error rates (simulator only)."""
+
+    radius: Positive
+    false_alarm: Probability = 0.0
+    miss: Probability = 0.0
+
+
+class Kinematics(_Base, kw_only=True):
+    """Eq. 2: constant speed, turn limited to turn_limit_deg per sampling step dT."""
+
+    mode: Literal["grid", "continuous"] = "grid"
+    speed: Positive
+    step: Positive
+    turn_limit_deg: Annotated[float, msgspec.Meta(gt=0, le=180)]
+    altitude: float = 100.0
+
+
+class Comms(_Base, kw_only=True):
+    """Ranges of eqs. 5, 17, 28: R_s < R'_s < R'_c < R_c."""
+
+    range: Positive
+    attraction: Positive
+    safety: Positive
+    repulsion: Positive
+    loss: Probability = 0.0
+    peer_timeout_steps: Annotated[int, msgspec.Meta(ge=1)] = 5
+
+
+class Uncertainty(_Base, kw_only=True):
+    """Eqs. 10-11: initial uncertainty eta_0 and decay gamma per look."""
+
+    eta0: Annotated[float, msgspec.Meta(gt=0, le=1)] = 1.0
+    gamma: Annotated[float, msgspec.Meta(ge=0, lt=1)] = 0.1
+
+
+class Pheromone(_Base, kw_only=True):
+    """Pheromone baseline: deposit from importance, evaporation, diffusion, attraction weight."""
+
+    deposit: NonNegative = 1.0
+    evaporation: Probability = 0.1
+    diffusion: Probability = 0.2
+    weight: NonNegative = 1.0
+
+
+class Algorithm(_Base, kw_only=True):
+    """Algorithm name and every weight of eqs. 16-29 and Algorithm 1."""
+
+    name: Literal["proposed", "no-ta", "pheromone"] = "proposed"
+    n_g: Annotated[int, msgspec.Meta(ge=1)] = 50
+    horizon: Annotated[int, msgspec.Meta(ge=1, le=6)] = 3
+    beta: tuple[Positive, Positive] = (1.0, 1.0)
+    chi: tuple[Positive, Positive] = (1.0, 1.0)
+    delta: tuple[Positive, Positive] = (1.0, 1.0)
+    kappa: Positive = 3.0
+    v_max: Probability = 0.85
+    c_max: Positive = 300.0
+    comm_cost_cap: Positive = 3.0
+    lloyd_tolerance: Positive = 1.0
+    lloyd_max_iterations: Annotated[int, msgspec.Meta(ge=1)] = 200
+    pheromone: Pheromone = Pheromone()
+
+
+class Vehicle(_Base, kw_only=True):
+    """Start pose (heading counter-clockwise from east, degrees) and MAVLink UDP port."""
+
+    x: float
+    y: float
+    heading_deg: float = 90.0
+    mavlink_port: Port | None = None
+
+
+class Sim(_Base, kw_only=True):
+    """Simulator options: autopilot flavour, base UDP port, integration and camera rates."""
+
+    flavour: Literal["ardupilot", "px4"] = "ardupilot"
+    host: str = "127.0.0.1"
+    base_port: Port = 14560
+    physics_hz: Annotated[float, msgspec.Meta(ge=50)] = 50.0
+    camera_hz: Positive = 2.0
+    guided_timeout: Positive = 3.0
+
+
+class Mesh(_Base, kw_only=True):
+    """Zenoh mesh: mode, key prefix and loopback endpoints."""
+
+    mode: Literal["peer", "client"] = "peer"
+    key_prefix: str = "uavsearch"
+    router: str = "tcp/127.0.0.1:7447"
+    seed_endpoint: str = "tcp/127.0.0.1:7450"
+
+
+class PassCriteria(_Base, kw_only=True):
+    """What a scripted mission must achieve to pass."""
+
+    min_targets_found: Annotated[int, msgspec.Meta(ge=0)] = 0
+    require_connected: bool = True
+    require_safe_distance: bool = True
+
+
+class Mission(_Base, kw_only=True):
+    name: str
+    seed: int = 1
+    steps: Annotated[int, msgspec.Meta(ge=1)] = 1000
+    region: Region
+    prior: Prior
+    sensor: Sensor
+    kinematics: Kinematics
+    comms: Comms
+    uncertainty: Uncertainty = Uncertainty()
+    algorithm: Algorithm = Algorithm()
+    vehicles: list[Vehicle]
+    sim: Sim = Sim()
+    mesh: Mesh = Mesh()
+    pass_criteria: PassCriteria = PassCriteria()
+
+    @property
+    def n_uavs(self) -> int:
+        return len(self.vehicles)
+
+    def vehicle_port(self, index: int) -> int:
+        """The UDP port of vehicle `index`: explicit in the file, else base_port + 10 * index."""
+        port = self.vehicles[index].mavlink_port
+        return port if port is not None else self.sim.base_port + 10 * index
+
+    def with_algorithm(self, name: str | None = None, **weights: object) -> Mission:
+        """A copy with another algorithm name and/or weights."""
+        changes: dict[str, object] = dict(weights)
+        if name is not None:
+            changes["name"] = name
+        return msgspec.structs.replace(self, algorithm=msgspec.structs.replace(self.algorithm, **changes))
+
+    def with_seed(self, seed: int) -> Mission:
+        return msgspec.structs.replace(self, seed=seed)
+
+
+_PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
+
+
+def _field_from_msgspec(message: str) -> tuple[str, str]:
+    """Split msgspec's 'reason - at `$.a.b[0]`' into ('a.b[0]', 'reason')."""
+    match = _PATH_RE.search(message)
+    if not match:
+        return "(document)", message
+    return match.group("path").lstrip(".") or "(document)", message[: match.start()]
+
+
+def _validate(m: Mission, source: str) -> None:
+    def fail(field: str, reason: str) -> None:
+        raise MissionError(source, field, reason)
+
+    poly = m.region.polygon
+    if len(poly) < 3:
+        fail("region.polygon", f"needs at least 3 vertices, got {len(poly)}")
+    signs = set()
+    for i in range(len(poly)):
+        (x0, y0), (x1, y1), (x2, y2) = poly[i], poly[(i + 1) % len(poly)], poly[(i + 2) % len(poly)]
+        cross = (x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1)
+        if abs(cross) < 1e-9:
+            fail("region.polygon", f"vertices {i}..{(i + 2) % len(poly)} are collinear or repeated")
+        signs.add(cross > 0)
+    if len(signs) != 1:
+        fail("region.polygon", "the polygon is not convex")
+    c = m.comms
+    if not c.safety < c.repulsion < c.attraction < c.range:
+        fail(
+            "comms",
+            "ranges must satisfy safety (R_s) < repulsion (R'_s) < attraction (R'_c) < range (R_c); "
+            f"got {c.safety} < {c.repulsion} < {c.attraction} < {c.range}",
+        )
+    if not m.vehicles:
+        fail("vehicles", "at least one vehicle is required")
+    if not m.prior.centres:
+        fail("prior.centres", "at least one distribution centre is required")
+    from companion.core.geometry import ConvexPolygon  # local: keep module import light
+
+    region = ConvexPolygon.from_vertices(poly)
+    for i, v in enumerate(m.vehicles):
+        if not region.contains(v.x, v.y):
+            fail(f"vehicles[{i}]", f"start position ({v.x}, {v.y}) is outside region.polygon")
+    if m.kinematics.mode == "grid" and m.kinematics.turn_limit_deg < 45:
+        fail("kinematics.turn_limit_deg", "grid mode turns in 45 degree steps: the limit must be >= 45")
+    ports = [m.vehicle_port(i) for i in range(m.n_uavs)]
+    if len(set(ports)) != len(ports):
+        fail("vehicles", f"two vehicles share a MAVLink port: {ports}")
+    if math.isclose(m.region.cell_size, 0):
+        fail("region.cell_size", "must be positive")
+
+
+def parse_mission(text: str, source: str = "<mission>") -> Mission:
+    """Parse and validate mission TOML text; `source` names it in errors."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise MissionError(source, "(syntax)", str(exc)) from None
+    try:
+        mission = msgspec.convert(raw, Mission, strict=False)
+    except msgspec.ValidationError as exc:
+        field, reason = _field_from_msgspec(str(exc))
+        raise MissionError(source, field, reason) from None
+    _validate(mission, source)
+    return mission
+
+
+def load_mission(path: str | Path) -> Mission:
+    """Read and validate a mission file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise MissionError(str(p), "(file)", exc.strerror or str(exc)) from None
+    return parse_mission(text, str(p))

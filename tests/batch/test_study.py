@@ -1,0 +1,167 @@
+"""The Monte Carlo study: the paper's main claim on scenario 3, and the CLI's files."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from companion.batch.montecarlo import run_specs, specs_for, summarize
+from companion.mission import load_mission
+
+ROOT = Path(__file__).resolve().parents[2]
+SUMMARY_KEYS = {
+    "mean_target_time",
+    "targets_found_fraction",
+    "final_mean_uncertainty",
+    "min_lambda2",
+    "min_distance",
+    "seconds_per_1000_steps",
+    "runs",
+}
+
+
+def test_proposed_finds_targets_sooner_than_both_baselines_on_scenario3() -> None:
+    """Section IV: with the high-probability areas far from the start, the MPS finds targets sooner."""
+    mission = load_mission(ROOT / "mission_files/scenario3.toml")
+    runs, algorithms = 16, ("proposed", "no-ta", "pheromone")
+    results = list(run_specs(specs_for(mission, algorithms, runs, 300, 7, lambda r: False), workers=2))
+    summary = {a: summarize(results[i * runs : (i + 1) * runs]) for i, a in enumerate(algorithms)}
+    times = {a: s["mean_target_time"] for a, s in summary.items()}
+    assert times["proposed"] < times["no-ta"], times
+    assert times["proposed"] < times["pheromone"], times
+    for s in summary.values():  # Figure 11 (c), (d): connected and safe throughout
+        assert s["min_lambda2"] > 0
+        assert s["min_distance"] > mission.comms.safety
+
+
+def _uavsearch(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "companion.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=600
+    )
+
+
+def test_mc_cli_writes_summary_runs_curves_trajectories_and_plots(tmp_path: Path) -> None:
+    out = tmp_path / "mc"
+    proc = _uavsearch(
+        "mc",
+        "--mission",
+        "mission_files/scenario1.toml",
+        "--runs",
+        "2",
+        "--steps",
+        "25",
+        "--seed",
+        "3",
+        "--out",
+        str(out),
+        "--workers",
+        "2",
+        "--save-trajectories",
+        "--quiet",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    for name in ("proposed", "no-ta", "pheromone"):
+        assert set(summary[name]) >= SUMMARY_KEYS
+        assert summary[name]["runs"] == 2
+        assert 0 <= summary[name]["mean_target_time"] <= 25
+    with (out / "trajectories.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {"run", "step", "uav", "x", "y", "heading"} <= set(rows[0])
+    assert len(rows) == 3 * 2 * 25 * 4
+    with (out / "runs.csv").open() as f:
+        assert len(list(csv.DictReader(f))) == 6
+    for png in ("prior_cvt.png", "trajectories.png", "uncertainty.png", "targets_found.png"):
+        assert (out / png).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_run_is_the_same_whatever_else_is_in_the_batch(tmp_path: Path) -> None:
+    a, b = tmp_path / "a", tmp_path / "b"
+    for out, runs in ((a, "1"), (b, "3")):
+        proc = _uavsearch(
+            "mc",
+            "--mission",
+            "mission_files/scenario2.toml",
+            "--algorithms",
+            "proposed",
+            "--runs",
+            runs,
+            "--steps",
+            "20",
+            "--seed",
+            "5",
+            "--out",
+            str(out),
+            "--quiet",
+            "--workers",
+            "2",
+        )
+        assert proc.returncode == 0, proc.stderr
+    with (a / "runs.csv").open() as f:
+        first = next(csv.DictReader(f))
+    with (b / "runs.csv").open() as f:
+        same = next(r for r in csv.DictReader(f) if r["run"] == "0")
+    for key in ("mean_target_time", "final_uncertainty", "min_lambda2", "min_distance"):
+        assert first[key] == same[key]
+    traj = np.loadtxt(a / "trajectories.csv", delimiter=",", skiprows=1, usecols=(4, 5))
+    assert traj.shape == (20 * 4, 2)
+
+
+def test_sweep_cli_writes_points_and_plot(tmp_path: Path) -> None:
+    proc = _uavsearch(
+        "sweep",
+        "--mission",
+        "mission_files/scenario2.toml",
+        "--param",
+        "n_g",
+        "--values",
+        "10,30",
+        "--runs",
+        "2",
+        "--steps",
+        "20",
+        "--out",
+        str(tmp_path),
+        "--quiet",
+    )
+    assert proc.returncode == 0, proc.stderr
+    points = json.loads((tmp_path / "sweep.json").read_text())["points"]
+    assert [p["n_g"] for p in points] == [10, 30]
+    assert (tmp_path / "sweep_n_g.png").exists()
+
+
+def test_bench_cli_prints_figures(tmp_path: Path) -> None:
+    proc = _uavsearch(
+        "bench",
+        "--missions",
+        "mission_files/scenario1.toml",
+        "--runs",
+        "1",
+        "--steps",
+        "20",
+        "--workers",
+        "1",
+        "--json",
+        str(tmp_path / "bench.json"),
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "s / 1,000 steps" in proc.stdout
+    result = json.loads((tmp_path / "bench.json").read_text())
+    assert {r["algorithm"] for r in result["per_algorithm"]} == {"proposed", "no-ta", "pheromone"}
+
+
+def test_bad_mission_file_is_a_clear_error_without_traceback(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    text = (
+        (ROOT / "mission_files/scenario1.toml").read_text().replace("cell_size = 40.0", 'cell_size = "big"')
+    )
+    bad.write_text(text)
+    proc = _uavsearch("mc", "--mission", str(bad), "--runs", "1", "--steps", "5", "--out", str(tmp_path))
+    assert proc.returncode == 2
+    assert str(bad) in proc.stderr and "region.cell_size" in proc.stderr
+    assert "Traceback" not in proc.stderr
