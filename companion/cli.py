@@ -102,6 +102,43 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _companion(args: argparse.Namespace) -> int:
+    from companion.companion_main import run_companion
+
+    return run_companion(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from companion.launcher import RunOptions, run_mission
+
+    return run_mission(
+        RunOptions(
+            mission_file=Path(args.mission),
+            out=Path(args.out),
+            speedup=args.speedup,
+            lockstep=args.lockstep,
+            steps=args.steps,
+            seed=args.seed,
+            command_mode=args.command_mode,
+            flavour=args.flavour,
+            progress=not args.quiet,
+        )
+    )
+
+
+def _router(args: argparse.Namespace) -> int:
+    from companion.mesh import router_main
+
+    argv = ["--endpoint", args.endpoint] if args.endpoint else []
+    return router_main([*argv, *(["--mission", args.mission] if args.mission else [])])
+
+
+def _sim(args: argparse.Namespace) -> int:
+    from sim_vehicles.cli import run
+
+    return run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uavsearch", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -138,6 +175,49 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--workers", type=int, default=None)
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
     be.set_defaults(func=_bench)
+
+    from companion.process import COMMAND_MODES
+
+    co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
+    co.add_argument("--mission", required=True)
+    co.add_argument("--uav", type=int, required=True, help="UAV index (0-based; MAVLink system id - 1)")
+    co.add_argument(
+        "--vehicle",
+        default=None,
+        help="pymavlink connection string (udp/udpin/udpout/tcp/serial); default: the simulator",
+    )
+    co.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
+    co.add_argument(
+        "--takeover", action="store_true", help="switch the vehicle to its guided mode and arm it"
+    )
+    co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
+    co.add_argument("--steps", type=int, default=None)
+    co.add_argument("--seed", type=int, default=None)
+    co.add_argument("--out", default=None, help="directory for the step log, the report and the .tlog")
+    co.set_defaults(func=_companion)
+
+    ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")
+    ru.add_argument("mission")
+    ru.add_argument("--speedup", type=float, default=10.0)
+    ru.add_argument("--lockstep", action="store_true")
+    ru.add_argument("--steps", type=int, default=None)
+    ru.add_argument("--seed", type=int, default=None)
+    ru.add_argument("--out", default="out/run")
+    ru.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
+    ru.add_argument("--flavour", choices=("ardupilot", "px4"), default=None)
+    ru.add_argument("--quiet", action="store_true")
+    ru.set_defaults(func=_run)
+
+    ro = sub.add_parser("router", help="a Zenoh router for client-mode meshes")
+    ro.add_argument("--mission", default=None)
+    ro.add_argument("--endpoint", default=None)
+    ro.set_defaults(func=_router)
+
+    from sim_vehicles.cli import add_arguments
+
+    si = sub.add_parser("sim", help="the MAVLink fixed-wing simulator (all the mission's vehicles)")
+    add_arguments(si)
+    si.set_defaults(func=_sim)
     return parser
 
 

@@ -149,12 +149,20 @@ class Sim(_Base, kw_only=True):
 
 
 class Mesh(_Base, kw_only=True):
-    """Zenoh mesh: mode, key prefix and loopback endpoints."""
+    """Zenoh mesh: mode, key prefix and loopback endpoints (see docs/mesh.md).
+
+    `listen` is where a peer that could not claim `seed_endpoint` listens (port 0: the OS picks);
+    `connect_timeout` is how long a client waits for its router at start (seconds);
+    `max_bundle_bytes` is the largest bundle a companion sends or accepts.
+    """
 
     mode: Literal["peer", "client"] = "peer"
     key_prefix: str = "uavsearch"
     router: str = "tcp/127.0.0.1:7447"
     seed_endpoint: str = "tcp/127.0.0.1:7450"
+    listen: str = "tcp/127.0.0.1:0"
+    connect_timeout: Positive = 10.0
+    max_bundle_bytes: Annotated[int, msgspec.Meta(ge=1024)] = 1 << 20
 
 
 class PassCriteria(_Base, kw_only=True):
@@ -212,9 +220,30 @@ def _field_from_msgspec(message: str) -> tuple[str, str]:
     return match.group("path").lstrip(".") or "(document)", message[: match.start()]
 
 
+def _non_finite(value: object, path: str) -> str | None:
+    """The path of the first NaN or infinite number in a decoded mission, if any."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else path
+    if isinstance(value, msgspec.Struct):
+        for name in value.__struct_fields__:
+            found = _non_finite(getattr(value, name), f"{path}.{name}" if path else name)
+            if found:
+                return found
+    elif isinstance(value, list | tuple):
+        for i, item in enumerate(value):
+            found = _non_finite(item, f"{path}[{i}]")
+            if found:
+                return found
+    return None
+
+
 def _validate(m: Mission, source: str) -> None:
     def fail(field: str, reason: str) -> None:
         raise MissionError(source, field, reason)
+
+    bad = _non_finite(m, "")
+    if bad:
+        fail(bad, "must be a finite number")
 
     poly = m.region.polygon
     if len(poly) < 3:
@@ -226,8 +255,12 @@ def _validate(m: Mission, source: str) -> None:
         if abs(cross) < 1e-9:
             fail("region.polygon", f"vertices {i}..{(i + 2) % len(poly)} are collinear or repeated")
         signs.add(cross > 0)
-    if len(signs) != 1:
-        fail("region.polygon", "the polygon is not convex")
+    n = len(poly)
+    edges = [(poly[(i + 1) % n][0] - poly[i][0], poly[(i + 1) % n][1] - poly[i][1]) for i in range(n)]
+    directions = [math.atan2(dy, dx) for dx, dy in edges]
+    turning = sum(math.remainder(directions[(i + 1) % n] - directions[i], 2 * math.pi) for i in range(n))
+    if len(signs) != 1 or not math.isclose(abs(turning), 2 * math.pi, abs_tol=1e-6):
+        fail("region.polygon", "the polygon is not convex (or crosses itself)")
     c = m.comms
     if not c.safety < c.repulsion < c.attraction < c.range:
         fail(
@@ -261,7 +294,7 @@ def parse_mission(text: str, source: str = "<mission>") -> Mission:
     except tomllib.TOMLDecodeError as exc:
         raise MissionError(source, "(syntax)", str(exc)) from None
     try:
-        mission = msgspec.convert(raw, Mission, strict=False)
+        mission = msgspec.convert(raw, Mission)
     except msgspec.ValidationError as exc:
         field, reason = _field_from_msgspec(str(exc))
         raise MissionError(source, field, reason) from None

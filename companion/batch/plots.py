@@ -161,3 +161,21 @@ def plot_sweep(
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_links(path: Path, result: RunResult, safety: float) -> None:
+    """lambda_2 and the minimum inter-UAV distance over one run (connectivity and safety)."""
+    fig, (a, b) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    a.plot(result.lambda2)
+    a.axhline(0.0, color="black", linestyle="--")
+    a.set_ylabel("lambda_2")
+    b.plot(result.min_distance)
+    b.axhline(safety, color="black", linestyle="--", label="R_s")
+    b.set_ylabel("min distance (m)")
+    b.set_xlabel("sampling moment k")
+    b.legend()
+    for ax in (a, b):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

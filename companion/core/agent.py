@@ -35,7 +35,7 @@ from companion.core.messages import (
     StateMsg,
     UavState,
 )
-from companion.core.rhc import grid_path_cells, path_expense, search_benefit, select_path
+from companion.core.rhc import grid_path_cells, path_expense, region_key, search_benefit, select_path
 from companion.core.tasks import keep_task, task_completion, task_income, total_cost
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
@@ -81,6 +81,14 @@ def predict_tracks(seqs: FloatArray, stamps: np.ndarray, first: int, count: int)
                 if length >= 2:
                     out[u, t, a] += (i - c) * (seqs[u, length - 1, a] - seqs[u, length - 2, a])
     return out
+
+
+def _heading_at(state: UavState, k: int) -> float:
+    """A UAV's heading at step k from its last state: the planned heading of that step, else the last one."""
+    i = k - state.stamp - 1
+    if i < 0 or not state.plan_headings:
+        return state.heading
+    return state.plan_headings[min(i, len(state.plan_headings) - 1)]
 
 
 class Agent:
@@ -197,29 +205,43 @@ class Agent:
 
     # -- step ----------------------------------------------------------------------------------
     def _path_cells(self, pts: FloatArray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Cell under each path point, the FOV cells of each point (eq. 3), and the in-region prefix."""
-        grid = self.world.grid
-        if self.world.kinematics.mode == "grid":
+        """Cell under each path point, the FOV cells of each point (eq. 3), and the in-region prefix.
+
+        In continuous mode a path's last point must also leave room to turn back (a turning diameter
+        from the boundary), else the path counts one point short: three steps of eq. 2 cannot see
+        the U-turn a corner needs.
+        """
+        grid, kin = self.world.grid, self.world.kinematics
+        if kin.mode == "grid":
             return grid_path_cells(pts, grid.x0, grid.y0, grid.cell_size, grid.lattice, grid.fov_table)
         cells = grid.cell_at(pts)
-        inside = np.asarray(grid.region.contains(pts[..., 0], pts[..., 1]))
-        return cells, grid.fov_cells(pts), np.cumprod(inside, axis=1).sum(axis=1)
+        depth = -np.max(pts @ grid.region.normals.T - grid.region.offsets, axis=-1)  # metres inside
+        prefix = np.cumprod(depth >= 0, axis=1).sum(axis=1)
+        diameter = 2 * kin.speed * kin.dt / kin.turn_limit
+        prefix -= (prefix == pts.shape[1]) & (depth[:, -1] < diameter)
+        return cells, grid.fov_cells(pts), prefix
 
-    def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
         """MST (eq. 26) over this UAV and the UAVs it knows of at t_k.
 
-        Returns the MST neighbours' positions at t_k and their tracks over t_k..t_{k+M}.
+        Returns the MST neighbours' positions at t_k, their predicted tracks over t_k..t_{k+M}, every
+        position each of them can reach at t_{k+1..k+M} (its own path tree from its pose at t_k), and
+        whether this UAV yields to each (right of way to the lower id).
         """
         horizon = self.world.mission.algorithm.horizon
+        n_paths = self.world.paths.sequences.shape[0]
         if not self.peers:
-            return np.zeros((0, 2)), np.zeros((0, horizon + 1, 2))
+            empty = np.zeros((0, n_paths, horizon, 2))
+            return np.zeros((0, 2)), np.zeros((0, horizon + 1, 2)), empty, np.zeros(0, dtype=np.bool_)
         states = [self.peers[u] for u in sorted(self.peers)]
         seqs = np.array([[(s.x, s.y), *s.plan] for s in states])
         stamps = np.array([s.stamp for s in states])
         tracks = predict_tracks(seqs, stamps, k, horizon + 1)
         now = np.concatenate((position[None, :], tracks[:, 0, :]))
         rows = mst_neighbours(kruskal_mst(now), 0) - 1
-        return tracks[rows, 0, :], tracks[rows]
+        reach = np.array([self.world.paths.expand(*tracks[r, 0], _heading_at(states[r], k)) for r in rows])
+        yields = np.array([states[r].uav < self.uav for r in rows], dtype=np.bool_)
+        return tracks[rows, 0, :], tracks[rows], reach.reshape(len(rows), n_paths, horizon, 2), yields
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
         w, m = self.world, self.world.mission
@@ -234,7 +256,7 @@ class Agent:
             self.found.update(own_detections)
         else:
             own_detections = ()
-        mst_now, nbr_tracks = self._swarm(k, position)
+        mst_now, nbr_tracks, nbr_reach, yields = self._swarm(k, position)
         announce = self._plan_task(k, position, mst_now, bids) if self.algorithm == "proposed" else False
 
         # RHC: eq. 24 over every path of eq. 23, eq. 22 picks the best
@@ -258,13 +280,15 @@ class Agent:
             labels, region = cells, (-1, position, 1.0)
         benefit = search_benefit(pts, fov, self._values, a.delta[0], labels, *region, a.delta[1])
         c = m.comms
-        expense = path_expense(
-            pts, nbr_tracks, w.paths.max_step, c.range, c.attraction, c.safety, c.repulsion
+        expense, violation = path_expense(
+            pts, nbr_tracks, nbr_reach, yields, c.range, c.attraction, c.safety, c.repulsion
         )
-        best = select_path(a.chi[0] * benefit - a.chi[1] * expense, prefix)
+        region = region_key(prefix, pts, grid.region.normals, grid.region.offsets, grid.cell_size)
+        best = select_path(a.chi[0] * benefit - a.chi[1] * expense, region, violation)
 
         turn = float(w.paths.sequences[best, 0])
         plan = tuple((float(px), float(py)) for px, py in pts[best])
+        plan_headings = tuple(w.paths.heading_after(obs.heading, best, m) for m in range(len(plan)))
         command = Command(
             step=k,
             turn=turn,
@@ -274,7 +298,9 @@ class Agent:
             path=plan,
             task=self.task,
         )
-        me = UavState(self.uav, k, obs.x, obs.y, obs.heading, plan, self.task, self.task_reward)
+        me = UavState(
+            self.uav, k, obs.x, obs.y, obs.heading, plan, self.task, self.task_reward, plan_headings
+        )
         head = {"sender": self.uav, "stamp": k, "x": obs.x, "y": obs.y}
         outbox: list[Message] = [
             StateMsg(**head, state=me),

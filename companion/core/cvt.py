@@ -72,13 +72,13 @@ def lloyd_cvt(
     generators = initial_generators(centres, density, n_g, rng)
     labels = voronoi_labels(centres, generators)
     iterations = 0
-    for iterations in range(1, max_iterations + 1):  # noqa: B007 - the count is reported
+    while iterations < max_iterations:
         centroids = mass_centroids(centres, density, labels, generators)
-        move = float(np.mean(np.linalg.norm(centroids - generators, axis=1)))
+        if float(np.mean(np.linalg.norm(centroids - generators, axis=1))) < tolerance:
+            break
         generators = centroids
         labels = voronoi_labels(centres, generators)
-        if move < tolerance:
-            break
+        iterations += 1
     return describe(centres, generators, labels, cell_area, iterations)
 
 

@@ -21,7 +21,8 @@ class MessageError(ValueError):
 
 
 class UavState(msgspec.Struct, frozen=True, array_like=True):
-    """What a UAV tells about itself: pose at `stamp`, its planned path, and its task claim."""
+    """What a UAV tells about itself: pose at `stamp`, its planned path (points and the heading at
+    each), and its task claim."""
 
     uav: int
     stamp: int
@@ -31,6 +32,7 @@ class UavState(msgspec.Struct, frozen=True, array_like=True):
     plan: tuple[tuple[float, float], ...]
     task: int = -1
     task_reward: float = 0.0
+    plan_headings: tuple[float, ...] = ()
 
 
 class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
@@ -97,6 +99,8 @@ def _check_state(s: UavState, n_uavs: int, n_tasks: int) -> None:
         raise MessageError(f"state of uav {s.uav}: task {s.task} out of range")
     if len(s.plan) > MAX_PLAN or not all(_finite(px, py) for px, py in s.plan):
         raise MessageError(f"state of uav {s.uav}: bad plan")
+    if len(s.plan_headings) > len(s.plan) or not _finite(*s.plan_headings):
+        raise MessageError(f"state of uav {s.uav}: bad plan headings")
 
 
 def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:

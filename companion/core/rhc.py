@@ -69,39 +69,60 @@ def search_benefit(
 def path_expense(
     points: FloatArray,
     neighbour_tracks: FloatArray,
-    reach: float,
+    neighbour_reach: FloatArray,
+    yields_to: np.ndarray,
     r_c: float,
     r_c_attr: float,
     r_s: float,
     r_s_rep: float,
-) -> FloatArray:
-    """Eq. 29: J^B = sum_m sum_{j in MST neighbours} F(d~_{j,m}) with F of eq. 28.
+) -> tuple[FloatArray, FloatArray]:
+    """Eq. 29: J^B = sum_m sum_{j in MST neighbours} F(d~_{j,m}) with F of eq. 28, and the first step's
+    violation of the hard limits.
 
     `neighbour_tracks` (n_j, M + 1, 2) holds each MST neighbour's position at t_k and its predicted
-    positions at t_{k+1..k+M}. Both UAVs replan every step, so a neighbour may leave its predicted
-    track. The repulsion term at step m uses the smaller of the predicted distance and the worst
-    case (the neighbour moved m * `reach` straight towards w(k+m|k)); the attraction term of the
-    first step uses the larger of the predicted distance and the worst case (the neighbour moved
-    `reach` straight away). So a path whose first step scores no barrier keeps every MST link
-    within R_c and every MST neighbour beyond R_s at t_{k+1}, whatever the neighbour does.
+    positions at t_{k+1..k+M}; `neighbour_reach` (n_j, n_l, M, 2) every position it can reach at
+    t_{k+1..k+M} (its own path tree). Both UAVs replan every step, so a neighbour may leave its
+    predicted track. In the expense, the repulsion at step m uses the smaller of the predicted
+    distance and the distance to the neighbour's position at t_k less m + 1 steps of its travel, and
+    the first step's attraction the larger of the predicted distance and that distance plus one
+    step: UAVs keep room to manoeuvre around each other.
+
+    The first-step violation (metres beyond R_c or inside R_s, summed over the MST neighbours), which
+    `select_path` minimises before the score, gives right of way to the lower UAV id: against a
+    neighbour it yields to (`yields_to[j]`) it uses the nearest and farthest positions the neighbour
+    can reach at t_{k+1}, so a first step without violation keeps the link and the safety distance
+    whatever the other does; against the others it uses the predicted distance, which the yielding
+    neighbour guarantees. The asymmetry also breaks the symmetric deadlocks of two UAVs that block
+    each other.
+
+    Returns (J^B per path, first-step violation per path).
     """
     n_paths, horizon = points.shape[0], points.shape[1]
+    n_reach = neighbour_reach.shape[1]
     out = np.zeros(n_paths)
-    for i in range(n_paths):
-        total = 0.0
-        for j in range(neighbour_tracks.shape[0]):
+    violation = np.zeros(n_paths)
+    for j in range(neighbour_tracks.shape[0]):
+        step = 0.0  # how far the neighbour can move in one step
+        for q in range(n_reach):
+            step = max(step, math.hypot(neighbour_reach[j, q, 0, 0] - neighbour_tracks[j, 0, 0],
+                                        neighbour_reach[j, q, 0, 1] - neighbour_tracks[j, 0, 1]))
+        for i in range(n_paths):
             for m in range(horizon):
-                dx = points[i, m, 0] - neighbour_tracks[j, m + 1, 0]
-                dy = points[i, m, 1] - neighbour_tracks[j, m + 1, 1]
-                d = math.sqrt(dx * dx + dy * dy)
-                nx = points[i, m, 0] - neighbour_tracks[j, 0, 0]
-                ny = points[i, m, 1] - neighbour_tracks[j, 0, 1]
-                from_now = math.sqrt(nx * nx + ny * ny)
-                d_safe = min(d, from_now - (m + 1) * reach)
-                d_link = max(d, from_now + reach) if m == 0 else d
-                total += link_cost(d_link, r_c, r_c_attr) + safety_cost(d_safe, r_s, r_s_rep)
-        out[i] = total
-    return out
+                px, py = points[i, m, 0], points[i, m, 1]
+                d = math.hypot(px - neighbour_tracks[j, m + 1, 0], py - neighbour_tracks[j, m + 1, 1])
+                from_now = math.hypot(px - neighbour_tracks[j, 0, 0], py - neighbour_tracks[j, 0, 1])
+                d_safe = min(d, from_now - (m + 1) * step)
+                d_link = max(d, from_now + step) if m == 0 else d
+                out[i] += link_cost(d_link, r_c, r_c_attr) + safety_cost(d_safe, r_s, r_s_rep)
+                if m == 0:
+                    nearest, farthest = d, d
+                    if yields_to[j]:
+                        for q in range(n_reach):
+                            e = math.hypot(px - neighbour_reach[j, q, 0, 0], py - neighbour_reach[j, q, 0, 1])
+                            nearest = min(nearest, e)
+                            farthest = max(farthest, e)
+                    violation[i] += max(0.0, farthest - r_c) + max(0.0, r_s - nearest)
+    return out, violation
 
 
 @njit(cache=True)
@@ -131,15 +152,31 @@ def grid_path_cells(
     return cells, fov, prefix
 
 
-@njit(cache=True)
-def select_path(scores: FloatArray, prefix: IntArray) -> int:
-    """Eq. 22: the best-scoring path among those that stay in the region longest (all M steps if any).
+def region_key(prefix: IntArray, points: FloatArray, normals: FloatArray, offsets: FloatArray,
+               cell_size: float) -> FloatArray:
+    """How well each path keeps to the region (the region constraint of eq. 23): its in-region prefix
+    (M when it never leaves), and for a path whose first point is outside, minus the distance its
+    points lie beyond the boundary (summed, in cells), so that a UAV outside turns back at once."""
+    beyond = np.maximum(np.max(points @ normals.T - offsets, axis=-1), 0.0).sum(axis=1)
+    return prefix - np.where(prefix == 0, beyond / cell_size, 0.0)
 
-    Ties go to the first path in enumeration order (the straightest).
+
+@njit(cache=True)
+def select_path(scores: FloatArray, region: FloatArray, violation: FloatArray) -> int:
+    """Eq. 22 under the hard constraints, in order: the paths with the best `region_key` (all M steps
+    in the region when possible); among them those whose first step violates the link and safety
+    limits least (not at all when possible); among them the best score. Ties go to the first path
+    (the straightest).
     """
-    longest = prefix.max()
+    best_region = region.max()
+    least = np.inf
+    for i in range(scores.shape[0]):
+        if region[i] >= best_region - 1e-9:
+            least = min(least, violation[i])
     best = -1
     for i in range(scores.shape[0]):
-        if prefix[i] == longest and (best < 0 or scores[i] > scores[best]):
+        if region[i] >= best_region - 1e-9 and violation[i] <= least + 1e-9 and (
+            best < 0 or scores[i] > scores[best]
+        ):
             best = i
     return best

@@ -1,0 +1,64 @@
+"""`uavsearch companion`: wires the MAVLink link, the Zenoh mesh and the camera feed to the Agent."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from companion.camera_feed import CameraFeed
+from companion.core.world import Stream, build_world, instance_rng
+from companion.frames import LocalFrame
+from companion.mesh import Mesh
+from companion.mission import load_mission
+from companion.process import Companion, CompanionOptions, camera_key_of, default_vehicle_url
+from companion.vehicle_link import LinkError, VehicleLink
+
+
+def run_companion(args: argparse.Namespace) -> int:
+    """Run one companion until its step budget is spent or SIGINT/SIGTERM; 0 on a clean stop."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    mission = load_mission(args.mission)
+    if not 0 <= args.uav < mission.n_uavs:
+        print(f"error: --uav {args.uav}: the mission has UAVs 0..{mission.n_uavs - 1}", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else None
+    opts = CompanionOptions(
+        mission=mission,
+        uav=args.uav,
+        vehicle_url=args.vehicle or default_vehicle_url(mission, args.uav),
+        command_mode=args.command_mode,
+        takeover=args.takeover,
+        lockstep=args.lockstep,
+        seed=args.seed,
+        steps=args.steps,
+        out=out,
+    )
+    stop = threading.Event()
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: stop.set())
+    seed = mission.seed if args.seed is None else args.seed
+    world = build_world(mission, seed, 0)
+    n_tasks = world.tessellation.n_tasks if world.tessellation else 0
+    frame = LocalFrame(mission.region.origin)
+    loss_rng = instance_rng(seed, 1000 + args.uav, Stream.RADIO)
+    link = VehicleLink(opts.vehicle_url, frame, out / f"uav{args.uav}.tlog" if out else None)
+    try:
+        with Mesh(mission, args.uav, world.grid.n_cells, n_tasks, loss_rng) as mesh:
+            camera = CameraFeed(
+                mesh.session, camera_key_of(mission, args.uav), args.uav, mission.n_uavs, frame
+            )
+            companion = Companion(opts, link, mesh, camera)
+            try:
+                return companion.run(stop)
+            except LinkError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 1
+            finally:
+                companion.close()
+                camera.close()
+    finally:
+        link.close()

@@ -1,0 +1,128 @@
+"""Scoring a distributed run from what the companions logged and the simulator's truth record.
+
+The companions log, per step, their pose, task and mean uncertainty (`uav{i}.csv`); the simulator
+writes the ground-truth targets (`truth.json`). From these the evaluator rebuilds a `RunResult`,
+so a flown mission is summarised, plotted and compared exactly like a batch-engine run.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from companion.batch.engine import RunResult
+from companion.core.connectivity import algebraic_connectivity, pairwise_distances
+from companion.core.world import World
+
+
+def read_logs(out: Path, n_uavs: int) -> dict[int, dict[int, dict[str, float]]]:
+    """{uav: {step: row}} from the companions' uav{i}.csv logs (missing files give empty logs)."""
+    logs: dict[int, dict[int, dict[str, float]]] = {}
+    for i in range(n_uavs):
+        rows: dict[int, dict[str, float]] = {}
+        path = out / f"uav{i}.csv"
+        if path.exists():
+            with path.open(newline="") as f:
+                for row in csv.DictReader(f):
+                    try:
+                        rows[int(row["step"])] = {k: float(v) for k, v in row.items()}
+                    except (TypeError, ValueError):  # a line cut short by a kill
+                        continue
+        logs[i] = rows
+    return logs
+
+
+def truth_cells(path: Path) -> np.ndarray:
+    """Target cells from the simulator's evaluation record."""
+    data = json.loads(path.read_text())
+    return np.array(sorted(int(t["cell"]) for t in data["targets"]), dtype=np.int64)
+
+
+def logged_span(logs: dict[int, dict[int, dict[str, float]]]) -> range:
+    """The steps to score: from the first step every UAV has logged (the mission starts when the
+    whole swarm is up) to the last step any UAV logged."""
+    started = [min(rows) for rows in logs.values() if rows]
+    if len(started) < len(logs):
+        return range(0)
+    return range(max(started), max(max(rows) for rows in logs.values()) + 1)
+
+
+def evaluate(
+    world: World, logs: dict[int, dict[int, dict[str, float]]], targets: np.ndarray, seconds: float, seed: int
+) -> RunResult:
+    """A RunResult of the flown mission: eq. 30, targets found, coverage, lambda_2, min distance.
+
+    Step 0 of the result is the first step every companion logged. A UAV whose log stops (a killed
+    companion) keeps its last logged pose for the link metrics, and its last mean uncertainty; the
+    vehicle itself keeps flying under its autopilot.
+    """
+    m = world.mission
+    n = m.n_uavs
+    span = logged_span(logs)
+    steps = len(span)
+    traj = np.zeros((steps, n, 3))
+    tasks = np.full((steps, n), -1, dtype=np.int64)
+    unc = np.zeros(steps)
+    last: dict[int, dict[str, float]] = {}
+    for k, step in enumerate(span):
+        etas = []
+        for i in range(n):
+            row = logs[i].get(step) or last.get(i)
+            if row is None:
+                continue
+            last[i] = row
+            traj[k, i] = (row["x"], row["y"], row["heading"])
+            tasks[k, i] = int(row["task"])
+            etas.append(row["mean_eta"])
+        unc[k] = float(np.mean(etas)) if etas else 1.0
+    target_xy = world.grid.centres[targets]
+    first = np.full(len(targets), -1)
+    covered = np.zeros(world.grid.n_cells + 1, dtype=bool)
+    found, cov, lam, mind = (np.zeros(steps) for _ in range(4))
+    r_a2 = m.sensor.radius**2 + 1e-6
+    for k in range(steps):
+        pos = traj[k, :, :2]
+        d2 = np.sum((pos[:, None, :] - target_xy[None, :, :]) ** 2, axis=-1)
+        first[(first < 0) & (d2 <= r_a2).any(axis=0)] = k
+        found[k] = np.count_nonzero(first >= 0)
+        covered[world.grid.fov_cells(pos).ravel()] = True
+        cov[k] = covered[:-1].mean()
+        lam[k] = algebraic_connectivity(pos, m.comms.range)
+        d = pairwise_distances(pos)
+        mind[k] = float(d[~np.eye(n, dtype=bool)].min()) if n > 1 else math.inf
+    return RunResult(
+        algorithm=m.algorithm.name,
+        run=0,
+        seed=seed,
+        steps=steps,
+        uncertainty=unc,
+        found=found,
+        coverage=cov,
+        lambda2=lam,
+        min_distance=mind,
+        target_cells=targets,
+        target_steps=first,
+        seconds=seconds,
+        trajectory=traj,
+        tasks=tasks,
+    )
+
+
+def failed_criteria(world: World, result: RunResult) -> list[str]:
+    """The mission file's pass criteria that the run did not meet (empty: passed)."""
+    m, c = world.mission, world.mission.pass_criteria
+    failures = []
+    found = int(np.count_nonzero(result.target_steps >= 0))
+    if found < min(c.min_targets_found, len(result.target_cells)):
+        failures.append(f"targets found {found} < {c.min_targets_found}")
+    if c.require_connected and result.steps and result.lambda2.min() <= 0:
+        failures.append(f"network disconnected (min lambda_2 = {result.lambda2.min():.4f})")
+    if c.require_safe_distance and result.steps and result.min_distance.min() <= m.comms.safety:
+        failures.append(f"min distance {result.min_distance.min():.1f} m <= R_s = {m.comms.safety} m")
+    if result.steps == 0:
+        failures.append("no step was flown")
+    return failures

@@ -1,0 +1,233 @@
+"""`uavsearch run`: the whole swarm with one command.
+
+Starts the simulator, a Zenoh router when the mission's mesh is in client mode, and one companion
+per UAV, each as a subprocess; shows live progress; ends when every target is found or after K
+steps; stops every child; scores the run against the simulator's truth record and writes the
+batch engine's files (summary.json, trajectories.csv, plots) plus one MAVLink .tlog per vehicle.
+Exits 1 when the mission's pass criteria fail.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from companion.batch import plots, report
+from companion.core.connectivity import algebraic_connectivity, pairwise_distances
+from companion.core.world import World, build_world
+from companion.evaluation import evaluate, failed_criteria, read_logs, truth_cells
+from companion.mission import load_mission
+
+START_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 15.0
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    mission_file: Path
+    out: Path
+    speedup: float = 10.0
+    lockstep: bool = False
+    steps: int | None = None
+    seed: int | None = None
+    command_mode: str = "turn-rate"
+    flavour: str | None = None
+    progress: bool = True
+
+
+class Children:
+    """The subprocesses this launcher started, stopped by PID and never left behind."""
+
+    def __init__(self) -> None:
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, argv: list[str], log: Path) -> subprocess.Popen:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        with log.open("w") as f:
+            proc = subprocess.Popen(argv, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        self.procs[name] = proc
+        return proc
+
+    def stop(self) -> None:
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        for proc in self.procs.values():
+            try:
+                proc.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def _wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if log.exists() and text in log.read_text(errors="replace"):
+            return
+        if proc.poll() is not None:
+            raise RuntimeError(
+                f"{log.name}: exited with {proc.returncode}:\n{log.read_text(errors='replace')}"
+            )
+        time.sleep(0.1)
+    raise RuntimeError(f"{log.name}: '{text}' not seen within {timeout:.0f} s")
+
+
+def _live_line(world: World, logs: dict, targets: np.ndarray) -> tuple[str, int]:
+    m = world.mission
+    latest = [rows[max(rows)] for rows in logs.values() if rows]
+    if not latest:
+        return "waiting for the companions", 0
+    step = int(min(r["step"] for r in latest))
+    pos = np.array([(r["x"], r["y"]) for r in latest])
+    xy = world.grid.centres[targets]
+    seen = np.zeros(len(targets), dtype=bool)
+    for rows in logs.values():
+        if rows:
+            p = np.array([(r["x"], r["y"]) for r in rows.values()])
+            seen |= (np.sum((p[:, None, :] - xy[None, :, :]) ** 2, axis=-1) <= m.sensor.radius**2 + 1e-6).any(
+                axis=0
+            )
+    found = int(seen.sum())
+    unc = float(np.mean([r["mean_eta"] for r in latest]))
+    lam = algebraic_connectivity(pos, m.comms.range) if len(pos) > 1 else 0.0
+    d = pairwise_distances(pos)
+    mind = float(d[~np.eye(len(pos), dtype=bool)].min()) if len(pos) > 1 else float("inf")
+    line = (
+        f"step {step:5d}  targets {found}/{len(targets)}  mean uncertainty {unc:.4f}  "
+        f"lambda_2 {lam:.4f}  min distance {mind:7.1f} m"
+    )
+    return line, found
+
+
+def run_mission(opts: RunOptions) -> int:
+    """Fly the mission end to end; returns the process exit code."""
+    mission = load_mission(opts.mission_file)
+    seed = mission.seed if opts.seed is None else opts.seed
+    steps = opts.steps or mission.steps
+    out = opts.out
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in out.glob("uav*.*"):
+        stale.unlink()
+    world = build_world(mission, seed, 0)
+    py = sys.executable
+    children = Children()
+    stop = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    started = time.monotonic()
+    try:
+        if mission.mesh.mode == "client":
+            router = children.start(
+                "router",
+                [py, "-m", "companion.cli", "router", "--mission", str(opts.mission_file)],
+                out / "router.log",
+            )
+            _wait_for_line(out / "router.log", "router listening", router, START_TIMEOUT_S)
+        for i in range(mission.n_uavs):
+            argv = [
+                py,
+                "-m",
+                "companion.cli",
+                "companion",
+                "--mission",
+                str(opts.mission_file),
+                "--uav",
+                str(i),
+                "--takeover",
+                "--steps",
+                str(steps),
+                "--seed",
+                str(seed),
+                "--out",
+                str(out),
+                "--command-mode",
+                opts.command_mode,
+            ]
+            if opts.lockstep:
+                argv.append("--lockstep")
+            children.start(f"companion{i}", argv, out / f"companion{i}.log")
+        for i in range(mission.n_uavs):  # companions first: each waits for its vehicle's heartbeat
+            proc = children.procs[f"companion{i}"]
+            _wait_for_line(out / f"companion{i}.log", "waiting for the vehicle", proc, START_TIMEOUT_S)
+        sim_argv = [
+            py,
+            "-m",
+            "sim_vehicles",
+            "--mission",
+            str(opts.mission_file),
+            "--seed",
+            str(seed),
+            "--truth",
+            str(out / "truth.json"),
+            "--speedup",
+            str(opts.speedup),
+        ]
+        if opts.lockstep:
+            sim_argv.append("--lockstep")
+        if opts.flavour:
+            sim_argv += ["--flavour", opts.flavour]
+        sim = children.start("sim", sim_argv, out / "sim.log")
+        _wait_for_line(out / "sim.log", f"vehicle {mission.n_uavs - 1} ", sim, START_TIMEOUT_S)
+        targets = truth_cells(out / "truth.json")
+        last_print = 0.0
+        while not stop.is_set():
+            time.sleep(0.5)
+            logs = read_logs(out, mission.n_uavs)
+            line, found = _live_line(world, logs, targets)
+            if opts.progress and time.monotonic() - last_print >= 2.0:
+                print(line, flush=True)
+                last_print = time.monotonic()
+            companions = [p for n, p in children.procs.items() if n.startswith("companion")]
+            if found == len(targets) or all(p.poll() is not None for p in companions):
+                break
+            if sim.poll() is not None:
+                print("error: the simulator stopped", file=sys.stderr)
+                break
+    finally:
+        children.stop()
+        for s, h in previous.items():
+            signal.signal(s, h)
+    result = evaluate(world, read_logs(out, mission.n_uavs), targets, time.monotonic() - started, seed)
+    if result.steps == 0:
+        print(
+            "error: no step was flown (see the companion and sim logs in the output directory)",
+            file=sys.stderr,
+        )
+        return 1
+    name = mission.algorithm.name
+    summary = report.write_summary(
+        out,
+        {name: [result]},
+        {"mission": mission.name, "seed": seed, "distributed": True, "lockstep": opts.lockstep},
+    )
+    report.write_trajectories(out, {name: [result]})
+    plots.plot_prior(out / "prior_cvt.png", world)
+    plots.plot_trajectories(out / "trajectories.png", {name: world}, {name: result})
+    plots.plot_uncertainty(out / "uncertainty.png", {name: [result]})
+    plots.plot_found(out / "targets_found.png", {name: [result]})
+    plots.plot_links(out / "links.png", result, mission.comms.safety)
+    failures = failed_criteria(world, result)
+    s = summary[name]
+    print(
+        f"{mission.name}: {result.steps} steps, targets found {int(np.sum(result.target_steps >= 0))}/"
+        f"{len(targets)}, mean target time {s['mean_target_time']:.1f}, min lambda_2 {s['min_lambda2']:.4f}, "
+        f"min distance {s['min_distance']:.1f} m"
+    )
+    (out / "criteria.json").write_text(
+        json.dumps({"passed": not failures, "failures": failures}, indent=2) + "\n"
+    )
+    if failures:
+        print("pass criteria FAILED: " + "; ".join(failures), file=sys.stderr)
+        return 1
+    print(f"pass criteria met; wrote {out}")
+    return 0

@@ -1,0 +1,355 @@
+"""The companion's peer-to-peer mesh over eclipse-zenoh: outbox out, validated and range-gated inbox in.
+
+Each step a UAV puts one `Bundle` (its whole outbox, msgpack) on `{prefix}/{mission}/uav/{i}/msg`.
+Receipt runs in a Zenoh callback thread: every sample is size-checked, decoded and validated
+(`check_bundle`); anything malformed is dropped and counted, nothing raises. Valid bundles wait in
+a small per-sender buffer until `inbox(k)` takes those stamped k-1 and applies the batch engine's
+radio: range gating at R_c and optional loss. Liveliness tokens on `{prefix}/{mission}/alive/{i}`
+tell who is alive. `run_router`/`router_main` run a Zenoh router for client mode.
+See docs/mesh.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from types import FrameType
+from typing import Annotated, Any
+
+import msgspec
+import numpy as np
+import zenoh
+
+from companion.core.messages import PROTOCOL_VERSION, Message, MessageError, check
+from companion.mission import Mission, MissionError, load_mission
+from companion.zenoh_config import MeshConfig, open_session, router_config
+
+MAX_BUNDLE_MESSAGES = 32
+HELD_STAMPS = 8  # bundles kept per sender (bounds memory whatever peers send)
+DEFAULT_ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+class Bundle(msgspec.Struct, frozen=True, kw_only=True):
+    """One UAV's outbox of one step: header (version, sender, stamp, position) and its messages."""
+
+    v: int = PROTOCOL_VERSION
+    sender: int
+    stamp: int
+    x: float
+    y: float
+    messages: Annotated[tuple[Message, ...], msgspec.Meta(max_length=MAX_BUNDLE_MESSAGES)] = ()
+
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(Bundle)
+
+
+def encode_bundle(bundle: Bundle) -> bytes:
+    return _encoder.encode(bundle)
+
+
+def decode_bundle(data: bytes) -> Bundle:
+    """Wire bytes to a bundle; raises MessageError for anything undecodable."""
+    try:
+        return _decoder.decode(data)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        raise MessageError(f"undecodable bundle: {exc}") from None
+
+
+def check_bundle(bundle: Bundle, n_uavs: int, n_cells: int, n_tasks: int) -> None:
+    """Raise MessageError unless the header is sane and every message is valid and matches it."""
+    if bundle.v != PROTOCOL_VERSION:
+        raise MessageError(f"bundle version {bundle.v}, expected {PROTOCOL_VERSION}")
+    if not 0 <= bundle.sender < n_uavs:
+        raise MessageError(f"unknown sender {bundle.sender}")
+    if bundle.stamp < 0 or not (math.isfinite(bundle.x) and math.isfinite(bundle.y)):
+        raise MessageError("bad stamp or position")
+    for msg in bundle.messages:
+        check(msg, n_uavs, n_cells, n_tasks)
+        if (msg.sender, msg.stamp, msg.x, msg.y) != (bundle.sender, bundle.stamp, bundle.x, bundle.y):
+            raise MessageError("message header differs from its bundle's")
+
+
+@dataclass
+class MeshStats:
+    """Receipt counters. Bundles: received (valid, from peers), malformed (dropped samples:
+    oversized, undecodable, wrong version, key or sender, failed validation), stale (too old for
+    their step, or evicted), duplicates (a second bundle for one sender and stamp).
+    Messages: out_of_range (sender beyond R_c), lost (simulated loss)."""
+
+    received: int = 0
+    malformed: int = 0
+    out_of_range: int = 0
+    lost: int = 0
+    stale: int = 0
+    duplicates: int = 0
+
+
+class Mesh:
+    """UAV `uav`'s mesh adapter: a context manager holding one Zenoh session.
+
+    `n_cells`/`n_tasks` size the validation of incoming messages (n_uavs is `mission.n_uavs`);
+    `rng` draws the simulated loss and is required when `mission.comms.loss > 0`; `config`
+    overrides `MeshConfig.from_mission(mission)`.
+    """
+
+    def __init__(
+        self,
+        mission: Mission,
+        uav: int,
+        n_cells: int,
+        n_tasks: int,
+        rng: np.random.Generator | None = None,
+        config: MeshConfig | None = None,
+    ) -> None:
+        if not 0 <= uav < mission.n_uavs:
+            raise ValueError(f"uav {uav} not in 0..{mission.n_uavs - 1}")
+        if mission.comms.loss > 0 and rng is None:
+            raise ValueError("mission.comms.loss > 0 needs a seeded rng")
+        self.uav, self.n_uavs, self.n_cells, self.n_tasks = uav, mission.n_uavs, n_cells, n_tasks
+        self.comm_range, self.loss, self.rng = mission.comms.range, mission.comms.loss, rng
+        self.max_bundle_bytes = mission.mesh.max_bundle_bytes
+        base = key_base(mission)
+        self._cond = threading.Condition()
+        self._stats = MeshStats()
+        self._held: dict[int, dict[int, Bundle]] = {}  # sender -> stamp -> bundle
+        self._floor = 0  # bundles stamped below this are stale
+        self._alive: set[int] = set()
+        self._session = open_session(config or MeshConfig.from_mission(mission))
+        try:  # the declared entities live as long as these references (and the session)
+            self._publisher = self._session.declare_publisher(
+                f"{base}/uav/{uav}/msg", congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            self._subscriber = self._session.declare_subscriber(
+                f"{base}/uav/*/msg", self._on_sample, allowed_origin=zenoh.Locality.REMOTE
+            )
+            liveliness = self._session.liveliness()
+            self._alive_subscriber = liveliness.declare_subscriber(
+                f"{base}/alive/*", self._on_liveliness, history=True
+            )
+            self._token = liveliness.declare_token(f"{base}/alive/{uav}")  # last: see docs/mesh.md
+        except BaseException:
+            self._session.close()
+            raise
+
+    # -- lifecycle ---------------------------------------------------------------------------------
+    def __enter__(self) -> Mesh:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the session (idempotent): peers see our liveliness token go."""
+        self._session.close()
+        with self._cond:
+            self._cond.notify_all()
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The process's Zenoh session (shared with the camera subscription)."""
+        return self._session
+
+    @property
+    def stats(self) -> MeshStats:
+        """A snapshot of the counters."""
+        with self._cond:
+            return replace(self._stats)
+
+    # -- sending -----------------------------------------------------------------------------------
+    def publish(
+        self, step: int, messages: list[Message], position: tuple[float, float] | None = None
+    ) -> None:
+        """Put the outbox of `step` as one bundle; the position defaults to the messages' own.
+
+        Raises ValueError (MessageError) if peers would drop the bundle: our own bug, not theirs.
+        """
+        if position is None:
+            if not messages:
+                raise ValueError("an empty outbox needs the sender's position")
+            position = (messages[0].x, messages[0].y)
+        bundle = Bundle(
+            sender=self.uav,
+            stamp=step,
+            x=float(position[0]),
+            y=float(position[1]),
+            messages=tuple(messages),
+        )
+        check_bundle(bundle, self.n_uavs, self.n_cells, self.n_tasks)
+        data = encode_bundle(bundle)
+        if len(data) > self.max_bundle_bytes:
+            raise ValueError(f"bundle of {len(data)} bytes exceeds mesh.max_bundle_bytes")
+        self._publisher.put(data)
+
+    # -- receiving ---------------------------------------------------------------------------------
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh callback thread: validate, then hold; never raises, never blocks for long."""
+        try:
+            if len(sample.payload) > self.max_bundle_bytes:
+                raise MessageError("oversized bundle")
+            bundle = decode_bundle(sample.payload.to_bytes())
+            check_bundle(bundle, self.n_uavs, self.n_cells, self.n_tasks)
+            if str(sample.key_expr).split("/")[-2] != str(bundle.sender) or bundle.sender == self.uav:
+                raise MessageError("sender differs from key, or claims our id")
+        except (ValueError, msgspec.MsgspecError):  # MessageError is a ValueError
+            with self._cond:
+                self._stats.malformed += 1
+            return
+        with self._cond:
+            self._hold(bundle)
+            self._cond.notify_all()
+
+    def _hold(self, bundle: Bundle) -> None:
+        s = self._stats
+        held = self._held.setdefault(bundle.sender, {})
+        if bundle.stamp < self._floor:
+            s.stale += 1
+        elif bundle.stamp in held:
+            s.duplicates += 1
+        else:
+            s.received += 1
+            held[bundle.stamp] = bundle
+            if len(held) > HELD_STAMPS:
+                del held[min(held)]
+                s.stale += 1
+
+    def inbox(self, step: int, own_position_at_sender_step: Sequence[float]) -> list[Message]:
+        """Messages of the bundles stamped step-1 that the batch engine's radio would deliver.
+
+        Gating: a bundle is kept iff the distance between its sender's position and ours, both at
+        step-1, is <= R_c (computed as the engine does). Loss: then each message is dropped with
+        probability `loss`, one draw of `rng` per in-range message in delivery order, so a
+        receiver's draws depend only on its own seed and what it received. Order: by sender id,
+        then outbox order. Older bundles are dropped as stale, and so are any arriving later.
+        """
+        ox, oy = float(own_position_at_sender_step[0]), float(own_position_at_sender_step[1])
+        out: list[Message] = []
+        with self._cond:
+            s = self._stats
+            self._floor = max(self._floor, step)
+            for sender in sorted(self._held):
+                held = self._held[sender]
+                for stamp in [t for t in held if t < step]:
+                    bundle = held.pop(stamp)
+                    if stamp != step - 1:
+                        s.stale += 1
+                        continue
+                    dx, dy = bundle.x - ox, bundle.y - oy
+                    if math.sqrt(dx * dx + dy * dy) > self.comm_range:
+                        s.out_of_range += len(bundle.messages)
+                        continue
+                    for msg in bundle.messages:
+                        if self.loss > 0 and self.rng is not None and self.rng.random() < self.loss:
+                            s.lost += 1
+                        else:
+                            out.append(msg)
+        return out
+
+    def wait_for(self, step: int, peers: set[int], timeout: float) -> set[int]:
+        """Block until bundles stamped `step` from all `peers` are held (call it before
+        `inbox(step + 1)` takes them) or `timeout` s pass; return the peers still missing."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                missing = {p for p in peers if step not in self._held.get(p, {})}
+                remaining = deadline - time.monotonic()
+                if not missing or remaining <= 0 or self._session.is_closed():
+                    return missing
+                self._cond.wait(remaining)
+
+    # -- liveliness --------------------------------------------------------------------------------
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        try:
+            uav = int(str(sample.key_expr).rsplit("/", 1)[-1])
+        except ValueError:
+            return
+        if uav == self.uav or not 0 <= uav < self.n_uavs:
+            return
+        with self._cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(uav)
+            else:
+                self._alive.discard(uav)
+            self._cond.notify_all()
+
+    def alive_peers(self) -> set[int]:
+        """The other UAVs whose companions are alive now (liveliness tokens)."""
+        with self._cond:
+            return set(self._alive)
+
+    def wait_alive(self, peers: set[int], timeout: float) -> set[int]:
+        """Block until all `peers` are alive or `timeout` s pass; return those not alive."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                missing = peers - self._alive
+                remaining = deadline - time.monotonic()
+                if not missing or remaining <= 0 or self._session.is_closed():
+                    return missing
+                self._cond.wait(remaining)
+
+
+def key_base(mission: Mission) -> str:
+    """`{prefix}/{mission}`: the mission's key space; raises ValueError if not a plain key."""
+    base = f"{mission.mesh.key_prefix}/{mission.name}"
+    chunks = base.split("/")
+    if any(not c or any(ch in c for ch in "*$?#") for c in chunks):
+        raise ValueError(f"mesh key prefix and mission name must make a plain Zenoh key: {base!r}")
+    return base
+
+
+# -- router ----------------------------------------------------------------------------------------
+def run_router(endpoint: str = DEFAULT_ROUTER_ENDPOINT, stop: threading.Event | None = None) -> None:
+    """Run a Zenoh router on `endpoint` until SIGINT/SIGTERM (main thread only) or `stop` is set."""
+    if stop is None:
+        stop = threading.Event()
+    previous: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+
+        def on_signal(_signum: int, _frame: FrameType | None) -> None:
+            stop.set()
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, on_signal)
+    try:
+        with zenoh.open(router_config(endpoint)):
+            print(f"router listening on {endpoint}", flush=True)
+            stop.wait()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def router_main(argv: Sequence[str] | None = None) -> int:
+    """`uavsearch router [--endpoint E | --mission FILE]`: exit 0 on SIGINT/SIGTERM."""
+    parser = argparse.ArgumentParser(
+        prog="uavsearch router", description="Run a Zenoh router for client mode."
+    )
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--endpoint", help=f"listen endpoint (default {DEFAULT_ROUTER_ENDPOINT})")
+    group.add_argument("--mission", help="mission file: listen on its mesh.router endpoint")
+    args = parser.parse_args(argv)
+    endpoint = args.endpoint or DEFAULT_ROUTER_ENDPOINT
+    try:
+        if args.mission:
+            endpoint = load_mission(args.mission).mesh.router
+        run_router(endpoint)
+    except MissionError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except zenoh.ZError as exc:
+        print(f"error: cannot run a router on {endpoint}: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] != ["router"]:
+        sys.exit("usage: python -m companion.mesh router [--endpoint E | --mission FILE]")
+    sys.exit(router_main(sys.argv[2:]))

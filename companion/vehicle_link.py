@@ -1,0 +1,265 @@
+"""The companion's MAVLink link to its autopilot: telemetry in, guidance out (pymavlink).
+
+Any pymavlink connection string works (udp, udpin, udpout, tcp, serial). The link waits for the
+autopilot's HEARTBEAT, asks for the telemetry it needs at the rates it needs, keeps the latest
+vehicle state (pose in the mission's local frame, mode, armed flag, vehicle time) and records a
+.tlog of everything it receives and sends. It never changes the vehicle's mode or arms it unless
+asked to (`take_over`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import struct
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import BinaryIO
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.frames import LocalFrame, yaw_to_heading
+
+COMPANION_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
+ARDUPILOT_GUIDED = 15
+PX4_OFFBOARD = 6 << 16
+PX4_HOLD = (4 << 16) | (3 << 24)  # AUTO.LOITER
+
+STREAMS_HZ = {
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 10.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+}
+
+
+class LinkError(RuntimeError):
+    """The vehicle could not be reached."""
+
+
+@dataclass
+class VehicleState:
+    """The latest telemetry, in the mission's local frame (x east, y north, heading CCW from east)."""
+
+    system: int = 0
+    autopilot: int = 0
+    custom_mode: int = -1
+    armed: bool = False
+    time_s: float = -1.0  # vehicle time of the latest position
+    x: float = math.nan
+    y: float = math.nan
+    up: float = math.nan
+    heading: float = math.nan
+    last_heartbeat: float = -math.inf  # wall clock (time.monotonic) of the latest HEARTBEAT
+    texts: list[str] = field(default_factory=list)
+
+    @property
+    def px4(self) -> bool:
+        return self.autopilot == mavlink.MAV_AUTOPILOT_PX4
+
+    @property
+    def has_pose(self) -> bool:
+        return self.time_s >= 0 and math.isfinite(self.x) and math.isfinite(self.heading)
+
+
+class TlogWriter:
+    """MAVLink .tlog: each message prefixed with its big-endian 64-bit microsecond timestamp."""
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._f: BinaryIO = path.open("wb")
+
+    def write(self, buf: bytes) -> None:
+        self._f.write(struct.pack(">Q", int(time.time() * 1e6)) + buf)
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class VehicleLink:
+    """One autopilot over MAVLink."""
+
+    def __init__(self, url: str, frame: LocalFrame, tlog: Path | None = None) -> None:
+        self.url, self.frame = url, frame
+        self.state = VehicleState()
+        self.rejected = 0
+        self._tlog = TlogWriter(tlog) if tlog else None
+        self._conn = mavutil.mavlink_connection(
+            url,
+            source_system=255,
+            source_component=COMPANION_COMPONENT,
+            autoreconnect=True,
+            dialect="ardupilotmega",
+        )
+        if self._tlog:
+            tlog_writer = self._tlog
+            self._conn.mav.set_send_callback(lambda m: tlog_writer.write(m.get_msgbuf()))
+
+    # -- connection --------------------------------------------------------------------------------
+    def wait_heartbeat(self, timeout: float, should_stop: Callable[[], bool] = lambda: False) -> None:
+        """Block until the autopilot's HEARTBEAT arrives (sending ours so udpout links open)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not should_stop():
+            self.send_heartbeat()
+            self.poll(0.5)
+            if self.state.system:
+                self._conn.mav.srcSystem = self.state.system
+                return
+        raise LinkError(f"no HEARTBEAT from {self.url} within {timeout:.0f} s")
+
+    def request_streams(self, extra: dict[int, float] | None = None) -> None:
+        """SET_MESSAGE_INTERVAL for every message the companion needs."""
+        for msg_id, hz in {**STREAMS_HZ, **(extra or {})}.items():
+            self.command_long(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
+
+    def send_heartbeat(self) -> None:
+        self._conn.mav.heartbeat_send(
+            mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
+        )
+
+    def link_alive(self, now: float, timeout: float) -> bool:
+        return now - self.state.last_heartbeat <= timeout
+
+    # -- telemetry ---------------------------------------------------------------------------------
+    def poll(self, timeout: float) -> int:
+        """Read every pending message (waiting up to `timeout` for the first); returns how many."""
+        count = 0
+        msg = self._conn.recv_match(blocking=True, timeout=timeout)
+        while msg is not None:
+            count += 1
+            self._handle(msg)
+            msg = self._conn.recv_match(blocking=False)
+        return count
+
+    def _handle(self, msg: mavlink.MAVLink_message) -> None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            self.rejected += 1
+            return
+        if self._tlog:
+            self._tlog.write(msg.get_msgbuf())
+        s = self.state
+        if s.system and msg.get_srcSystem() != s.system:
+            return
+        if kind == "HEARTBEAT":
+            if msg.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1 or msg.type == mavlink.MAV_TYPE_GCS:
+                return
+            s.system, s.autopilot = msg.get_srcSystem(), msg.autopilot
+            s.custom_mode = msg.custom_mode
+            s.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            s.last_heartbeat = time.monotonic()
+        elif kind == "GLOBAL_POSITION_INT":
+            s.x, s.y = self.frame.to_local(msg.lat * 1e-7, msg.lon * 1e-7)
+            s.up = msg.relative_alt * 1e-3
+            if not math.isfinite(s.heading) and msg.hdg != 65535:
+                s.heading = yaw_to_heading(math.radians(msg.hdg * 0.01))
+            s.time_s = msg.time_boot_ms * 1e-3
+        elif kind == "ATTITUDE":
+            s.heading = yaw_to_heading(msg.yaw)
+        elif kind == "STATUSTEXT":
+            s.texts.append(msg.text)
+            del s.texts[:-50]
+
+    # -- guidance ----------------------------------------------------------------------------------
+    def command_long(self, command: int, *params: float) -> None:
+        p = [*params, *([0.0] * (7 - len(params)))]
+        self._conn.mav.command_long_send(self.state.system, mavlink.MAV_COMP_ID_AUTOPILOT1, command, 0, *p)
+
+    def command_int(
+        self, command: int, frame: int, params: tuple[float, float, float, float], x: int, y: int, z: float
+    ) -> None:
+        self._conn.mav.command_int_send(
+            self.state.system, mavlink.MAV_COMP_ID_AUTOPILOT1, frame, command, 0, 0, *params, x, y, z
+        )
+
+    def turn_rate(self, rate: float) -> None:
+        """Body yaw rate (rad/s, MAVLink sign: positive turns clockwise) via SET_ATTITUDE_TARGET."""
+        ignore = (
+            mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+            | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
+            | mavlink.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE
+            | mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
+        )
+        self._conn.mav.set_attitude_target_send(
+            0,
+            self.state.system,
+            mavlink.MAV_COMP_ID_AUTOPILOT1,
+            ignore,
+            [1.0, 0.0, 0.0, 0.0],
+            0.0,
+            0.0,
+            rate,
+            0.0,
+        )
+
+    def change_heading(self, yaw_deg: float) -> None:
+        """MAV_CMD_GUIDED_CHANGE_HEADING: heading type 1 (heading), 0-360 degrees clockwise from north."""
+        self.command_long(mavlink.MAV_CMD_GUIDED_CHANGE_HEADING, 1, yaw_deg % 360.0, 0.0)
+
+    def reposition(self, lat: float, lon: float, up: float) -> None:
+        """MAV_CMD_DO_REPOSITION as COMMAND_INT (relative altitude), without the change-mode flag."""
+        self.command_int(
+            mavlink.MAV_CMD_DO_REPOSITION,
+            mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            (-1.0, 0.0, 0.0, math.nan),
+            round(lat * 1e7),
+            round(lon * 1e7),
+            up,
+        )
+
+    def position_target(self, lat: float, lon: float, up: float) -> None:
+        """SET_POSITION_TARGET_GLOBAL_INT, position only, relative altitude (PX4 OFFBOARD)."""
+        mask = (
+            mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+        )
+        self._conn.mav.set_position_target_global_int_send(
+            0,
+            self.state.system,
+            mavlink.MAV_COMP_ID_AUTOPILOT1,
+            mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            mask,
+            round(lat * 1e7),
+            round(lon * 1e7),
+            up,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
+
+    def set_mode(self, custom_mode: int) -> None:
+        """MAV_CMD_DO_SET_MODE with a custom mode (PX4: main and sub mode split into params 2 and 3)."""
+        if self.state.px4:
+            self.command_long(
+                mavlink.MAV_CMD_DO_SET_MODE,
+                mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                (custom_mode >> 16) & 0xFF,
+                (custom_mode >> 24) & 0xFF,
+            )
+        else:
+            self.command_long(
+                mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode
+            )
+
+    def arm(self) -> None:
+        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+    def close(self) -> None:
+        self._conn.close()
+        if self._tlog:
+            self._tlog.close()

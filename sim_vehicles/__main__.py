@@ -1,0 +1,5 @@
+"""`python -m sim_vehicles --mission FILE ...`"""
+
+from sim_vehicles.cli import main
+
+raise SystemExit(main())

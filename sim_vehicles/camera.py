@@ -1,0 +1,114 @@
+"""The simulated downward camera: ground truth, detections, and their publication over Zenoh.
+
+Targets are drawn exactly as the batch engine draws them for run 0 of the seed, so a simulated
+mission and its batch twin search for the same targets. Ground truth leaves the simulator only in
+the evaluation record (`truth_record`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion import detections
+from companion.core.geometry import Grid
+from companion.core.prior import draw_targets
+from companion.core.world import Stream, build_grid, build_prior, instance_rng
+from companion.frames import LocalFrame
+from companion.mission import Mission
+
+LOOPBACK_PREFIXES = ("tcp/127.0.0.1:", "udp/127.0.0.1:", "tcp/localhost:", "unixsock-stream/")
+
+
+def draw_truth(mission: Mission, seed: int) -> tuple[Grid, np.ndarray]:
+    """The search grid and the ground-truth target cells of run 0 of `seed`."""
+    grid = build_grid(mission)
+    prior = build_prior(mission, grid)
+    return grid, draw_targets(prior, mission.prior.targets, instance_rng(seed, 0, Stream.TARGETS))
+
+
+def truth_record(
+    mission: Mission, seed: int, grid: Grid, targets: np.ndarray, frame: LocalFrame
+) -> dict[str, Any]:
+    """The evaluation record: every target's cell, local position and lat/lon."""
+    rows = []
+    lat, lon = frame.cells_to_geodetic(grid.centres[targets])
+    for k, cell in enumerate(targets.tolist()):
+        x, y = grid.centres[cell].tolist()
+        rows.append({"cell": cell, "x": x, "y": y, "lat": float(lat[k]), "lon": float(lon[k])})
+    return {"mission": mission.name, "seed": seed, "run": 0, "targets": rows}
+
+
+def write_truth(path: Path, record: dict[str, Any]) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(record, indent=1), encoding="utf-8")
+    tmp.replace(path)
+
+
+class Camera:
+    """Detections of one exposure: target cells whose centre is within the sensor radius.
+
+    With `miss` > 0 each visible target is dropped with that probability; with `false_alarm` > 0
+    each other cell in view is reported with that probability. Both draw from `rng`.
+    """
+
+    def __init__(self, mission: Mission, grid: Grid, targets: np.ndarray, rng: np.random.Generator) -> None:
+        self.centres = grid.centres
+        self.is_target = np.zeros(grid.n_cells, dtype=bool)
+        self.is_target[targets] = True
+        self.targets = targets
+        self.target_xy = grid.centres[targets]
+        self.r2 = mission.sensor.radius**2 + 1e-6  # the batch engine's test
+        self.miss, self.false_alarm = mission.sensor.miss, mission.sensor.false_alarm
+        self.rng = rng
+
+    def detect(self, x: float, y: float) -> np.ndarray:
+        """Indices of the cells reported as holding a target."""
+        d2 = np.sum((self.target_xy - (x, y)) ** 2, axis=1)
+        seen = self.targets[d2 <= self.r2]
+        if self.miss > 0 and len(seen):
+            seen = seen[self.rng.random(len(seen)) >= self.miss]
+        if self.false_alarm > 0:
+            in_view = (np.sum((self.centres - (x, y)) ** 2, axis=1) <= self.r2) & ~self.is_target
+            others = np.flatnonzero(in_view)
+            seen = np.concatenate([seen, others[self.rng.random(len(others)) < self.false_alarm]])
+        return seen
+
+
+def check_loopback(endpoint: str) -> str:
+    """The endpoint itself if it is a loopback Zenoh endpoint, else ValueError."""
+    if not endpoint.startswith(LOOPBACK_PREFIXES):
+        raise ValueError(f"not a loopback Zenoh endpoint: {endpoint}")
+    return endpoint
+
+
+class CameraBus:
+    """A Zenoh session publishing every vehicle's camera frames on its key."""
+
+    def __init__(self, mission: Mission, listen: list[str], connect: list[str]) -> None:
+        import zenoh  # only simulations with a camera pay for it
+
+        cfg: dict[str, Any] = {
+            "mode": mission.mesh.mode,
+            "connect": {"endpoints": [check_loopback(e) for e in connect]},
+            "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True, "multihop": False}},
+        }
+        if mission.mesh.mode == "peer":
+            cfg["listen"] = {"endpoints": [check_loopback(e) for e in listen]}
+        self.session = zenoh.open(zenoh.Config.from_json5(json.dumps(cfg)))
+        prefix, name = mission.mesh.key_prefix, mission.name
+        self.publishers = [
+            self.session.declare_publisher(detections.camera_key(prefix, name, i))
+            for i in range(mission.n_uavs)
+        ]
+
+    def publish(self, frame: detections.CameraFrame) -> None:
+        self.publishers[frame.uav].put(detections.encode(frame))
+
+    def close(self) -> None:
+        for p in self.publishers:
+            p.undeclare()
+        self.session.close()

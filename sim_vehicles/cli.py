@@ -1,0 +1,89 @@
+"""Command line: `python -m sim_vehicles` / `uavsearch sim`.
+
+`add_arguments(parser)` and `run(args)` let the project CLI mount the same command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from types import FrameType
+
+from companion.mission import MissionError, load_mission
+from sim_vehicles.host import Host, HostOptions
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mission", required=True, type=Path, help="mission file (TOML)")
+    parser.add_argument("--speedup", type=_positive, default=1.0,
+                        help="simulated seconds per wall second (default 1)")
+    parser.add_argument("--lockstep", action="store_true",
+                        help="advance simulated time only when every vehicle's driver allows it")
+    parser.add_argument("--flavour", choices=("ardupilot", "px4"), default=None,
+                        help="autopilot to imitate (default: the mission's sim.flavour)")
+    parser.add_argument("--seed", type=int, default=None, help="target seed (default: the mission's)")
+    parser.add_argument("--host", default=None, help="address to bind (default: the mission's sim.host)")
+    parser.add_argument("--no-camera", action="store_true", help="no camera, no Zenoh session")
+    parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT",
+                        help="loopback Zenoh listen endpoint (default tcp/127.0.0.1:0)")
+    parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
+                        help="loopback Zenoh endpoint to connect to (default: the mission's mesh)")
+    parser.add_argument("--truth", type=Path, default=None,
+                        help="write the ground-truth evaluation record (JSON) here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the simulator until SIGINT/SIGTERM; 0 on a clean stop, 2 on a bad mission or setup."""
+    try:
+        mission = load_mission(args.mission)
+    except MissionError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    options = HostOptions(
+        speedup=args.speedup, lockstep=args.lockstep, flavour=args.flavour, seed=args.seed,
+        camera=not args.no_camera,
+        zenoh_listen=tuple(args.zenoh_listen or ("tcp/127.0.0.1:0",)),
+        zenoh_connect=tuple(args.zenoh_connect) if args.zenoh_connect else None,
+        truth=args.truth, host=args.host,
+    )
+    try:
+        host = Host(mission, options)
+    except (OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        host.stop()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        flavour = options.flavour or mission.sim.flavour
+        clock = "lockstep" if options.lockstep else f"speedup {options.speedup:g}"
+        print(f"sim_vehicles: mission {mission.name}, {mission.n_uavs} vehicles, {flavour}, {clock}, "
+              f"seed {host.seed}", flush=True)
+        for index, ip, port in host.endpoints:
+            print(f"vehicle {index} sysid {index + 1} mavlink udp {ip}:{port}", flush=True)
+        stats = host.run()
+    finally:
+        host.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    print(f"sim_vehicles stats: {json.dumps(asdict(stats))}", flush=True)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="sim_vehicles", description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    return run(parser.parse_args(argv))

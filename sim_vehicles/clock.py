@@ -1,0 +1,64 @@
+"""Simulated time, counted in physics ticks: real time (with speedup) or lockstep.
+
+The host asks its clock how many ticks it may have run by now and how long it may sleep.
+`RealTimeClock` maps wall time to ticks (`speedup` times faster than the wall clock).
+`LockstepClock` lets time advance only by whole sampling steps, when every vehicle's driver has
+reported "ready for step k+1" (see docs/simulator.md, "Lockstep").
+"""
+
+from __future__ import annotations
+
+import math
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+
+class RealTimeClock:
+    """Ticks of `tick_dt` simulated seconds, `speedup` times faster than the wall clock."""
+
+    def __init__(self, tick_dt: float, speedup: float, wall_start: float) -> None:
+        self.tick_dt, self.speedup, self.wall_start = tick_dt, speedup, wall_start
+
+    def target(self, wall: float) -> int:
+        return math.floor((wall - self.wall_start) * self.speedup / self.tick_dt + 1e-9)
+
+    def sleep(self, wall: float, tick: int) -> float:
+        """Wall seconds until tick `tick` + 1 is due."""
+        return max(0.0, self.wall_start + (tick + 1) * self.tick_dt / self.speedup - wall)
+
+
+class LockstepClock:
+    """Simulated time advances by one sampling step when every vehicle is ready for it.
+
+    A driver (one per vehicle) reports "ready for step s". `step` is the current step k (simulated
+    time k * dT). Reports of s = k + 1 count towards the next advance; s = k asks for a snapshot of
+    the current step; s < k is a stale duplicate; anything else is refused.
+    """
+
+    def __init__(self, tick_dt: float, substeps: int, n_vehicles: int) -> None:
+        self.tick_dt, self.substeps, self.n = tick_dt, substeps, n_vehicles
+        self.step = 0
+        self.ready: set[int] = set()
+
+    def target(self, wall: float) -> int:
+        return self.step * self.substeps
+
+    def sleep(self, wall: float, tick: int) -> float:
+        return math.inf
+
+    def report(self, vehicle: int, step: float) -> tuple[int, bool]:
+        """(COMMAND_ACK result, whether a snapshot of the current step is asked for)."""
+        if not (math.isfinite(step) and step == int(step)):
+            return mavlink.MAV_RESULT_DENIED, False
+        s = int(step)
+        if s == self.step + 1:
+            self.ready.add(vehicle)
+            if len(self.ready) == self.n:
+                self.step += 1
+                self.ready.clear()
+            return mavlink.MAV_RESULT_ACCEPTED, False
+        if s == self.step:
+            return mavlink.MAV_RESULT_ACCEPTED, True
+        if s < self.step:
+            return mavlink.MAV_RESULT_ACCEPTED, False
+        return mavlink.MAV_RESULT_DENIED, False

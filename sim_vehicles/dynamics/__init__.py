@@ -1,0 +1,1 @@
+"""Vehicle motion (eq. 2, vectorised over the fleet) and the local <-> geodetic frame."""

@@ -1,0 +1,425 @@
+"""The simulator process: every vehicle of a mission, its endpoint, the clock and the camera.
+
+One thread, one selector loop. Each turn of the loop runs the physics ticks the clock allows
+(vectorised over the fleet), sends the telemetry that fell due in simulated time, sends the
+wall-clock HEARTBEATs, then waits for datagrams until the next tick is due.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import selectors
+import socket
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from companion.core.kinematics import Kinematics
+from companion.detections import CameraFrame
+from companion.frames import LocalFrame
+from companion.mission import Mission
+from sim_vehicles import camera as cam
+from sim_vehicles.clock import LockstepClock, RealTimeClock
+from sim_vehicles.dynamics.flight import ContinuousFlight, Flight, GridFlight
+from sim_vehicles.mavlink_endpoint import Address, InputStats, MavlinkEndpoint
+from sim_vehicles.modes import FLAVOURS
+from sim_vehicles.protocols import ftp
+from sim_vehicles.protocols.commands import MAX_RANGE_M, handle_command
+from sim_vehicles.protocols.mission import MissionProtocol
+from sim_vehicles.protocols.params import ParamStore, handle_param, param_specs
+from sim_vehicles.telemetry import Pose, Streams, TelemetryBuilder
+from sim_vehicles.vehicle import Vehicle
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # isort: skip
+
+M = mavlink
+MAX_TICKS_PER_LOOP = 500  # keep serving sockets when far behind
+STATS_TEXT_INTERVAL = 5.0  # wall s between "bad input" STATUSTEXTs of one vehicle
+RELATIVE_FRAMES = (
+    M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    M.MAV_FRAME_GLOBAL_TERRAIN_ALT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,  # flat terrain at home
+)
+AMSL_FRAMES = (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT)
+SILENT = frozenset({"HEARTBEAT", "SYSTEM_TIME", "RADIO_STATUS", "MISSION_ACK"})
+
+
+@dataclass(frozen=True)
+class HostOptions:
+    speedup: float = 1.0
+    lockstep: bool = False
+    flavour: str | None = None  # None: the mission's
+    seed: int | None = None  # None: the mission's
+    camera: bool = True
+    zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
+    zenoh_connect: tuple[str, ...] | None = None  # None: the mission's seed endpoint / router
+    truth: Path | None = None
+    host: str | None = None  # None: the mission's sim.host
+
+
+@dataclass
+class RunStats:
+    sim_time: float = 0.0
+    wall_time: float = 0.0
+    cpu_time: float = 0.0
+    frames_published: int = 0
+    input: InputStats = field(default_factory=InputStats)
+
+
+class HostedVehicle:
+    """A vehicle with its endpoint, streams and protocols: the context protocol handlers use."""
+
+    def __init__(self, host: Host, index: int, vehicle: Vehicle, endpoint: MavlinkEndpoint) -> None:
+        self.host, self.index, self.vehicle, self.endpoint = host, index, vehicle, endpoint
+        self.frame = host.frame
+        self.streams = Streams()
+        self.telemetry = TelemetryBuilder(host.frame, vehicle, host.unix_epoch_usec)
+        self.missions = MissionProtocol()
+        self.stats = endpoint.stats
+        self._pose_tick = -1
+        self._pose: Pose | None = None
+        self._stats_reported = (0, 0)
+        self._stats_said = -math.inf
+
+    @property
+    def t(self) -> float:
+        return self.host.t
+
+    def position(self) -> tuple[float, float, float, float]:
+        """(x, y, heading, up) now."""
+        f, i = self.host.flight, self.index
+        return float(f.x[i]), float(f.y[i]), float(f.heading[i]), float(f.alt[i])
+
+    def pose(self) -> Pose:
+        if self._pose is None or self._pose_tick != self.host.tick:
+            f, i = self.host.flight, self.index
+            x, y, h, up = self.position()
+            lat, lon, alt = self.frame.to_geodetic(x, y, up)
+            self._pose = Pose(x, y, h, up, float(f.vx[i]), float(f.vy[i]), float(f.vz[i]),
+                              float(f.omega[i]), lat, lon, alt)
+            self._pose_tick = self.host.tick
+        return self._pose
+
+    def build(self, msgid: int) -> mavlink.MAVLink_message:
+        self.telemetry.errors = (self.stats.bad_frames, self.stats.unhandled, self.stats.rejected)
+        return self.telemetry.build(msgid, self.t, self.pose())
+
+    def reply(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
+        self.endpoint.send(msg, addr)
+
+    def broadcast(self, msg: mavlink.MAVLink_message) -> None:
+        self.endpoint.send(msg)
+
+    # ---- helpers for the protocol handlers ----------------------------------------------
+    def set_mode(self, custom_mode: int) -> int:
+        x, y, _, _ = self.position()
+        before = self.vehicle.mode
+        result = self.vehicle.set_mode(custom_mode, self.t, x, y)
+        if self.vehicle.mode != before:
+            self.broadcast(self.build(M.MAVLINK_MSG_ID_HEARTBEAT))
+        return result
+
+    def local_target(self, lat: float, lon: float) -> tuple[float, float] | None:
+        """Local (x, y) of a commanded lat/lon; None if invalid or farther than MAX_RANGE_M."""
+        if not (math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180):
+            return None
+        if lat == 0 and lon == 0:
+            return None
+        x, y = self.frame.to_local(lat, lon)
+        return (x, y) if math.hypot(x, y) <= MAX_RANGE_M else None
+
+    def altitude(self, alt: float, frame: int) -> tuple[bool, float | None]:
+        """(valid, metres above home) of a commanded altitude; NaN keeps the altitude (None)."""
+        if math.isnan(alt):
+            return True, None
+        if not math.isfinite(alt):
+            return False, None
+        if frame in RELATIVE_FRAMES:
+            return True, alt
+        if frame in AMSL_FRAMES:
+            return True, alt - self.frame.alt0
+        return False, None
+
+    def lockstep_report(self, step: float, addr: Address) -> int:
+        clock = self.host.clock
+        if not isinstance(clock, LockstepClock):
+            return M.MAV_RESULT_UNSUPPORTED
+        result, snapshot = clock.report(self.index, step)
+        if snapshot:
+            self.host.pending_snapshots.add(self.index)
+        return result
+
+    # ---- inbound ------------------------------------------------------------------------
+    def handle(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
+        target = getattr(msg, "target_system", 0)
+        if target not in (0, self.vehicle.sysid) or getattr(msg, "target_component", 0) not in (0, 1):
+            return
+        kind = msg.get_type()
+        if kind in ("COMMAND_LONG", "COMMAND_INT"):
+            handle_command(self, msg, addr)
+        elif kind.startswith("PARAM_") and kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
+            handle_param(self, msg, addr)
+        elif kind.startswith("MISSION_") and kind != "MISSION_ACK":
+            self.missions.handle(self, msg, addr)
+        elif kind == "SET_MODE":
+            result = self.set_mode(msg.custom_mode) if msg.base_mode & 1 else M.MAV_RESULT_DENIED
+            self.reply(M.MAVLink_command_ack_message(M.MAVLINK_MSG_ID_SET_MODE, result), addr)
+        elif kind == "REQUEST_DATA_STREAM":
+            if not self.streams.set_stream(msg.req_stream_id, msg.req_message_rate, bool(msg.start_stop)):
+                self.stats.unhandled += 1
+        elif kind in ("SET_POSITION_TARGET_GLOBAL_INT", "SET_POSITION_TARGET_LOCAL_NED"):
+            self._position_target(msg)
+        elif kind == "SET_ATTITUDE_TARGET":
+            self._attitude_target(msg)
+        elif kind == "FILE_TRANSFER_PROTOCOL":
+            payload = ftp.nak_payload(bytes(msg.payload))
+            if payload is None:
+                self.stats.rejected += 1
+            else:
+                self.reply(M.MAVLink_file_transfer_protocol_message(
+                    0, msg.get_srcSystem(), msg.get_srcComponent(), payload), addr)
+        elif kind == "TIMESYNC":
+            if msg.tc1 == 0:
+                self.reply(M.MAVLink_timesync_message(round(self.t * 1e9), msg.ts1), addr)
+        elif kind not in SILENT:
+            self.stats.unhandled += 1
+
+    def _position_target(self, msg: mavlink.MAVLink_message) -> None:
+        mask = msg.type_mask
+        target = up = None
+        if msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT":
+            if not mask & 3:
+                target = self.local_target(msg.lat_int * 1e-7, msg.lon_int * 1e-7)
+                if target is None:
+                    self.stats.rejected += 1
+                    return
+            if not mask & 4:
+                ok, up = self.altitude(msg.alt, msg.coordinate_frame)
+                if not ok:
+                    self.stats.rejected += 1
+                    return
+        else:
+            if msg.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
+                self.stats.unhandled += 1
+                return
+            if not mask & 3 and math.isfinite(msg.x + msg.y):
+                target = (msg.y, msg.x)
+            if not mask & 4 and math.isfinite(msg.z):
+                up = -msg.z
+        self.vehicle.position_target(self.t, target, up)
+
+    def _attitude_target(self, msg: mavlink.MAVLink_message) -> None:
+        if msg.type_mask & M.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE:
+            self.stats.unhandled += 1
+            return
+        if not math.isfinite(msg.body_yaw_rate):
+            self.stats.rejected += 1
+            return
+        self.vehicle.turn_rate(self.t, -msg.body_yaw_rate)  # MAVLink yaw rate is clockwise
+
+    # ---- outbound -----------------------------------------------------------------------
+    def flush(self) -> None:
+        """Send the vehicle's pending STATUSTEXTs and MISSION_ITEM_REACHEDs."""
+        v = self.vehicle
+        for severity, text in v.texts:
+            self.broadcast(M.MAVLink_statustext_message(severity, text.encode()[:50]))
+        for seq in v.reached:
+            self.broadcast(M.MAVLink_mission_item_reached_message(seq))
+        v.texts.clear()
+        v.reached.clear()
+
+    def report_bad_input(self, wall: float) -> None:
+        counts = (self.stats.bad_frames, self.stats.rejected)
+        if counts != self._stats_reported and wall - self._stats_said >= STATS_TEXT_INTERVAL:
+            self.vehicle.say(f"Bad input: {counts[0]} bad frames, {counts[1]} rejected values",
+                             M.MAV_SEVERITY_NOTICE)
+            self._stats_reported, self._stats_said = counts, wall
+            self.flush()
+
+
+class Host:
+    """All vehicles of a mission in one process."""
+
+    def __init__(self, mission: Mission, options: HostOptions) -> None:
+        self.mission, self.options = mission, options
+        self.frame = LocalFrame(mission.region.origin)
+        self.unix_epoch_usec = int(time.time() * 1e6)
+        k = mission.kinematics
+        self.substeps = max(1, math.ceil(k.step * mission.sim.physics_hz - 1e-9))
+        self.tick_dt = k.step / self.substeps
+        self.tick = 0
+        self.flight = self._build_flight()
+        flavour = FLAVOURS[options.flavour or mission.sim.flavour]
+        specs = param_specs(mission)
+        self.clock: RealTimeClock | LockstepClock
+        if options.lockstep:
+            self.clock = LockstepClock(self.tick_dt, self.substeps, mission.n_uavs)
+        else:
+            self.clock = RealTimeClock(self.tick_dt, options.speedup, time.monotonic())
+        self.pending_snapshots: set[int] = set()
+        self.snapshot_step = 0
+        self.seed = mission.seed if options.seed is None else options.seed
+        self.grid, self.targets = cam.draw_truth(mission, self.seed)
+        self.hosted: list[HostedVehicle] = []
+        self.selector = selectors.DefaultSelector()
+        self.wakeup_r, self.wakeup_w = socket.socketpair()
+        self.wakeup_r.setblocking(False)
+        self.wakeup_w.setblocking(False)
+        self.selector.register(self.wakeup_r, selectors.EVENT_READ, None)
+        self.bus: cam.CameraBus | None = None
+        self.stopping = False
+        self.stats = RunStats()
+        try:
+            bind = options.host or mission.sim.host
+            for i, v in enumerate(mission.vehicles):
+                vehicle = Vehicle(i, flavour, ParamStore(specs, flavour.name, k.mode == "grid"),
+                                  (v.x, v.y), k.altitude, k.step)
+                endpoint = MavlinkEndpoint(bind, mission.vehicle_port(i), i + 1)
+                hv = HostedVehicle(self, i, vehicle, endpoint)
+                self.hosted.append(hv)
+                self.selector.register(endpoint, selectors.EVENT_READ, hv)
+            if options.truth is not None:
+                record = cam.truth_record(mission, self.seed, self.grid, self.targets, self.frame)
+                cam.write_truth(options.truth, record)
+            self.camera = cam.Camera(mission, self.grid, self.targets,
+                                     cam.instance_rng(self.seed, 0, cam.Stream.CAMERA))
+            self.cell_lat, self.cell_lon = self.frame.cells_to_geodetic(self.grid.centres)
+            if options.camera:
+                connect = options.zenoh_connect
+                if connect is None:
+                    mesh = mission.mesh
+                    connect = (mesh.seed_endpoint if mesh.mode == "peer" else mesh.router,)
+                self.bus = cam.CameraBus(mission, list(options.zenoh_listen), list(connect))
+        except BaseException:
+            self.close()
+            raise
+
+    def _build_flight(self) -> Flight:
+        m = self.mission
+        poses = np.array([(v.x, v.y, math.radians(v.heading_deg)) for v in m.vehicles], dtype=float)
+        k = m.kinematics
+        if k.mode == "grid":
+            kin = Kinematics(k.mode, k.speed, k.step, math.radians(k.turn_limit_deg), m.region.cell_size)
+            return GridFlight(poses, k.altitude, k.step, self.substeps, kin)
+        return ContinuousFlight(poses, k.altitude, k.step, self.substeps)
+
+    @property
+    def t(self) -> float:
+        """Simulated time (s)."""
+        return self.tick * self.tick_dt
+
+    @property
+    def endpoints(self) -> list[tuple[int, str, int]]:
+        """(vehicle index, host, port) of every endpoint."""
+        return [(hv.index, *hv.endpoint.sock.getsockname()) for hv in self.hosted]
+
+    def stop(self) -> None:
+        """Ask the loop to end (safe from a signal handler)."""
+        self.stopping = True
+        with contextlib.suppress(OSError):
+            self.wakeup_w.send(b"\0")
+
+    # ---- the loop -----------------------------------------------------------------------
+    def run(self) -> RunStats:
+        wall0, cpu0 = time.monotonic(), time.process_time()
+        if isinstance(self.clock, RealTimeClock):
+            self.clock.wall_start = wall0
+        next_second = wall0
+        self.next_camera = 0.0
+        while not self.stopping:
+            now = time.monotonic()
+            target = self.clock.target(now)
+            budget = MAX_TICKS_PER_LOOP
+            while self.tick < target and budget:
+                self._tick()
+                budget -= 1
+            if isinstance(self.clock, LockstepClock) and self.tick == target:
+                if self.clock.step != self.snapshot_step:
+                    self.snapshot_step = self.clock.step
+                    self.pending_snapshots.update(range(len(self.hosted)))
+                for i in sorted(self.pending_snapshots):
+                    self._snapshot(self.hosted[i])
+                self.pending_snapshots.clear()
+            if now >= next_second:
+                self._every_second(now)
+                next_second = max(next_second + 1.0, now)
+            behind = self.tick < target
+            self._serve(0.0 if behind else max(0.0, min(self.clock.sleep(now, self.tick), next_second - now)))
+        self.stats.sim_time = self.t
+        self.stats.wall_time = time.monotonic() - wall0
+        self.stats.cpu_time = time.process_time() - cpu0
+        for hv in self.hosted:
+            self.stats.input.add(hv.stats)
+        return self.stats
+
+    def _serve(self, timeout: float) -> None:
+        for key, _ in self.selector.select(timeout):
+            hv = key.data
+            if hv is None:
+                with contextlib.suppress(OSError):
+                    self.wakeup_r.recv(4096)
+                continue
+            for msg, addr in hv.endpoint.receive(time.monotonic()):
+                hv.handle(msg, addr)
+            hv.flush()
+
+    def _every_second(self, now: float) -> None:
+        for hv in self.hosted:
+            hv.broadcast(hv.build(M.MAVLINK_MSG_ID_HEARTBEAT))
+            hv.endpoint.expire(now)
+            hv.report_bad_input(now)
+
+    def _tick(self) -> None:
+        fl, hosted = self.flight, self.hosted
+        if fl.needs_demand():
+            t = self.t
+            n = len(hosted)
+            turn, moving, speed, limit = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+            for i, hv in enumerate(hosted):
+                v = hv.vehicle
+                turn[i] = v.steer(t, float(fl.x[i]), float(fl.y[i]), float(fl.heading[i]))
+                moving[i], speed[i], limit[i] = v.armed, v.speed, v.turn_limit
+                fl.alt_target[i] = v.alt_target
+                if v.texts or v.reached:
+                    hv.flush()
+            self._demand = (turn, moving, speed, limit)
+        fl.tick(*self._demand)
+        self.tick += 1
+        t = self.t
+        for hv in hosted:
+            if t >= hv.streams.next_any:
+                for msgid in hv.streams.due(t):
+                    hv.broadcast(hv.build(msgid))
+        if self.bus is not None and isinstance(self.clock, RealTimeClock) and t >= self.next_camera - 1e-9:
+            self.next_camera += 1.0 / self.mission.sim.camera_hz
+            for hv in hosted:
+                self._publish_frame(hv)
+
+    def _snapshot(self, hv: HostedVehicle) -> None:
+        """Full-precision state of one vehicle at the current step (lockstep)."""
+        if self.bus is not None:
+            self._publish_frame(hv)
+        for msgid in (M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, M.MAVLINK_MSG_ID_ATTITUDE,
+                      M.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
+            hv.broadcast(hv.build(msgid))
+
+    def _publish_frame(self, hv: HostedVehicle) -> None:
+        assert self.bus is not None
+        p = hv.pose()
+        cells = self.camera.detect(p.x, p.y)
+        found = tuple(zip(self.cell_lat[cells].tolist(), self.cell_lon[cells].tolist(), strict=True))
+        self.bus.publish(CameraFrame(uav=hv.index, time_usec=round(self.t * 1e6), lat=p.lat, lon=p.lon,
+                                     alt=p.alt, heading=p.heading, detections=found))
+        self.stats.frames_published += 1
+
+    def close(self) -> None:
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+        for hv in self.hosted:
+            hv.endpoint.close()
+        self.selector.close()
+        self.wakeup_r.close()
+        self.wakeup_w.close()

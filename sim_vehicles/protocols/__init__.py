@@ -1,0 +1,1 @@
+"""MAVLink microservices of a simulated vehicle: commands, parameters, missions, MAVFTP."""

@@ -1,0 +1,102 @@
+"""The parameter set (names per flavour, ranges, read-only rules) and the parameter protocol."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.mission import Mission
+
+if TYPE_CHECKING:
+    from sim_vehicles.host import HostedVehicle
+    from sim_vehicles.mavlink_endpoint import Address
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: internal key, its name in each flavour, default and accepted range."""
+
+    key: str
+    ardupilot: str
+    px4: str
+    default: float
+    lo: float
+    hi: float
+    fixed_in_grid: bool = False  # grid kinematics pins it (one cell per step)
+
+
+def param_specs(mission: Mission) -> tuple[ParamSpec, ...]:
+    """The simulator's parameters with defaults from the mission."""
+    k = mission.kinematics
+    turn_radius = k.speed / (math.radians(k.turn_limit_deg) / k.step)
+    grid = k.mode == "grid"
+    return (
+        ParamSpec("cruise_speed", "AIRSPEED_CRUISE", "FW_AIRSPD_TRIM", k.speed, 1.0, 100.0, True),
+        ParamSpec("turn_limit", "SIM_TURN_LIMIT", "SIM_TURN_LIMIT", k.turn_limit_deg,
+                  45.0 if grid else 1.0, 180.0),
+        ParamSpec("guided_timeout", "SIM_GUIDED_TMO", "COM_OF_LOSS_T", mission.sim.guided_timeout,
+                  0.1, 600.0),
+        ParamSpec("wp_radius", "WP_RADIUS", "NAV_ACC_RAD",
+                  round(max(mission.region.cell_size, 30.0), 1), 1.0, 1000.0),
+        ParamSpec("loiter_radius", "WP_LOITER_RAD", "NAV_LOITER_RAD",
+                  round(max(60.0, 1.5 * turn_radius), 1), 10.0, 5000.0),
+    )
+
+
+class ParamStore:
+    """Current parameter values of one vehicle, addressed by flavour name or index."""
+
+    def __init__(self, specs: tuple[ParamSpec, ...], flavour: str, grid: bool) -> None:
+        self.specs = specs
+        self.names = [s.px4 if flavour == "px4" else s.ardupilot for s in specs]
+        self.values = {s.key: float(s.default) for s in specs}
+        self.grid = grid
+
+    def value(self, key: str) -> float:
+        return self.values[key]
+
+    def index_of(self, name: str) -> int | None:
+        return self.names.index(name) if name in self.names else None
+
+    def set(self, index: int, value: float) -> bool:
+        """Set parameter `index`; False (unchanged) if out of range or pinned by the kinematics."""
+        spec = self.specs[index]
+        if not (math.isfinite(value) and spec.lo <= value <= spec.hi):
+            return False
+        if spec.fixed_in_grid and self.grid and value != self.values[spec.key]:
+            return False
+        self.values[spec.key] = float(value)
+        return True
+
+    def message(self, index: int) -> mavlink.MAVLink_param_value_message:
+        return mavlink.MAVLink_param_value_message(
+            self.names[index].encode(), self.values[self.specs[index].key],
+            mavlink.MAV_PARAM_TYPE_REAL32, len(self.specs), index,
+        )
+
+
+def handle_param(hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address) -> None:
+    """PARAM_REQUEST_LIST / PARAM_REQUEST_READ (answered to the sender) and PARAM_SET (to all)."""
+    store = hv.vehicle.params
+    kind = msg.get_type()
+    if kind == "PARAM_REQUEST_LIST":
+        for i in range(len(store.names)):
+            hv.reply(store.message(i), addr)
+        return
+    if kind == "PARAM_REQUEST_READ" and 0 <= msg.param_index < len(store.names):
+        index: int | None = msg.param_index
+    else:
+        index = store.index_of(msg.param_id)
+    if index is None:
+        hv.stats.rejected += 1  # ArduPilot ignores unknown names too
+        return
+    if kind == "PARAM_REQUEST_READ":
+        hv.reply(store.message(index), addr)
+        return
+    if not hv.vehicle.set_param(index, msg.param_value):
+        hv.stats.rejected += 1
+        hv.vehicle.say(f"{store.names[index]}: {msg.param_value:g} refused", mavlink.MAV_SEVERITY_WARNING)
+    hv.broadcast(store.message(index))

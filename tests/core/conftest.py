@@ -1,0 +1,22 @@
+"""Shared fixtures of the core test suite: the repository's mission files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from companion.mission import Mission, load_mission
+
+ROOT = Path(__file__).resolve().parents[2]
+MISSIONS = ROOT / "mission_files"
+
+
+@pytest.fixture(scope="session")
+def scenario1() -> Mission:
+    return load_mission(MISSIONS / "scenario1.toml")
+
+
+@pytest.fixture(scope="session")
+def scenario3() -> Mission:
+    return load_mission(MISSIONS / "scenario3.toml")

@@ -1,0 +1,112 @@
+"""The per-UAV Agent: track prediction, message hygiene, and what it does with its inbox."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from companion.batch.engine import initial_poses
+from companion.core.agent import Agent, Observation, predict_tracks
+from companion.core.connectivity import pairwise_distances
+from companion.core.messages import BidsMsg, Message, StateMsg, check, decode, encode
+from companion.core.world import build_world
+
+
+def test_predict_tracks_follows_the_plan_then_extrapolates() -> None:
+    # UAV at (0, 0) at stamp 5 with plan (10, 0), (20, 0): steps 5..9 -> 0, 10, 20, then the last
+    # planned velocity (10, 0) per step: 30, 40. Asked from step 4 (before its stamp): one step back, -10.
+    seqs = np.array([[[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]]])
+    out = predict_tracks(seqs, np.array([5]), 5, 5)
+    assert out[0, :, 0].tolist() == [0.0, 10.0, 20.0, 30.0, 40.0]
+    assert np.all(out[0, :, 1] == 0.0)
+    assert predict_tracks(seqs, np.array([5]), 4, 1)[0, 0].tolist() == [-10.0, 0.0]
+
+
+def run_agents(mission, steps: int, seed: int = 1):
+    """Drive the agents by hand (all-to-all radio within R_c, one step of latency) and yield per step."""
+    world = build_world(mission, seed, 0)
+    agents = [Agent(world, i) for i in range(mission.n_uavs)]
+    poses = initial_poses(mission)
+    inboxes: list[list[Message]] = [[] for _ in agents]
+    for k in range(steps):
+        outs = [
+            a.step(Observation(step=k, x=p[0], y=p[1], heading=p[2]), inboxes[i])
+            for i, (a, p) in enumerate(zip(agents, poses.tolist(), strict=True))
+        ]
+        yield k, world, agents, outs
+        near = pairwise_distances(poses[:, :2]) <= mission.comms.range
+        inboxes = [
+            [decode(encode(m)) for j, (_, out) in enumerate(outs) if j != i and near[i, j] for m in out]
+            for i in range(len(agents))
+        ]
+        turns = np.array([c.turn for c, _ in outs])
+        x, y, h = world.kinematics.advance(poses[:, 0], poses[:, 1], poses[:, 2], turns)
+        poses = np.column_stack([x, y, h])
+
+
+def test_agents_emit_only_well_formed_messages_and_admissible_commands(scenario1) -> None:
+    opts = None
+    for k, world, _agents, outs in run_agents(scenario1, 25):
+        opts = world.kinematics.turn_options
+        tess = world.tessellation
+        assert tess is not None
+        for i, (cmd, out) in enumerate(outs):
+            assert cmd.step == k
+            assert np.any(np.isclose(cmd.turn, opts))  # |turn| <= omega_max, one of the options
+            assert len(cmd.path) == scenario1.algorithm.horizon
+            assert -1 <= cmd.task < tess.n_tasks
+            assert isinstance(out[0], StateMsg) and out[0].state.task == cmd.task
+            for msg in out:
+                assert msg.sender == i and msg.stamp == k
+                check(msg, scenario1.n_uavs, world.grid.n_cells, tess.n_tasks)
+    assert opts is not None
+
+
+def test_first_step_bids_then_auction(scenario1) -> None:
+    gen = run_agents(scenario1, 2)
+    _, world, _, outs = next(gen)
+    # step 0: nobody holds a task; every UAV announces one positive bid per task
+    for cmd, out in outs:
+        assert cmd.task == -1
+        bids = [m for m in out if isinstance(m, BidsMsg)]
+        assert len(bids) == 1 and len(bids[0].rewards) == world.tessellation.n_tasks
+        assert max(bids[0].rewards) > 0
+    # step 1: each takes a task from the same auction; the start line is within R_c for all, so
+    # everyone hears everyone and there is no conflict
+    _, _, _, outs = next(gen)
+    tasks = [cmd.task for cmd, _ in outs]
+    assert all(t >= 0 for t in tasks) and len(set(tasks)) == len(tasks)
+
+
+def test_agent_eta_never_rises_and_agents_share_no_state(scenario1) -> None:
+    prev = None
+    for _, _, agents, _ in run_agents(scenario1, 15):
+        etas = np.array([a.eta for a in agents])
+        assert np.all((etas >= 0) & (etas <= scenario1.uncertainty.eta0))
+        if prev is not None:
+            assert np.all(etas <= prev)
+        prev = etas.copy()
+        assert len({id(a.eta) for a in agents}) == len(agents)
+    # each UAV's own look: eta of the cell under it is at most gamma (seen at least once)
+    a0 = agents[0]
+    assert a0.eta.min() <= scenario1.uncertainty.gamma + 1e-12
+
+
+def test_stale_and_own_messages_are_rejected(scenario1) -> None:
+    world = build_world(scenario1, 1, 0)
+    agent = Agent(world, 0)
+    p = initial_poses(scenario1)[0]
+    _, out = agent.step(Observation(step=0, x=p[0], y=p[1], heading=p[2]), [])
+    timeout = scenario1.comms.peer_timeout_steps
+    obs = Observation(step=timeout + 1, x=p[0], y=p[1], heading=p[2])
+    agent.step(obs, out)  # its own messages, and too old: all rejected
+    assert agent.rejected == len(out)
+    assert agent.peers == {}
+
+
+@pytest.mark.parametrize("algorithm", ["no-ta", "pheromone"])
+def test_baselines_never_take_tasks(scenario1, algorithm: str) -> None:
+    for _, _, _, outs in run_agents(scenario1.with_algorithm(algorithm), 5):
+        for cmd, out in outs:
+            assert cmd.task == -1
+            assert not any(isinstance(m, BidsMsg) for m in out)

@@ -1,0 +1,203 @@
+"""RHC (eqs. 22-25, 29): search benefit, path expense, path selection and path cells."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from companion.core.geometry import ConvexPolygon, Grid
+from companion.core.kinematics import Kinematics, PathTree
+from companion.core.rhc import (
+    grid_path_cells,
+    path_expense,
+    region_key,
+    search_benefit,
+    select_path,
+    soft_exp,
+)
+
+# cells 0, 1, 2 with values 0.5, 1.0, 0.2; index 3 is the padding (value 0)
+VALUES = np.array([0.5, 1.0, 0.2, 0.0])
+POINTS = np.array([[[0.0, 0.0], [10.0, 0.0]], [[0.0, 0.0], [100.0, 0.0]]])
+FOV = np.array([[[0, 1], [2, 3]], [[1, 3], [3, 3]]], dtype=np.int64)
+GEN = np.array([0.0, 0.0])
+
+
+def benefit(
+    labels: list[list[int]], task: int, points: np.ndarray = POINTS, radius: float = 100.0
+) -> np.ndarray:
+    lab = np.array(labels, dtype=np.int64)
+    return search_benefit(points, FOV, VALUES, 2.0, lab, task, GEN, radius, 0.5)
+
+
+def test_search_benefit_sums_fov_values_without_penalty_inside_the_task() -> None:
+    # delta_1 = 2: path 0 sees 0.5 + 1.0 + 0.2 + 0 = 1.7 -> 3.4; path 1 sees 1.0 -> 2.0
+    assert benefit([[1, 1], [1, 1]], task=1) == pytest.approx([3.4, 2.0])
+
+
+def test_search_benefit_penalises_points_outside_the_task() -> None:
+    # path 1, step 2 at (100, 0) is in task 0, not task 1: delta_2 exp(||w - q*|| / R*) =
+    # 0.5 * exp(100 / 100) = 1.3591409 -> 2.0 - 1.3591409 = 0.6408591
+    assert benefit([[1, 1], [1, 0]], task=1) == pytest.approx([3.4, 0.6408591])
+    # a point outside the region (label -1) is outside the task too
+    assert benefit([[1, 1], [1, -1]], task=1) == pytest.approx([3.4, 0.6408591])
+    # path 0, both points outside: 0.5 * (exp(0) + exp(0.1)) = 0.5 * (1 + 1.1051709) = 1.0525855
+    assert benefit([[0, 0], [1, 1]], task=1)[0] == pytest.approx(3.4 - 1.0525855)
+
+
+def test_no_task_means_no_penalty() -> None:
+    assert benefit([[0, 0], [-1, -1]], task=-1) == pytest.approx([3.4, 2.0])
+
+
+def test_soft_exp_is_exp_then_linear() -> None:
+    assert soft_exp(1.0) == pytest.approx(math.e)
+    assert soft_exp(10.0) == pytest.approx(22026.465795)
+    # past the knee: e^10 * (1 + x - 10); x = 12 -> 22026.465795 * 3 = 66079.397385
+    assert soft_exp(12.0) == pytest.approx(66079.397385)
+    far = np.array([[[1200.0, 0.0], [0.0, 0.0]]])
+    got = search_benefit(far, FOV[:1], VALUES, 2.0, np.array([[0, 1]]), 1, GEN, 100.0, 0.5)
+    assert got[0] == pytest.approx(3.4 - 0.5 * 66079.397385)
+
+
+def expense(points: list, track: list, reach: list, yields: bool = True) -> tuple[float, float]:
+    """One path against one MST neighbour: its predicted track (t_k..t_{k+M}) and, per step, the
+    positions it can reach (reach[m] is a list of points), with or without right of way to it."""
+    pts = np.array([points], dtype=float)
+    tree = np.array(reach, dtype=float).transpose(1, 0, 2)[None]  # (1, n_reach, M, 2)
+    flags = np.array([yields], dtype=np.bool_)
+    cost, violation = path_expense(
+        pts, np.array([track], dtype=float), tree, flags, 1000.0, 700.0, 60.0, 120.0
+    )
+    return float(cost[0]), float(violation[0])
+
+
+def test_path_expense_zero_in_the_band() -> None:
+    # neighbour steady at 400 m, able to reach 360 m or 440 m: all inside [R'_s, R'_c] = [120, 700]
+    reach = [[[360, 0], [440, 0]], [[360, 0], [440, 0]]]
+    assert expense([[0, 0], [0, 0]], [[400, 0], [400, 0], [400, 0]], reach) == (0.0, 0.0)
+    none = (np.zeros((0, 4, 2)), np.zeros((0, 1, 3, 2)), np.zeros(0, dtype=np.bool_))
+    cost, violation = path_expense(np.zeros((4, 3, 2)), *none, 1000.0, 700.0, 60.0, 120.0)
+    assert cost.tolist() == [0.0] * 4 and violation.tolist() == [0.0] * 4
+
+
+def test_path_expense_repulsion_keeps_room_for_the_neighbour_to_move() -> None:
+    # Predicted steady at 180 m; it moves up to 40 m a step (its reachable point at step 1 is 140 m
+    # away), so at step m the repulsion uses 180 - 40 m:
+    # step 1: 140 >= R'_s -> 0; step 2: (120 - 100) / (100 - 60) = 0.5 -> e^0.5 - 1 = 0.6487213
+    reach = [[[0, 140]], [[0, 100]]]
+    track = [[0, 180], [0, 180], [0, 180]]
+    assert expense([[0, 0], [0, 0]], track, reach) == pytest.approx((0.6487213, 0.0))
+    # the soft term takes the worst case for every neighbour, yielded to or not
+    assert expense([[0, 0], [0, 0]], track, reach, yields=False) == pytest.approx((0.6487213, 0.0))
+    # Steady at 150 m: step 1: 110 -> 10 / 50 = 0.2 -> e^0.2 - 1 = 0.2214028;
+    # step 2: 70 -> 50 / 10 = 5 -> e^5 - 1 = 147.4131591; total 147.6345619
+    steady = [[0, 150], [0, 150], [0, 150]]
+    assert expense([[0, 0], [0, 0]], steady, [[[0, 110]], [[0, 70]]]) == pytest.approx((147.6345619, 0.0))
+    # the predicted distance counts when it is the smaller: predicted 100 m, 500 - 40 = 460 m
+    # -> (120 - 100) / (100 - 60) = 0.5 -> 0.6487213
+    assert expense([[0, 0]], [[0, 500], [0, 100]], [[[0, 460]]]) == pytest.approx((0.6487213, 0.0))
+
+
+def test_path_expense_attraction_allows_one_step_of_retreat_on_the_first_step() -> None:
+    # predicted steady at 700 m, able to retreat 40 m a step: step 1 link distance 740 m
+    # -> (740 - 700) / (1000 - 740) = 0.1538462 -> e^0.1538462 - 1 = 0.1663114; step 2 uses 700 -> 0
+    reach = [[[740, 0]], [[780, 0]]]
+    assert expense([[0, 0], [0, 0]], [[700, 0], [700, 0], [700, 0]], reach) == pytest.approx((0.1663114, 0.0))
+
+
+def test_path_expense_first_step_violation_gives_right_of_way_to_the_lower_id() -> None:
+    # neighbour predicted at 980 m, able to reach 1020 m: 20 m beyond R_c; the barrier is >= e^30 - 1
+    cost, violation = expense([[0, 0]], [[980, 0], [980, 0]], [[[1020, 0]]])
+    assert violation == pytest.approx(20.0) and cost >= math.expm1(30.0)
+    # against a neighbour we do not yield to, only its predicted 980 m counts: no violation
+    cost, violation = expense([[0, 0]], [[980, 0], [980, 0]], [[[1020, 0]]], yields=False)
+    assert violation == 0.0 and cost >= math.expm1(30.0)
+    # neighbour predicted at 80 m, able to reach 40 m: 20 m inside R_s
+    cost, violation = expense([[0, 0]], [[80, 0], [80, 0]], [[[40, 0]]])
+    assert violation == pytest.approx(20.0) and cost >= math.expm1(30.0)
+    assert expense([[0, 0]], [[80, 0], [80, 0]], [[[40, 0]]], yields=False)[1] == 0.0
+
+
+def test_region_key_is_the_prefix_inside_and_the_distance_back_outside() -> None:
+    square = ConvexPolygon.from_vertices([(0, 0), (100, 0), (100, 100), (0, 100)])
+    pts = np.array([[[50, 50], [50, 90]], [[50, 140], [50, 180]]], dtype=float)
+    # path 0: prefix 2; path 1: first point outside: (40 + 80) / 40 = 3 cells beyond -> 0 - 3
+    key = region_key(np.array([2, 0]), pts, square.normals, square.offsets, 40.0)
+    assert key.tolist() == pytest.approx([2.0, -3.0])
+
+
+def select(scores: list[float], prefix: list[int], violation: list[float] | None = None) -> int:
+    v = np.zeros(len(scores)) if violation is None else np.array(violation, dtype=float)
+    return select_path(np.array(scores, dtype=float), np.array(prefix, dtype=float), v)
+
+
+def test_select_path_prefers_the_longest_in_region_prefix() -> None:
+    # paths 0, 2, 3 stay in for all 3 steps; among them path 2 scores best
+    assert select([1.0, 5.0, 4.0, 3.0], [3, 2, 3, 3]) == 2
+    # a great score does not buy leaving the region earlier
+    assert select([1.0, 100.0], [3, 2]) == 0
+    # when none stays in for all steps, the longest prefix wins
+    assert select([9.0, 1.0, 2.0], [0, 1, 1]) == 2
+
+
+def test_select_path_then_least_violation_then_score() -> None:
+    assert select([1.0, 5.0, 4.0], [3, 3, 3], [0.0, 2.0, 0.0]) == 2
+    assert select([1.0, 5.0, 4.0], [3, 3, 3], [3.0, 1.0, 2.0]) == 1
+    # the region prefix comes before the violation
+    assert select([1.0, 9.0, 2.0], [3, 2, 3], [5.0, 0.0, 5.0]) == 2
+
+
+def test_select_path_ties_go_to_the_first() -> None:
+    assert select([2.0, 2.0, 2.0], [3, 3, 3]) == 0
+    assert select([1.0, 2.0, 2.0], [3, 3, 3]) == 1
+
+
+@pytest.fixture(scope="module")
+def small_grid() -> Grid:
+    # 3 x 3 cells of 40 m: centres 20, 60, 100 on each axis
+    return Grid.build(ConvexPolygon.from_vertices([(0, 0), (120, 0), (120, 120), (0, 120)]), 40.0, 60.0)
+
+
+def test_grid_path_cells(small_grid: Grid) -> None:
+    g = small_grid
+    pts = np.array(
+        [
+            [[20.0, 20.0], [60.0, 20.0], [100.0, 20.0]],  # all inside
+            [[20.0, 20.0], [140.0, 20.0], [100.0, 20.0]],  # leaves at step 2: prefix 1
+            [[-20.0, 20.0], [20.0, 20.0], [60.0, 20.0]],  # starts outside: prefix 0
+        ]
+    )
+    cells, fov, prefix = grid_path_cells(pts, g.x0, g.y0, g.cell_size, g.lattice, g.fov_table)
+    assert prefix.tolist() == [3, 1, 0]
+    assert cells.tolist() == [[0, 1, 2], [0, -1, 2], [-1, 0, 1]]
+    assert np.array_equal(fov[0, 0], g.fov_table[0])
+    assert np.all(fov[1, 1] == g.n_cells)  # outside: all padding
+    # FOV of the corner cell (20, 20): the 2 x 2 block 0, 1, 3, 4
+    assert sorted(c for c in fov[0, 0].tolist() if c < g.n_cells) == [0, 1, 3, 4]
+
+
+@pytest.fixture(scope="module")
+def scenario_grid() -> Grid:
+    square = [(-1000.0, -1000.0), (1000.0, -1000.0), (1000.0, 1000.0), (-1000.0, 1000.0)]
+    return Grid.build(ConvexPolygon.from_vertices(square), 40.0, 60.0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 49), st.integers(0, 49), st.integers(0, 7), st.integers(0, 2**32 - 1))
+def test_chosen_path_stays_in_the_region(scenario_grid: Grid, col: int, row: int, h8: int, seed: int) -> None:
+    g = scenario_grid
+    tree = PathTree.build(Kinematics("grid", 20.0, 2.0, math.pi / 4, 40.0), 3)
+    x, y = -980.0 + 40 * col, -980.0 + 40 * row
+    pts = tree.expand(x, y, h8 * math.pi / 4)
+    _, _, prefix = grid_path_cells(pts, g.x0, g.y0, g.cell_size, g.lattice, g.fov_table)
+    inside = np.asarray(g.region.contains(pts[..., 0], pts[..., 1]))
+    assert np.array_equal(prefix, np.cumprod(inside, axis=1).sum(axis=1))
+    scores = np.random.default_rng(seed).normal(size=len(pts))
+    best = select_path(scores, prefix.astype(float), np.zeros(len(pts)))
+    assert prefix[best] == prefix.max()
+    if prefix.max() == 3:
+        assert inside[best].all()
