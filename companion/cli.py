@@ -122,6 +122,7 @@ def _run(args: argparse.Namespace) -> int:
             command_mode=args.command_mode,
             flavour=args.flavour,
             progress=not args.quiet,
+            keep_going=args.keep_going,
         )
     )
 
@@ -206,6 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     ru.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
     ru.add_argument("--flavour", choices=("ardupilot", "px4"), default=None)
     ru.add_argument("--quiet", action="store_true")
+    ru.add_argument(
+        "--keep-going", action="store_true", help="fly all the steps even when every target is found"
+    )
     ru.set_defaults(func=_run)
 
     ro = sub.add_parser("router", help="a Zenoh router for client-mode meshes")

@@ -42,6 +42,7 @@ class RunOptions:
     command_mode: str = "turn-rate"
     flavour: str | None = None
     progress: bool = True
+    keep_going: bool = False  # fly all the steps even when every target is found
 
 
 class Children:
@@ -188,7 +189,8 @@ def run_mission(opts: RunOptions) -> int:
                 print(line, flush=True)
                 last_print = time.monotonic()
             companions = [p for n, p in children.procs.items() if n.startswith("companion")]
-            if found == len(targets) or all(p.poll() is not None for p in companions):
+            all_found = found == len(targets) and not opts.keep_going
+            if all_found or all(p.poll() is not None for p in companions):
                 break
             if sim.poll() is not None:
                 print("error: the simulator stopped", file=sys.stderr)

@@ -36,6 +36,9 @@ log = logging.getLogger("companion")
 
 COMMAND_MODES = ("turn-rate", "heading", "reposition", "position-target")
 LOCKSTEP_COMMAND = 31010  # MAV_CMD_USER_1: "lockstep: ready for step param1"
+# Guidance is streamed (vehicle seconds between repeats of the current command) so that the
+# autopilot's guidance timeout never fires between steps; PX4 OFFBOARD needs more than 2 Hz.
+STREAM_PERIOD_S = {"turn-rate": 0.5, "heading": 0.5, "position-target": 0.2}
 LINK_TIMEOUT_S = 3.0  # wall seconds without HEARTBEAT before the link counts as lost
 PEER_WAIT_S = 30.0  # lockstep: how long to wait for a live peer's messages before going on
 
@@ -73,7 +76,7 @@ class Companion:
         self.last_position: np.ndarray | None = None
         self.steering = True
         self.last_command: Command | None = None
-        self._last_target_send = -math.inf
+        self._last_send = -math.inf
         self._rows: list[list[object]] = []
         self._log_file = None
         self._log = None
@@ -132,7 +135,7 @@ class Companion:
             link.reposition(lat, lon, self.opts.mission.kinematics.altitude)
         else:
             self._send_target_of(*command.waypoint)
-            self._last_target_send = link.state.time_s
+        self._last_send = link.state.time_s
 
     # -- one step --------------------------------------------------------------------------------
     def _pose(self) -> tuple[float, float, float]:
@@ -230,13 +233,13 @@ class Companion:
                 self.step(k)
                 next_k = k + 1
             elif (
-                self.opts.command_mode == "position-target"
+                self.opts.command_mode in STREAM_PERIOD_S
                 and self.last_command is not None
                 and self.steering
                 and self._steerable()
-                and t - self._last_target_send >= 0.2
+                and t - self._last_send >= STREAM_PERIOD_S[self.opts.command_mode]
             ):
-                self._send(self.last_command)  # PX4 OFFBOARD needs a stream > 2 Hz
+                self._send(self.last_command)
 
     def _run_lockstep(self, stop: threading.Event, budget: int) -> None:
         k = 0
