@@ -140,6 +140,18 @@ def _sim(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _sim_bench(args: argparse.Namespace) -> int:
+    from sim_vehicles.bench import bench_main
+
+    return bench_main(args.args)
+
+
+def _companion_bench(args: argparse.Namespace) -> int:
+    from companion.bench import bench_main
+
+    return bench_main(args.args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uavsearch", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -222,10 +234,26 @@ def build_parser() -> argparse.ArgumentParser:
     si = sub.add_parser("sim", help="the MAVLink fixed-wing simulator (all the mission's vehicles)")
     add_arguments(si)
     si.set_defaults(func=_sim)
+    sb = sub.add_parser(
+        "sim-bench", help="simulator capacity: vehicles in real time, highest speedup", add_help=False
+    )
+    sb.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
+    sb.set_defaults(func=_sim_bench)
+    cb = sub.add_parser(
+        "companion-bench", help="companion step latency and the largest real-time swarm", add_help=False
+    )
+    cb.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
+    cb.set_defaults(func=_companion_bench)
     return parser
 
 
+PASSTHROUGH = {"sim-bench": _sim_bench, "companion-bench": _companion_bench}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in PASSTHROUGH:  # the benchmarks parse their own options
+        return PASSTHROUGH[argv[0]](argparse.Namespace(args=argv[1:]))
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))

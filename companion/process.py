@@ -41,6 +41,8 @@ LOCKSTEP_COMMAND = 31010  # MAV_CMD_USER_1: "lockstep: ready for step param1"
 STREAM_PERIOD_S = {"turn-rate": 0.5, "heading": 0.5, "position-target": 0.2}
 LINK_TIMEOUT_S = 3.0  # wall seconds without HEARTBEAT before the link counts as lost
 PEER_WAIT_S = 30.0  # lockstep: how long to wait for a live peer's messages before going on
+TAKEOVER_TIMEOUT_S = 30.0  # wall seconds --takeover keeps trying to set the guided mode and arm
+LEAD_STEPS, LEAD_MIN_M = 5, 200.0  # waypoint modes fly to a point this far ahead (see _lead_point)
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,8 @@ class Companion:
         self.steering = True
         self.last_command: Command | None = None
         self._last_send = -math.inf
+        self._seen_alive: set[int] = set()
+        self._departed: set[int] = set()
         self._rows: list[list[object]] = []
         self._log_file = None
         self._log = None
@@ -98,6 +102,7 @@ class Companion:
                     "turn",
                     "cmd_x",
                     "cmd_y",
+                    "peers",
                 ]
             )
 
@@ -110,15 +115,29 @@ class Companion:
             return s.custom_mode == PX4_OFFBOARD
         return s.custom_mode == ARDUPILOT_GUIDED
 
-    def _take_over(self) -> None:
-        """Switch the vehicle to its guided mode and arm it (only with --takeover)."""
-        s = self.link.state
-        if s.px4:
-            self._send_target_of(self.link.state.x, self.link.state.y)  # OFFBOARD wants setpoints first
-            self.link.set_mode(PX4_OFFBOARD if self.opts.command_mode != "reposition" else PX4_HOLD)
-        else:
-            self.link.set_mode(ARDUPILOT_GUIDED)
-        self.link.arm()
+    def _take_over(self, stop: threading.Event) -> None:
+        """Switch the vehicle to its guided mode and arm it (only with --takeover), retrying until
+        its HEARTBEAT shows both. PX4 refuses OFFBOARD without a setpoint stream (> 2 Hz): stream
+        the current position first, and keep streaming while waiting."""
+        s, link = self.link.state, self.link
+        offboard = s.px4 and self.opts.command_mode != "reposition"
+        want = (PX4_OFFBOARD if offboard else PX4_HOLD) if s.px4 else ARDUPILOT_GUIDED
+        deadline = time.monotonic() + TAKEOVER_TIMEOUT_S
+        sent, last_wall, last_try = 0, -math.inf, -math.inf
+        while not stop.is_set() and not (self._steerable() and s.armed):
+            now = time.monotonic()
+            if now > deadline:
+                log.warning("uav %d: takeover failed: not in the guided mode and armed", self.opts.uav)
+                return
+            period = STREAM_PERIOD_S["position-target"]
+            if offboard and (s.time_s - self._last_send >= period or now - last_wall >= period):
+                self._send_target_of(s.x, s.y)
+                self._last_send, last_wall, sent = s.time_s, now, sent + 1
+            if (not offboard or sent >= 3) and now - last_try >= 1.0:
+                link.set_mode(want)
+                link.arm()
+                last_try = now
+            link.poll(0.02)
 
     def _send_target_of(self, x: float, y: float) -> None:
         lat, lon, _ = self.frame.to_geodetic(x, y)
@@ -131,11 +150,25 @@ class Companion:
         elif mode == "heading":
             link.change_heading(math.degrees(heading_to_yaw(command.heading)))
         elif mode == "reposition":
-            lat, lon, _ = self.frame.to_geodetic(*command.waypoint)
+            lat, lon, _ = self.frame.to_geodetic(*self._lead_point(command))
             link.reposition(lat, lon, self.opts.mission.kinematics.altitude)
         else:
-            self._send_target_of(*command.waypoint)
+            self._send_target_of(*self._lead_point(command))
         self._last_send = link.state.time_s
+
+    def _lead_point(self, command: Command) -> tuple[float, float]:
+        """Where the waypoint modes fly: ahead of the step's pose on the commanded heading.
+
+        The next planned path point is one step (v dT) away, inside the acceptance radius of an
+        autopilot (WP_RADIUS, NAV_ACC_RAD): it would count as reached at once and the vehicle
+        would loiter around it. A point LEAD_STEPS steps (at least LEAD_MIN_M) out on the heading
+        the plan reaches after its first step turns the vehicle onto that heading now.
+        """
+        assert self.last_position is not None
+        k = self.opts.mission.kinematics
+        lead = max(LEAD_STEPS * k.speed * k.step, LEAD_MIN_M)
+        x, y = float(self.last_position[0]), float(self.last_position[1])
+        return x + lead * math.cos(command.heading), y + lead * math.sin(command.heading)
 
     # -- one step --------------------------------------------------------------------------------
     def _pose(self) -> tuple[float, float, float]:
@@ -148,7 +181,19 @@ class Companion:
             return g.x0 + col * g.cell_size, g.y0 + row * g.cell_size, round(s.heading / eighth) * eighth
         return s.x, s.y, s.heading
 
+    def _forget_departed(self) -> None:
+        """A peer whose liveliness token vanished is forgotten at once, so its task goes back to the
+        auction without waiting for the agent's peer timeout."""
+        alive = self.mesh.alive_peers()
+        for uav in self._seen_alive - alive:
+            if uav not in self._departed:
+                log.warning("uav %d: uav %d left the mesh; its task is free", self.opts.uav, uav)
+            self.agent.forget(uav)  # every step: relayed states of it may still arrive
+        self._departed = self._seen_alive - alive
+        self._seen_alive |= alive
+
     def step(self, k: int) -> Command:
+        self._forget_departed()
         x, y, heading = self._pose()
         seen = self.camera.take(round(k * self.dt * 1e6))
         own = self.last_position if self.last_position is not None else np.array([x, y])
@@ -178,6 +223,7 @@ class Companion:
                     f"{command.turn:.6f}",
                     f"{command.waypoint[0]:.3f}",
                     f"{command.waypoint[1]:.3f}",
+                    len(self.agent.peers),
                 ]
             )
             assert self._log_file is not None
@@ -206,7 +252,7 @@ class Companion:
         while not stop.is_set() and not self.link.state.has_pose:
             self.link.poll(0.2)
         if self.opts.takeover:
-            self._take_over()
+            self._take_over(stop)
         budget = self.opts.steps if self.opts.steps is not None else self.opts.mission.steps
         if self.opts.lockstep:
             self._run_lockstep(stop, budget)

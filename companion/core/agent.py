@@ -104,6 +104,7 @@ class Agent:
         self.seen = np.zeros(n, dtype=bool)
         self.found: set[int] = set()
         self.peers: dict[int, UavState] = {}
+        self._tracks: dict[int, np.ndarray] = {}  # each peer's position at its stamp, then its plan
         self.rejected = 0
         self.task = -1
         self.task_reward = 0.0
@@ -120,10 +121,16 @@ class Agent:
         timeout = self.world.mission.comms.peer_timeout_steps
         return msg.sender != self.uav and k - timeout <= msg.stamp <= k
 
+    def forget(self, uav: int) -> None:
+        """Drop what is known of a UAV that has left (its task is free for the next auction)."""
+        self.peers.pop(uav, None)
+        self._tracks.pop(uav, None)
+
     def _remember(self, state: UavState) -> None:
         old = self.peers.get(state.uav)
         if state.uav != self.uav and (old is None or state.stamp > old.stamp):
             self.peers[state.uav] = state
+            self._tracks[state.uav] = np.array([(state.x, state.y), *state.plan])
 
     def _ingest(
         self, inbox: Iterable[Message], k: int
@@ -146,7 +153,8 @@ class Agent:
                 for state in msg.known:
                     self._remember(state)
         timeout = self.world.mission.comms.peer_timeout_steps
-        self.peers = {u: s for u, s in self.peers.items() if s.stamp >= k - timeout}
+        for u in [u for u, s in self.peers.items() if s.stamp < k - timeout]:
+            del self.peers[u], self._tracks[u]
         return looks, bids
 
     # -- map -----------------------------------------------------------------------------------
@@ -233,8 +241,9 @@ class Agent:
         if not self.peers:
             empty = np.zeros((0, n_paths, horizon, 2))
             return np.zeros((0, 2)), np.zeros((0, horizon + 1, 2)), empty, np.zeros(0, dtype=np.bool_)
-        states = [self.peers[u] for u in sorted(self.peers)]
-        seqs = np.array([[(s.x, s.y), *s.plan] for s in states])
+        ids = sorted(self.peers)
+        states = [self.peers[u] for u in ids]
+        seqs = np.stack([self._tracks[u] for u in ids])
         stamps = np.array([s.stamp for s in states])
         tracks = predict_tracks(seqs, stamps, k, horizon + 1)
         now = np.concatenate((position[None, :], tracks[:, 0, :]))

@@ -152,4 +152,4 @@ class PathTree:
         """Heading after `step` + 1 steps along path `path` from `heading`."""
         i = self._table(heading)
         start = i * _EIGHTH if self.kinematics.mode == "grid" else heading
-        return float(wrap_angle(start + self.turned[i, path, step]))
+        return (start + float(self.turned[i, path, step]) + math.pi) % (2 * math.pi) - math.pi

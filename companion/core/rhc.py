@@ -157,8 +157,10 @@ def region_key(prefix: IntArray, points: FloatArray, normals: FloatArray, offset
     """How well each path keeps to the region (the region constraint of eq. 23): its in-region prefix
     (M when it never leaves), and for a path whose first point is outside, minus the distance its
     points lie beyond the boundary (summed, in cells), so that a UAV outside turns back at once."""
+    if prefix.max() > 0:  # paths that leave at once cannot compete with one that does not
+        return prefix.astype(np.float64)
     beyond = np.maximum(np.max(points @ normals.T - offsets, axis=-1), 0.0).sum(axis=1)
-    return prefix - np.where(prefix == 0, beyond / cell_size, 0.0)
+    return -beyond / cell_size
 
 
 @njit(cache=True)

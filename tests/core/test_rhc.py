@@ -125,9 +125,12 @@ def test_path_expense_first_step_violation_gives_right_of_way_to_the_lower_id() 
 def test_region_key_is_the_prefix_inside_and_the_distance_back_outside() -> None:
     square = ConvexPolygon.from_vertices([(0, 0), (100, 0), (100, 100), (0, 100)])
     pts = np.array([[[50, 50], [50, 90]], [[50, 140], [50, 180]]], dtype=float)
-    # path 0: prefix 2; path 1: first point outside: (40 + 80) / 40 = 3 cells beyond -> 0 - 3
     key = region_key(np.array([2, 0]), pts, square.normals, square.offsets, 40.0)
-    assert key.tolist() == pytest.approx([2.0, -3.0])
+    assert key[0] == 2.0 and key[1] < key[0]
+    # both paths start outside: (40 + 80) / 40 = 3 cells beyond, and (10 + 50) / 40 = 1.5 cells
+    outside = np.array([[[50, 140], [50, 180]], [[50, 110], [50, 150]]], dtype=float)
+    key = region_key(np.array([0, 0]), outside, square.normals, square.offsets, 40.0)
+    assert key.tolist() == pytest.approx([-3.0, -1.5])
 
 
 def select(scores: list[float], prefix: list[int], violation: list[float] | None = None) -> int:

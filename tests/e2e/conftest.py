@@ -1,0 +1,423 @@
+"""Shared fixtures of the companion's end-to-end tests: real processes over loopback only.
+
+- `make_mission`: a temporary mission derived from mission_files/scenario1.toml with its own free
+  UDP port per vehicle (`mavlink_port`), a unique `[mesh] key_prefix` and free `seed_endpoint` /
+  `router` TCP ports, all on 127.0.0.1, so tests never meet another run on the machine.
+- `procs`: starts subprocesses in their own session, records their PIDs (and, while they run,
+  the PIDs of their descendants, e.g. the launcher's children) and stops every one of them by PID
+  in the finalizer: SIGINT, then SIGKILL after a generous timeout. Nothing is ever killed by name.
+- `Ground`: a small pymavlink ground station on one vehicle's UDP endpoint.
+- CSV helpers for the companion's step log (uav{i}.csv).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
+from companion.mission import Mission, load_mission
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENARIO1 = ROOT / "mission_files" / "scenario1.toml"
+PY = sys.executable
+STARTUP_S = 90.0  # generous: a busy 2-core machine imports numpy, numba, pymavlink and zenoh slowly
+STOP_S = 30.0  # how long a process gets after SIGINT before SIGKILL
+GUIDED, LOITER = 15, 12  # ArduPlane custom modes
+# The autopilots' guidance timeout (SIM_GUIDED_TMO, COM_OF_LOSS_T) in simulated seconds: at
+# --speedup 10 the default 3 s is 0.3 s of wall time, less than a companion may be starved of
+# CPU on a loaded 2-core machine; 20 s (2 s wall) keeps the tests about steering, not about load.
+SLACK_GUIDED_TIMEOUT = "guided_timeout = 20.0"
+
+
+# -- ports and missions ---------------------------------------------------------------------------
+def free_ports(kind: int, n: int) -> list[int]:
+    """n distinct free ports on 127.0.0.1 (all bound at once, so no two are the same)."""
+    socks = [socket.socket(socket.AF_INET, kind) for _ in range(n)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+@dataclass(frozen=True)
+class MissionFile:
+    path: Path
+    ports: list[int]  # UDP port of vehicle i
+    mission: Mission
+
+    @property
+    def n(self) -> int:
+        return self.mission.n_uavs
+
+
+def write_mission(
+    directory: Path, *, n: int = 4, kinematics: str = "continuous", sim: str = SLACK_GUIDED_TIMEOUT
+) -> MissionFile:
+    """scenario1 with its first n vehicles (same starts), on free ports and its own key space.
+
+    `kinematics` "continuous" makes the vehicles respond to guidance during the step it is sent
+    in (grid mode applies guidance at the next step boundary only, one step late in real time).
+    """
+    text = SCENARIO1.read_text(encoding="utf-8")
+    head, *vehicles = text.split("[[vehicles]]")
+    vehicles[-1] = vehicles[-1].split("[pass_criteria]")[0]
+    assert 1 <= n <= len(vehicles)
+    prefix = f"e2e{uuid.uuid4().hex[:12]}"
+    head = head.replace('mode = "grid"', f'mode = "{kinematics}"')
+    ports = free_ports(socket.SOCK_DGRAM, n)
+    seed, router = free_ports(socket.SOCK_STREAM, 2)
+    out = head
+    for body, port in zip(vehicles[:n], ports, strict=True):
+        out += "[[vehicles]]" + body.rstrip() + f"\nmavlink_port = {port}\n\n"
+    out += f'[sim]\nhost = "127.0.0.1"\n{sim}\n\n'
+    out += f'[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{seed}"\n'
+    out += f'router = "tcp/127.0.0.1:{router}"\n\n[pass_criteria]\nmin_targets_found = 0\n'
+    path = directory / f"mission-{prefix}.toml"
+    path.write_text(out, encoding="utf-8")
+    return MissionFile(path, ports, load_mission(path))
+
+
+@pytest.fixture
+def make_mission(tmp_path: Path) -> Callable[..., MissionFile]:
+    return lambda **kw: write_mission(tmp_path, **kw)
+
+
+# -- processes ------------------------------------------------------------------------------------
+def _stat(pid: int) -> tuple[int, int] | None:
+    """(parent pid, start time) of a live process, from /proc; None if it is gone."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text.rsplit(")", 1)[1].split()
+    if fields[0] == "Z":
+        return None
+    return int(fields[1]), int(fields[19])
+
+
+def _children_of(pids: set[int]) -> dict[int, int]:
+    """{pid: start time} of the live processes whose parent is in `pids`."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and (st := _stat(int(entry.name))) is not None and st[0] in pids:
+            found[int(entry.name)] = st[1]
+    return found
+
+
+def _same_process_alive(pid: int, start: int) -> bool:
+    st = _stat(pid)
+    return st is not None and st[1] == start
+
+
+class Proc:
+    """A subprocess with its output in a log file; its descendants are tracked while it runs."""
+
+    def __init__(
+        self, name: str, argv: list[str], log: Path, cwd: Path = ROOT, stdin: int | None = subprocess.DEVNULL
+    ) -> None:
+        self.name, self.argv, self.log = name, argv, log
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "MAVLINK20": "1"}
+        with log.open("w") as f:
+            self.popen = subprocess.Popen(
+                argv,
+                cwd=cwd,
+                stdout=f,
+                stderr=subprocess.STDOUT,
+                stdin=stdin,
+                env=env,
+                start_new_session=True,
+                text=True,
+            )
+        self.pid = self.popen.pid
+        self.descendants: dict[int, int] = {}  # pid -> start time, PIDs recorded while running
+        self._lock = threading.Lock()
+        self._watch = threading.Thread(target=self._track, daemon=True)
+        self._watch.start()
+
+    def _track(self) -> None:
+        while self.popen.poll() is None:
+            self.refresh()
+            time.sleep(0.3)
+
+    def refresh(self) -> None:
+        with self._lock:
+            known = {self.pid, *self.descendants}
+            while new := {p: s for p, s in _children_of(known).items() if p not in self.descendants}:
+                self.descendants.update(new)
+                known |= set(new)
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def text(self) -> str:
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+    def wait_for_text(self, text: str, timeout: float = STARTUP_S) -> None:
+        deadline = time.monotonic() + timeout
+        while text not in self.text():
+            assert self.alive(), f"{self.name} exited with {self.popen.returncode}:\n{self.text()}"
+            assert time.monotonic() < deadline, f"{self.name}: no '{text}' in {timeout:.0f} s:\n{self.text()}"
+            time.sleep(0.1)
+
+    def wait(self, timeout: float) -> int:
+        return self.popen.wait(timeout)
+
+    def stop(self, timeout: float = STOP_S) -> int:
+        """SIGINT, wait, SIGKILL if still running; then the same for any descendant left behind."""
+        if self.alive():
+            self.refresh()
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGINT)
+            try:
+                self.popen.wait(timeout)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(self.pid, signal.SIGKILL)
+                self.popen.wait()
+        self._watch.join(timeout=5)
+        with self._lock:
+            left = {p: s for p, s in self.descendants.items() if _same_process_alive(p, s)}
+        for pid, start in left.items():
+            if _same_process_alive(pid, start):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        for pid, start in left.items():
+            while _same_process_alive(pid, start) and time.monotonic() < deadline:
+                time.sleep(0.1)
+            if _same_process_alive(pid, start):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+        return self.popen.returncode
+
+
+class Procs:
+    """Every process a test started; `stop_all` (the finalizer) stops them by PID, newest first."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.started: list[Proc] = []
+
+    def start(self, name: str, argv: list[str], **kw: object) -> Proc:
+        proc = Proc(name, argv, self.directory / f"{name}.log", **kw)  # type: ignore[arg-type]
+        self.started.append(proc)
+        return proc
+
+    def sim(self, mission: MissionFile, *args: str, name: str = "sim") -> Proc:
+        """The simulator, up when it has printed every vehicle's endpoint."""
+        proc = self.start(name, [PY, "-m", "sim_vehicles", "--mission", str(mission.path), *args])
+        proc.wait_for_text(f"vehicle {mission.n - 1} sysid")
+        return proc
+
+    def companion(self, mission: MissionFile, uav: int, out: Path, *args: str) -> Proc:
+        argv = [
+            PY,
+            "-m",
+            "companion.cli",
+            "companion",
+            "--mission",
+            str(mission.path),
+            "--uav",
+            str(uav),
+            "--out",
+            str(out),
+            *args,
+        ]
+        return self.start(f"companion{uav}", argv)
+
+    def stop_all(self) -> None:
+        for proc in reversed(self.started):
+            proc.stop()
+
+
+@pytest.fixture
+def procs(tmp_path: Path) -> Iterator[Procs]:
+    group = Procs(tmp_path)
+    try:
+        yield group
+    finally:
+        group.stop_all()
+
+
+# -- a ground station -----------------------------------------------------------------------------
+class Ground:
+    """A pymavlink ground station (system 250) on one vehicle's endpoint (the vehicle listens)."""
+
+    def __init__(self, port: int, sysid: int) -> None:
+        self.conn = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", source_system=250, dialect="ardupilotmega"
+        )
+        self.sysid = sysid
+        self._hello = 0.0
+
+    def _say_hello(self) -> None:
+        if time.monotonic() - self._hello >= 1.0:
+            self.conn.mav.heartbeat_send(
+                mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0
+            )
+            self._hello = time.monotonic()
+
+    def wait(
+        self, kind: str | list[str], cond: Callable[[object], bool] = lambda _m: True, timeout: float = 30.0
+    ) -> object | None:
+        """The next message of `kind` from our vehicle satisfying `cond`, or None on timeout."""
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            self._say_hello()
+            msg = self.conn.recv_match(type=kind, blocking=True, timeout=min(left, 0.5))
+            if msg is not None and msg.get_srcSystem() == self.sysid and cond(msg):
+                return msg
+        return None
+
+    def set_guided_and_arm(self, timeout: float = 30.0) -> None:
+        """What a pilot does before a companion may steer: GUIDED, armed (retried until seen)."""
+        m = mavutil.mavlink
+        deadline = time.monotonic() + timeout
+        while True:
+            self.conn.mav.command_long_send(
+                self.sysid,
+                1,
+                m.MAV_CMD_DO_SET_MODE,
+                0,
+                m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                GUIDED,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
+            self.conn.mav.command_long_send(
+                self.sysid, 1, m.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0
+            )
+            beat = self.wait("HEARTBEAT", lambda h: h.get_srcComponent() == 1, timeout=1.5)
+            if (
+                beat is not None
+                and beat.custom_mode == GUIDED
+                and beat.base_mode & m.MAV_MODE_FLAG_SAFETY_ARMED
+            ):
+                return
+            assert time.monotonic() < deadline, "the vehicle did not take GUIDED + armed"
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.conn.close()
+
+
+@pytest.fixture
+def ground() -> Iterator[Callable[[int, int], Ground]]:
+    opened: list[Ground] = []
+
+    def open_ground(port: int, sysid: int) -> Ground:
+        g = Ground(port, sysid)
+        opened.append(g)
+        return g
+
+    yield open_ground
+    for g in opened:
+        g.close()
+
+
+# -- the companion's step log ---------------------------------------------------------------------
+def read_csv(path: Path) -> list[dict[str, float]]:
+    """Complete rows of a companion's uav{i}.csv (a line cut short by a kill is skipped)."""
+    if not path.exists():
+        return []
+    rows = []
+    with path.open(newline="") as f:
+        for row in csv.DictReader(f):
+            try:
+                rows.append({k: float(v) for k, v in row.items()})
+            except (TypeError, ValueError):
+                continue
+    return rows
+
+
+def wait_rows(
+    path: Path,
+    count: int,
+    proc: Proc | None = None,
+    timeout: float = STARTUP_S,
+    cond: Callable[[dict[str, float]], bool] = lambda _r: True,
+) -> list[dict[str, float]]:
+    """Wait until `count` rows satisfying `cond` are logged; returns all rows."""
+    deadline = time.monotonic() + timeout
+    while True:
+        rows = read_csv(path)
+        if sum(1 for r in rows if cond(r)) >= count:
+            return rows
+        if proc is not None:
+            assert proc.alive(), f"{proc.name} exited with {proc.popen.returncode}:\n{proc.text()}"
+        assert time.monotonic() < deadline, f"{path.name}: fewer than {count} rows in {timeout:.0f} s"
+        time.sleep(0.1)
+
+
+@dataclass(frozen=True)
+class Following:
+    """How the vehicle flew the steps after each command, against flying straight on."""
+
+    informative: int  # consecutive steered steps whose command differs from straight on
+    closer: int  # ... after which the vehicle was closer to the commanded point than straight on
+    err_command: float  # mean distance of the next pose to the commanded point (m)
+    err_straight: float  # mean distance of the next pose to the straight-on prediction (m)
+
+
+def following(
+    rows: list[dict[str, float]], speed: float, dt: float, skip: int = 3, min_gap: float = 5.0
+) -> Following:
+    """Compare the pose one step after each command with the commanded point (cmd_x, cmd_y: where
+    the plan puts the UAV one step later) and with where flying straight on would have put it.
+
+    Only consecutive steered steps count whose commanded point is at least `min_gap` metres from
+    the straight-on point (a command to fly straight cannot tell following from ignoring)."""
+    by_step = {int(r["step"]): r for r in rows}
+    steps = sorted(by_step)[skip:]
+    n = closer = 0
+    err_c = err_s = 0.0
+    for k in steps:
+        a, b = by_step[k], by_step.get(k + 1)
+        if b is None or not (a["steered"] and b["steered"]):
+            continue
+        sx = a["x"] + speed * dt * math.cos(a["heading"])
+        sy = a["y"] + speed * dt * math.sin(a["heading"])
+        if math.hypot(a["cmd_x"] - sx, a["cmd_y"] - sy) < min_gap:
+            continue
+        c = math.hypot(b["x"] - a["cmd_x"], b["y"] - a["cmd_y"])
+        s = math.hypot(b["x"] - sx, b["y"] - sy)
+        n += 1
+        closer += c < s
+        err_c += c
+        err_s += s
+    return Following(n, closer, err_c / max(n, 1), err_s / max(n, 1))
+
+
+def assert_follows(rows: list[dict[str, float]], speed: float, dt: float, what: str, skip: int = 3) -> None:
+    """The companion steered on most steps and the vehicle flew its commands, not straight on."""
+    later = [r for r in rows if r["step"] >= rows[0]["step"] + skip]
+    assert later, f"{what}: no steps logged"
+    steered = sum(r["steered"] for r in later) / len(later)
+    assert steered >= 0.9, f"{what}: steered on only {steered:.0%} of the steps"
+    f = following(rows, speed, dt, skip)
+    assert f.informative >= 5, f"{what}: too few turning commands to judge ({f})"
+    assert f.closer >= 0.7 * f.informative, f"{what}: the vehicle did not follow its commands ({f})"
+    assert f.err_command < 0.6 * f.err_straight, f"{what}: the vehicle did not follow its commands ({f})"

@@ -1,0 +1,118 @@
+"""Kill -9 one companion mid-mission (`uavsearch run`, scenario1's four UAVs, sped up).
+
+The other three carry on; they forget the dead UAV within a few steps (their `peers` count drops
+from 3 to 2), so its task is no longer held by anyone in their views and goes back to the auction;
+its vehicle, without guidance, falls back to LOITER (seen on our own MAVLink connection); and the
+mission still ends with a report.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+from tests.e2e.conftest import LOITER, PY, STARTUP_S, Proc, Procs, read_csv, wait_rows
+
+STEPS = 80
+KILL_AFTER = 15  # steps logged by the victim before it is killed
+VICTIM = 2
+
+
+def _companion_pid(run: Proc, uav: int) -> int:
+    """The PID of the launcher's companion process for `uav` (from /proc: its command line)."""
+    deadline = time.monotonic() + STARTUP_S
+    while True:
+        run.refresh()
+        for pid in run.descendants:
+            try:
+                argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if (
+                b"companion" in argv
+                and b"--uav" in argv
+                and argv[argv.index(b"--uav") + 1] == str(uav).encode()
+            ):
+                return pid
+        assert run.alive() and time.monotonic() < deadline, f"no companion {uav}:\n{run.text()}"
+        time.sleep(0.2)
+
+
+def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_path: Path) -> None:
+    mission = make_mission(n=4, kinematics="grid")
+    m = mission.mission
+    out = tmp_path / "out"
+    run = procs.start(
+        "run",
+        [
+            PY,
+            "-m",
+            "companion.cli",
+            "run",
+            str(mission.path),
+            "--speedup",
+            "10",
+            "--steps",
+            str(STEPS),
+            "--out",
+            str(out),
+            "--quiet",
+            "--keep-going",
+        ],
+    )
+    victim_pid = _companion_pid(run, VICTIM)
+    deadline = time.monotonic() + STARTUP_S
+    while "vehicle 3 sysid" not in ((out / "sim.log").read_text() if (out / "sim.log").exists() else ""):
+        assert run.alive() and time.monotonic() < deadline, run.text()
+        time.sleep(0.2)
+    gcs = ground(mission.ports[VICTIM], VICTIM + 1)
+    wait_rows(out / f"uav{VICTIM}.csv", KILL_AFTER, run)
+    assert gcs.wait("HEARTBEAT", lambda h: h.custom_mode == 15), "the victim's vehicle is not in GUIDED"
+
+    os.kill(victim_pid, signal.SIGKILL)
+    kill_step = int(max(r["step"] for r in read_csv(out / f"uav{VICTIM}.csv")))
+
+    # its vehicle: no more guidance, so the autopilot's guidance timeout puts it in LOITER
+    texts: list[str] = []
+
+    def loiter(msg: object) -> bool:
+        if msg.get_type() == "STATUSTEXT":
+            texts.append(msg.text)
+            return False
+        return msg.get_srcComponent() == 1 and msg.custom_mode == LOITER
+
+    assert gcs.wait(["HEARTBEAT", "STATUSTEXT"], loiter, timeout=60), f"no LOITER; texts {texts}"
+
+    rc = run.wait(timeout=STARTUP_S + 120)
+    assert rc in (0, 1), run.text()  # 1: pass criteria not met in so short a mission
+
+    # the others carried on well past the kill
+    survivors = [i for i in range(m.n_uavs) if i != VICTIM]
+    timeout = m.comms.peer_timeout_steps
+    for i in survivors:
+        rows = {int(r["step"]): r for r in read_csv(out / f"uav{i}.csv")}
+        assert max(rows) >= kill_step + 40, f"uav{i} stopped at step {max(rows)} (kill at {kill_step})"
+        assert len(rows) >= STEPS - 2
+        # before the kill it knew all three others (directly or through relayed claims) ...
+        before = [rows[k]["peers"] for k in range(kill_step - 4, kill_step + 1) if k in rows]
+        assert before and max(before) == 3, f"uav{i} peers before the kill: {before}"
+        # ... and within a few steps of it, only the two survivors: the dead UAV and its task are gone
+        forgotten = kill_step + timeout + 4
+        after = [(k, r["peers"]) for k, r in rows.items() if k >= forgotten]
+        assert after and all(p <= 2 for _, p in after), f"uav{i} still counts the dead UAV: {after[:10]}"
+        assert all(r["steered"] for k, r in rows.items() if k > kill_step), f"uav{i} stopped steering"
+
+    # the mission ended with a report of the whole run
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["proposed"]["runs"] == 1
+    assert json.loads((out / "criteria.json").read_text()).keys() >= {"passed", "failures"}
+    with (out / "trajectories.csv").open() as f:  # steps from the first one every UAV logged
+        flown = {int(r["step"]) for r in csv.DictReader(f)}
+    assert len(flown) >= STEPS - 2
+    for i in survivors:
+        assert json.loads((out / f"uav{i}.json").read_text())["steps"] >= STEPS - 2
+    assert not (out / f"uav{VICTIM}.json").exists()  # killed: no clean-shutdown report of its own

@@ -1,0 +1,50 @@
+"""Vehicle link lost and restored: the simulator is stopped mid-flight, then started again.
+
+The companion runs without --takeover, as on a real aircraft: the test plays the pilot and puts
+the vehicle in GUIDED and arms it. When the vehicle goes silent the companion says the link is
+lost, stops steering and keeps running with its state; when a vehicle answers again on the same
+endpoint (the pilot puts it back in GUIDED) it says the link is restored and steers again.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tests.e2e.conftest import Procs, read_csv, wait_rows
+
+LOST = "vehicle link lost"
+RESTORED = "vehicle link restored"
+
+
+def test_companion_survives_link_loss_and_resumes(make_mission, procs: Procs, ground, tmp_path: Path) -> None:
+    mission = make_mission(n=1)
+    out = tmp_path / "out"
+    csv_path = out / "uav0.csv"
+    sim = procs.sim(mission, "--speedup", "10")
+    comp = procs.companion(mission, 0, out, "--steps", "100000")
+    pilot = ground(mission.ports[0], 1)
+    pilot.set_guided_and_arm()
+    wait_rows(csv_path, 10, comp, cond=lambda r: r["steered"] == 1)
+
+    assert sim.stop() == 0, sim.text()  # SIGINT by PID: the vehicle goes silent
+    comp.wait_for_text(LOST, timeout=60)
+    assert comp.alive(), comp.text()
+    before = read_csv(csv_path)
+    last = int(before[-1]["step"])
+    assert RESTORED not in comp.text()
+
+    procs.sim(mission, "--speedup", "10", name="sim2")  # the same vehicle endpoint again
+    pilot.set_guided_and_arm()
+    comp.wait_for_text(RESTORED, timeout=60)
+    rows = wait_rows(csv_path, 5, comp, cond=lambda r: r["step"] > last and r["steered"] == 1)
+
+    # during the outage nothing was steered: no step at all between the loss and the restoration
+    assert rows[: len(before)] == before
+    after = [r for r in rows if r["step"] > last]
+    assert after and all(r["step"] > last for r in rows[len(before) :])
+    assert sum(r["steered"] for r in after) >= 5
+    assert comp.text().index(LOST) < comp.text().index(RESTORED)
+
+    assert comp.stop() == 0, comp.text()  # SIGINT: a clean shutdown, its report written
+    assert "Traceback" not in comp.text(), comp.text()
+    assert (out / "uav0.json").exists()
