@@ -118,7 +118,7 @@ def simulate(
             outputs.append(agent.step(obs, inboxes[i]))
         covered[grid.fov_cells(poses[:, :2]).ravel()] = True  # padding index lands in the spare slot
         dist = pairwise_distances(poses[:, :2])
-        unc[k] = float(np.mean([a.eta.mean() for a in agents]))
+        unc[k] = sum(float(a.eta.sum()) for a in agents) / (n * grid.n_cells)  # eq. 30
         found[k] = int(np.count_nonzero(first >= 0))
         cov[k] = covered[:-1].mean()
         lam[k] = algebraic_connectivity(poses[:, :2], mission.comms.range)

@@ -144,7 +144,7 @@ def bench(
                 }
             )
     workers = workers or os.cpu_count() or 1
-    n = 4 * workers
+    n = 12 * workers  # enough runs to amortise the pool start-up
     specs = [RunSpec(missions[0].with_algorithm("proposed"), seed, r, steps) for r in range(n)]
     started = time.perf_counter()
     list(run_specs(specs, workers))

@@ -10,9 +10,12 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
+import signal
+import threading
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor
 from dataclasses import dataclass
+from types import FrameType
 
 import numpy as np
 
@@ -50,10 +53,23 @@ def specs_for(
     ]
 
 
+def _worker_init() -> None:
+    """Workers leave SIGINT to the parent, which stops them (a Ctrl-C reaches the whole group)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _interrupt(_signum: int, _frame: FrameType | None) -> None:
+    raise KeyboardInterrupt
+
+
 def run_specs(
     specs: list[RunSpec], workers: int | None = None, executor: Executor | None = None
 ) -> Iterator[RunResult]:
-    """Results in the order of `specs`, computed on `executor` or a local pool of `workers` processes."""
+    """Results in the order of `specs`, computed on `executor` or a local pool of `workers` processes.
+
+    With the local pool, SIGTERM is turned into KeyboardInterrupt while it runs, and an interrupted
+    study terminates its workers: no process is left behind.
+    """
     workers = workers or os.cpu_count() or 1
     if executor is not None:
         yield from executor.map(execute, specs)
@@ -61,10 +77,21 @@ def run_specs(
     if workers == 1:
         yield from map(execute, specs)
         return
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        chunk = max(1, min(8, len(specs) // (4 * workers)))
-        yield from pool.map(execute, specs, chunksize=chunk)
+    chunk = max(1, min(8, len(specs) // (4 * workers)))
+    pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init)
+    previous = (
+        signal.signal(signal.SIGTERM, _interrupt)
+        if threading.current_thread() is threading.main_thread()
+        else None
+    )
+    try:
+        yield from pool.imap(execute, specs, chunksize=chunk)
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def ci95(values: np.ndarray) -> float:

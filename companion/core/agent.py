@@ -116,11 +116,6 @@ class Agent:
         self.phi = np.zeros(n) if self.algorithm == "pheromone" else None
 
     # -- inbox ---------------------------------------------------------------------------------
-    def _accept(self, msg: Message, k: int) -> bool:
-        """Messages are validated where they enter (`messages.check`); here only their timing counts."""
-        timeout = self.world.mission.comms.peer_timeout_steps
-        return msg.sender != self.uav and k - timeout <= msg.stamp <= k
-
     def forget(self, uav: int) -> None:
         """Drop what is known of a UAV that has left (its task is free for the next auction)."""
         self.peers.pop(uav, None)
@@ -135,10 +130,13 @@ class Agent:
     def _ingest(
         self, inbox: Iterable[Message], k: int
     ) -> tuple[list[np.ndarray], dict[int, tuple[float, ...]]]:
+        """Sort the inbox by kind. Messages are validated where they enter (`messages.check`); here
+        only their timing counts."""
         looks: list[np.ndarray] = []
         bids: dict[int, tuple[float, ...]] = {}
+        oldest = k - self.world.mission.comms.peer_timeout_steps
         for msg in inbox:
-            if not self._accept(msg, k):
+            if msg.sender == self.uav or not oldest <= msg.stamp <= k:
                 self.rejected += 1
                 continue
             if isinstance(msg, StateMsg):
@@ -151,9 +149,10 @@ class Agent:
                     bids[msg.sender] = msg.rewards
             else:
                 for state in msg.known:
-                    self._remember(state)
-        timeout = self.world.mission.comms.peer_timeout_steps
-        for u in [u for u, s in self.peers.items() if s.stamp < k - timeout]:
+                    old = self.peers.get(state.uav)
+                    if old is None or state.stamp > old.stamp:
+                        self._remember(state)
+        for u in [u for u, s in self.peers.items() if s.stamp < oldest]:
             del self.peers[u], self._tracks[u]
         return looks, bids
 
@@ -233,24 +232,28 @@ class Agent:
         """MST (eq. 26) over this UAV and the UAVs it knows of at t_k.
 
         Returns the MST neighbours' positions at t_k, their predicted tracks over t_k..t_{k+M}, every
-        position each of them can reach at t_{k+1..k+M} (its own path tree from its pose at t_k), and
-        whether this UAV yields to each (right of way to the lower id).
+        position each of them can reach at t_{k+1} (eq. 2 from its pose at t_k), and whether this
+        UAV yields to each (right of way to the lower id).
         """
         horizon = self.world.mission.algorithm.horizon
-        n_paths = self.world.paths.sequences.shape[0]
+        kin = self.world.kinematics
+        turns = kin.turn_options
         if not self.peers:
-            empty = np.zeros((0, n_paths, horizon, 2))
+            empty = np.zeros((0, len(turns), 2))
             return np.zeros((0, 2)), np.zeros((0, horizon + 1, 2)), empty, np.zeros(0, dtype=np.bool_)
         ids = sorted(self.peers)
         states = [self.peers[u] for u in ids]
-        seqs = np.stack([self._tracks[u] for u in ids])
-        stamps = np.array([s.stamp for s in states])
-        tracks = predict_tracks(seqs, stamps, k, horizon + 1)
+        tracks = predict_tracks(
+            np.stack([self._tracks[u] for u in ids]), np.array([s.stamp for s in states]), k, horizon + 1
+        )
         now = np.concatenate((position[None, :], tracks[:, 0, :]))
         rows = mst_neighbours(kruskal_mst(now), 0) - 1
-        reach = np.array([self.world.paths.expand(*tracks[r, 0], _heading_at(states[r], k)) for r in rows])
+        paths = self.world.paths
+        nxt = np.empty((len(rows), len(turns), 2))
+        for n, r in enumerate(rows):
+            nxt[n] = paths.next_positions(tracks[r, 0, 0], tracks[r, 0, 1], _heading_at(states[r], k))
         yields = np.array([states[r].uav < self.uav for r in rows], dtype=np.bool_)
-        return tracks[rows, 0, :], tracks[rows], reach.reshape(len(rows), n_paths, horizon, 2), yields
+        return tracks[rows, 0, :], tracks[rows], nxt, yields
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
         w, m = self.world, self.world.mission
@@ -265,7 +268,7 @@ class Agent:
             self.found.update(own_detections)
         else:
             own_detections = ()
-        mst_now, nbr_tracks, nbr_reach, yields = self._swarm(k, position)
+        mst_now, nbr_tracks, nbr_next, yields = self._swarm(k, position)
         announce = self._plan_task(k, position, mst_now, bids) if self.algorithm == "proposed" else False
 
         # RHC: eq. 24 over every path of eq. 23, eq. 22 picks the best
@@ -290,19 +293,19 @@ class Agent:
         benefit = search_benefit(pts, fov, self._values, a.delta[0], labels, *region, a.delta[1])
         c = m.comms
         expense, violation = path_expense(
-            pts, nbr_tracks, nbr_reach, yields, c.range, c.attraction, c.safety, c.repulsion
+            pts, nbr_tracks, nbr_next, yields, w.paths.max_step, c.range, c.attraction, c.safety, c.repulsion
         )
         region = region_key(prefix, pts, grid.region.normals, grid.region.offsets, grid.cell_size)
         best = select_path(a.chi[0] * benefit - a.chi[1] * expense, region, violation)
 
         turn = float(w.paths.sequences[best, 0])
-        plan = tuple((float(px), float(py)) for px, py in pts[best])
-        plan_headings = tuple(w.paths.heading_after(obs.heading, best, m) for m in range(len(plan)))
+        plan = tuple(map(tuple, pts[best].tolist()))
+        plan_headings = w.paths.headings_along(obs.heading, best)
         command = Command(
             step=k,
             turn=turn,
             heading_rate=turn / w.kinematics.dt,
-            heading=w.paths.heading_after(obs.heading, best),
+            heading=plan_headings[0],
             waypoint=plan[0],
             path=plan,
             task=self.task,

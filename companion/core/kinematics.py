@@ -54,7 +54,7 @@ class Kinematics:
     turn_limit: float
     cell_size: float
 
-    @property
+    @cached_property
     def turn_options(self) -> FloatArray:
         """Admissible turns per step (rad), straight first: |turn| <= omega_max."""
         if self.mode == "grid":
@@ -148,8 +148,21 @@ class PathTree:
         c, s = math.cos(heading), math.sin(heading)
         return np.stack([x + c * o[..., 0] - s * o[..., 1], y + s * o[..., 0] + c * o[..., 1]], axis=-1)
 
-    def heading_after(self, heading: float, path: int, step: int = 0) -> float:
-        """Heading after `step` + 1 steps along path `path` from `heading`."""
+    @cached_property
+    def _first_steps(self) -> FloatArray:
+        """Per heading table, the distinct first-step offsets (one per turn option)."""
+        return np.stack([np.unique(table[:, 0, :].round(9), axis=0) for table in self.offsets])
+
+    def next_positions(self, x: float, y: float, heading: float) -> FloatArray:
+        """Every position reachable one step from the pose (x, y, heading): shape (n_turns, 2)."""
+        o = self._first_steps[self._table(heading)]
+        if self.kinematics.mode == "grid":
+            return o + np.array((x, y))
+        c, s = math.cos(heading), math.sin(heading)
+        return np.stack([x + c * o[:, 0] - s * o[:, 1], y + s * o[:, 0] + c * o[:, 1]], axis=-1)
+
+    def headings_along(self, heading: float, path: int) -> tuple[float, ...]:
+        """The heading after each step of path `path` from `heading`, wrapped to [-pi, pi)."""
         i = self._table(heading)
         start = i * _EIGHTH if self.kinematics.mode == "grid" else heading
-        return (start + float(self.turned[i, path, step]) + math.pi) % (2 * math.pi) - math.pi
+        return tuple(((start + self.turned[i, path] + math.pi) % (2 * math.pi) - math.pi).tolist())

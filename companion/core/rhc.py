@@ -69,8 +69,9 @@ def search_benefit(
 def path_expense(
     points: FloatArray,
     neighbour_tracks: FloatArray,
-    neighbour_reach: FloatArray,
+    neighbour_next: FloatArray,
     yields_to: np.ndarray,
+    step: float,
     r_c: float,
     r_c_attr: float,
     r_s: float,
@@ -80,12 +81,12 @@ def path_expense(
     violation of the hard limits.
 
     `neighbour_tracks` (n_j, M + 1, 2) holds each MST neighbour's position at t_k and its predicted
-    positions at t_{k+1..k+M}; `neighbour_reach` (n_j, n_l, M, 2) every position it can reach at
-    t_{k+1..k+M} (its own path tree). Both UAVs replan every step, so a neighbour may leave its
-    predicted track. In the expense, the repulsion at step m uses the smaller of the predicted
-    distance and the distance to the neighbour's position at t_k less m + 1 steps of its travel, and
-    the first step's attraction the larger of the predicted distance and that distance plus one
-    step: UAVs keep room to manoeuvre around each other.
+    positions at t_{k+1..k+M}; `neighbour_next` (n_j, n_turns, 2) every position it can reach at
+    t_{k+1}; `step` is the farthest a UAV moves in one step. Both UAVs replan every step, so a
+    neighbour may leave its predicted track. In the expense, the repulsion at step m uses the
+    smaller of the predicted distance and the distance to the neighbour's position at t_k less
+    m + 1 steps, and the first step's attraction the larger of the predicted distance and that
+    distance plus one step: UAVs keep room to manoeuvre around each other.
 
     The first-step violation (metres beyond R_c or inside R_s, summed over the MST neighbours), which
     `select_path` minimises before the score, gives right of way to the lower UAV id: against a
@@ -98,14 +99,9 @@ def path_expense(
     Returns (J^B per path, first-step violation per path).
     """
     n_paths, horizon = points.shape[0], points.shape[1]
-    n_reach = neighbour_reach.shape[1]
     out = np.zeros(n_paths)
     violation = np.zeros(n_paths)
     for j in range(neighbour_tracks.shape[0]):
-        step = 0.0  # how far the neighbour can move in one step
-        for q in range(n_reach):
-            step = max(step, math.hypot(neighbour_reach[j, q, 0, 0] - neighbour_tracks[j, 0, 0],
-                                        neighbour_reach[j, q, 0, 1] - neighbour_tracks[j, 0, 1]))
         for i in range(n_paths):
             for m in range(horizon):
                 px, py = points[i, m, 0], points[i, m, 1]
@@ -117,8 +113,8 @@ def path_expense(
                 if m == 0:
                     nearest, farthest = d, d
                     if yields_to[j]:
-                        for q in range(n_reach):
-                            e = math.hypot(px - neighbour_reach[j, q, 0, 0], py - neighbour_reach[j, q, 0, 1])
+                        for q in range(neighbour_next.shape[1]):
+                            e = math.hypot(px - neighbour_next[j, q, 0], py - neighbour_next[j, q, 1])
                             nearest = min(nearest, e)
                             farthest = max(farthest, e)
                     violation[i] += max(0.0, farthest - r_c) + max(0.0, r_s - nearest)
@@ -152,8 +148,9 @@ def grid_path_cells(
     return cells, fov, prefix
 
 
-def region_key(prefix: IntArray, points: FloatArray, normals: FloatArray, offsets: FloatArray,
-               cell_size: float) -> FloatArray:
+def region_key(
+    prefix: IntArray, points: FloatArray, normals: FloatArray, offsets: FloatArray, cell_size: float
+) -> FloatArray:
     """How well each path keeps to the region (the region constraint of eq. 23): its in-region prefix
     (M when it never leaves), and for a path whose first point is outside, minus the distance its
     points lie beyond the boundary (summed, in cells), so that a UAV outside turns back at once."""
@@ -177,8 +174,10 @@ def select_path(scores: FloatArray, region: FloatArray, violation: FloatArray) -
             least = min(least, violation[i])
     best = -1
     for i in range(scores.shape[0]):
-        if region[i] >= best_region - 1e-9 and violation[i] <= least + 1e-9 and (
-            best < 0 or scores[i] > scores[best]
+        if (
+            region[i] >= best_region - 1e-9
+            and violation[i] <= least + 1e-9
+            and (best < 0 or scores[i] > scores[best])
         ):
             best = i
     return best

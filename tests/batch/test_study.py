@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import csv
 import json
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -165,3 +167,60 @@ def test_bad_mission_file_is_a_clear_error_without_traceback(tmp_path: Path) -> 
     assert proc.returncode == 2
     assert str(bad) in proc.stderr and "region.cell_size" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def _children(pid: int) -> set[int]:
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+def test_sigterm_stops_a_study_and_its_workers(tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "companion.cli",
+            "mc",
+            "--mission",
+            "mission_files/scenario1.toml",
+            "--runs",
+            "40",
+            "--steps",
+            "1000",
+            "--workers",
+            "2",
+            "--out",
+            str(tmp_path),
+            "--quiet",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        workers: set[int] = set()
+        while len(workers) < 2 and time.monotonic() < deadline:  # the pool is up
+            workers = {
+                p for p in _children(proc.pid) if "spawn_main" in Path(f"/proc/{p}/cmdline").read_text()
+            }
+            time.sleep(0.2)
+        assert len(workers) == 2
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=120) == 130
+        for pid in workers:
+            assert (
+                not Path(f"/proc/{pid}").exists()
+                or "spawn_main" not in Path(f"/proc/{pid}/cmdline").read_text()
+            )
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

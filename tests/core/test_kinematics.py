@@ -129,7 +129,7 @@ def test_grid_path_tree_respects_turn_limit(col: int, row: int, h8: int, horizon
     ref, _ = GRID.paths(x, y, heading, tree.sequences)
     assert np.allclose(pts, ref)
     for p in (0, len(pts) - 1):
-        assert tree.heading_after(heading, p) == pytest.approx(float(wrap_angle(dirs[p, 0])), abs=1e-9)
+        assert tree.headings_along(heading, p)[0] == pytest.approx(float(wrap_angle(dirs[p, 0])), abs=1e-9)
 
 
 @settings(max_examples=50, deadline=None)

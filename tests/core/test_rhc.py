@@ -64,14 +64,15 @@ def test_soft_exp_is_exp_then_linear() -> None:
 
 
 def expense(points: list, track: list, reach: list, yields: bool = True) -> tuple[float, float]:
-    """One path against one MST neighbour: its predicted track (t_k..t_{k+M}) and, per step, the
-    positions it can reach (reach[m] is a list of points), with or without right of way to it."""
+    """One path against one MST neighbour: its predicted track (t_k..t_{k+M}) and the positions it
+    can reach at t_{k+1} (reach[0]; its one-step travel is the farthest of them), with or without
+    right of way to it."""
     pts = np.array([points], dtype=float)
-    tree = np.array(reach, dtype=float).transpose(1, 0, 2)[None]  # (1, n_reach, M, 2)
+    tracks = np.array([track], dtype=float)
+    nxt = np.array([reach[0]], dtype=float)
+    step = float(np.max(np.linalg.norm(nxt[0] - tracks[0, 0], axis=1)))
     flags = np.array([yields], dtype=np.bool_)
-    cost, violation = path_expense(
-        pts, np.array([track], dtype=float), tree, flags, 1000.0, 700.0, 60.0, 120.0
-    )
+    cost, violation = path_expense(pts, tracks, nxt, flags, step, 1000.0, 700.0, 60.0, 120.0)
     return float(cost[0]), float(violation[0])
 
 
@@ -79,7 +80,7 @@ def test_path_expense_zero_in_the_band() -> None:
     # neighbour steady at 400 m, able to reach 360 m or 440 m: all inside [R'_s, R'_c] = [120, 700]
     reach = [[[360, 0], [440, 0]], [[360, 0], [440, 0]]]
     assert expense([[0, 0], [0, 0]], [[400, 0], [400, 0], [400, 0]], reach) == (0.0, 0.0)
-    none = (np.zeros((0, 4, 2)), np.zeros((0, 1, 3, 2)), np.zeros(0, dtype=np.bool_))
+    none = (np.zeros((0, 4, 2)), np.zeros((0, 3, 2)), np.zeros(0, dtype=np.bool_), 40.0)
     cost, violation = path_expense(np.zeros((4, 3, 2)), *none, 1000.0, 700.0, 60.0, 120.0)
     assert cost.tolist() == [0.0] * 4 and violation.tolist() == [0.0] * 4
 
