@@ -9,13 +9,11 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
-from companion.batch.engine import RunResult
-from companion.core.connectivity import algebraic_connectivity, pairwise_distances
+from companion.batch.engine import RunResult, Scorer
 from companion.core.world import World
 
 
@@ -79,37 +77,10 @@ def evaluate(
             tasks[k, i] = int(row["task"])
             etas.append(row["mean_eta"])
         unc[k] = float(np.mean(etas)) if etas else 1.0
-    target_xy = world.grid.centres[targets]
-    first = np.full(len(targets), -1)
-    covered = np.zeros(world.grid.n_cells + 1, dtype=bool)
-    found, cov, lam, mind = (np.zeros(steps) for _ in range(4))
-    r_a2 = m.sensor.radius**2 + 1e-6
+    scorer = Scorer(world, targets, steps)
     for k in range(steps):
-        pos = traj[k, :, :2]
-        d2 = np.sum((pos[:, None, :] - target_xy[None, :, :]) ** 2, axis=-1)
-        first[(first < 0) & (d2 <= r_a2).any(axis=0)] = k
-        found[k] = np.count_nonzero(first >= 0)
-        covered[world.grid.fov_cells(pos).ravel()] = True
-        cov[k] = covered[:-1].mean()
-        lam[k] = algebraic_connectivity(pos, m.comms.range)
-        d = pairwise_distances(pos)
-        mind[k] = float(d[~np.eye(n, dtype=bool)].min()) if n > 1 else math.inf
-    return RunResult(
-        algorithm=m.algorithm.name,
-        run=0,
-        seed=seed,
-        steps=steps,
-        uncertainty=unc,
-        found=found,
-        coverage=cov,
-        lambda2=lam,
-        min_distance=mind,
-        target_cells=targets,
-        target_steps=first,
-        seconds=seconds,
-        trajectory=traj,
-        tasks=tasks,
-    )
+        scorer.record(k, traj[k, :, :2], unc[k])
+    return scorer.result(0, seed, seconds, trajectory=traj, tasks=tasks)
 
 
 def failed_criteria(world: World, result: RunResult) -> list[str]:

@@ -46,6 +46,59 @@ class RunResult:
         return np.where(self.target_steps >= 0, self.target_steps, self.steps)
 
 
+class Scorer:
+    """Ground-truth metrics of one run, step by step (a target is found when its cell centre is
+    within R_A of some UAV): targets found, coverage, lambda_2 and the minimum pairwise distance,
+    with the uncertainty of eq. 30 handed in. The batch engine and the flown-mission evaluator
+    both score with it."""
+
+    def __init__(self, world: World, targets: np.ndarray, steps: int) -> None:
+        self.world, self.targets = world, targets
+        self.target_xy = world.grid.centres[targets]
+        self.first = np.full(len(targets), -1)
+        self.covered = np.zeros(world.grid.n_cells + 1, dtype=bool)  # + the FOV padding slot
+        self.unc, self.found, self.cov, self.lam, self.mind = (np.zeros(steps) for _ in range(5))
+
+    def sightings(self, positions: np.ndarray) -> np.ndarray:
+        """(UAV, target) pairs in view: the target's cell centre within R_A (eq. 3)."""
+        d2 = np.sum((positions[:, None, :] - self.target_xy[None, :, :]) ** 2, axis=-1)
+        return d2 <= self.world.mission.sensor.radius**2 + 1e-6
+
+    def record(
+        self, k: int, positions: np.ndarray, uncertainty: float, sees: np.ndarray | None = None
+    ) -> None:
+        m = self.world.mission
+        sees = self.sightings(positions) if sees is None else sees
+        self.first[(self.first < 0) & sees.any(axis=0)] = k
+        self.found[k] = np.count_nonzero(self.first >= 0)
+        self.covered[self.world.grid.fov_cells(positions).ravel()] = True
+        self.cov[k] = self.covered[:-1].mean()
+        self.unc[k] = uncertainty
+        self.lam[k] = algebraic_connectivity(positions, m.comms.range)
+        n = len(positions)
+        self.mind[k] = (
+            float(pairwise_distances(positions)[~np.eye(n, dtype=bool)].min()) if n > 1 else math.inf
+        )
+
+    def result(self, run: int, seed: int, seconds: float, **extra: object) -> RunResult:
+        steps = len(self.unc)
+        return RunResult(
+            algorithm=self.world.mission.algorithm.name,
+            run=run,
+            seed=seed,
+            steps=steps,
+            uncertainty=self.unc,
+            found=self.found,
+            coverage=self.cov,
+            lambda2=self.lam,
+            min_distance=self.mind,
+            target_cells=self.targets,
+            target_steps=self.first,
+            seconds=seconds,
+            **extra,  # type: ignore[arg-type]
+        )
+
+
 class Radio:
     """Delivers each message to every other UAV within R_c of the sender, with optional loss."""
 
@@ -91,21 +144,14 @@ def simulate(
     grid, n = world.grid, mission.n_uavs
     agents = [Agent(world, i) for i in range(n)]
     targets = draw_targets(world.prior, mission.prior.targets, instance_rng(seed, run, Stream.TARGETS))
-    target_xy = grid.centres[targets]
     radio = Radio(mission.comms.range, mission.comms.loss, instance_rng(seed, run, Stream.RADIO), wire)
-    r_a2 = mission.sensor.radius**2 + 1e-6
-
+    scorer = Scorer(world, targets, steps)
     poses = initial_poses(mission)
-    first = np.full(len(targets), -1)
-    covered = np.zeros(grid.n_cells + 1, dtype=bool)
-    unc, found, cov, lam, mind = (np.zeros(steps) for _ in range(5))
     traj = np.zeros((steps, n, 3)) if record else None
     tasks = np.zeros((steps, n), dtype=np.int64) if record else None
     inboxes: list[list[Message]] = [[] for _ in range(n)]
     for k in range(steps):
-        d2 = np.sum((poses[:, None, :2] - target_xy[None, :, :]) ** 2, axis=-1)
-        sees = d2 <= r_a2
-        first[(first < 0) & sees.any(axis=0)] = k
+        sees = scorer.sightings(poses[:, :2])
         outputs: list[tuple[Command, list[Message]]] = []
         for i, agent in enumerate(agents):
             obs = Observation(
@@ -113,16 +159,11 @@ def simulate(
                 x=float(poses[i, 0]),
                 y=float(poses[i, 1]),
                 heading=float(poses[i, 2]),
-                detections=tuple(map(tuple, target_xy[sees[i]].tolist())),
+                detections=tuple(map(tuple, scorer.target_xy[sees[i]].tolist())),
             )
             outputs.append(agent.step(obs, inboxes[i]))
-        covered[grid.fov_cells(poses[:, :2]).ravel()] = True  # padding index lands in the spare slot
-        dist = pairwise_distances(poses[:, :2])
-        unc[k] = sum(float(a.eta.sum()) for a in agents) / (n * grid.n_cells)  # eq. 30
-        found[k] = int(np.count_nonzero(first >= 0))
-        cov[k] = covered[:-1].mean()
-        lam[k] = algebraic_connectivity(poses[:, :2], mission.comms.range)
-        mind[k] = float(dist[~np.eye(n, dtype=bool)].min()) if n > 1 else math.inf
+        uncertainty = sum(float(a.eta.sum()) for a in agents) / (n * grid.n_cells)  # eq. 30
+        scorer.record(k, poses[:, :2], uncertainty, sees)
         if traj is not None and tasks is not None:
             traj[k] = poses
             tasks[k] = [c.task for c, _ in outputs]
@@ -130,19 +171,10 @@ def simulate(
         turns = np.array([c.turn for c, _ in outputs])
         x, y, h = world.kinematics.advance(poses[:, 0], poses[:, 1], poses[:, 2], turns)
         poses = np.column_stack([x, y, h])
-    return RunResult(
-        algorithm=mission.algorithm.name,
-        run=run,
-        seed=seed,
-        steps=steps,
-        uncertainty=unc,
-        found=found,
-        coverage=cov,
-        lambda2=lam,
-        min_distance=mind,
-        target_cells=targets,
-        target_steps=first,
-        seconds=time.perf_counter() - started,
+    return scorer.result(
+        run,
+        seed,
+        time.perf_counter() - started,
         trajectory=traj,
         tasks=tasks,
         rejected_messages=sum(a.rejected for a in agents),
