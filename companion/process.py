@@ -25,6 +25,7 @@ import numpy as np
 
 from companion.camera_feed import CameraFeed
 from companion.core.agent import Agent, Command, Observation
+from companion.core.kinematics import arc_advance
 from companion.core.world import build_world
 from companion.detections import camera_key
 from companion.frames import LocalFrame, heading_to_yaw
@@ -39,6 +40,9 @@ LOCKSTEP_COMMAND = 31010  # MAV_CMD_USER_1: "lockstep: ready for step param1"
 # Guidance is streamed (vehicle seconds between repeats of the current command) so that the
 # autopilot's guidance timeout never fires between steps; PX4 OFFBOARD needs more than 2 Hz.
 STREAM_PERIOD_S = {"turn-rate": 0.5, "heading": 0.5, "position-target": 0.2}
+# In real time a step is planned LEAD of a step before it starts, from the pose predicted for its
+# start, so that the command is in place when the autopilot begins the step (no one-step lag).
+LEAD = 0.25
 LINK_TIMEOUT_S = 3.0  # wall seconds without HEARTBEAT before the link counts as lost
 PEER_WAIT_S = 30.0  # lockstep: how long to wait for a live peer's messages before going on
 TAKEOVER_TIMEOUT_S = 30.0  # wall seconds --takeover keeps trying to set the guided mode and arm
@@ -171,15 +175,24 @@ class Companion:
         return x + lead * math.cos(command.heading), y + lead * math.sin(command.heading)
 
     # -- one step --------------------------------------------------------------------------------
-    def _pose(self) -> tuple[float, float, float]:
-        s = self.link.state
-        if self.world.kinematics.mode == "grid":  # grid UAVs sit on cell centres, headings on 45 deg
+    def _pose(self, ahead: float = 0.0) -> tuple[float, float, float]:
+        """The vehicle's pose `ahead` seconds from its latest telemetry, by eq. 2 under the command
+        it is flying (grid mode: on the cell centre it is flying to, heading a multiple of 45 deg)."""
+        s, kin = self.link.state, self.world.kinematics
+        if kin.mode == "grid":  # grid UAVs sit on cell centres, headings on 45 deg
             g = self.world.grid
-            col = round((s.x - g.x0) / g.cell_size)
-            row = round((s.y - g.y0) / g.cell_size)
             eighth = math.pi / 4
-            return g.x0 + col * g.cell_size, g.y0 + row * g.cell_size, round(s.heading / eighth) * eighth
-        return s.x, s.y, s.heading
+            heading = round(s.heading / eighth) * eighth
+            frac = max(ahead, 0.0) / self.dt
+            x = s.x + frac * g.cell_size * round(math.cos(heading))
+            y = s.y + frac * g.cell_size * round(math.sin(heading))
+            col, row = round((x - g.x0) / g.cell_size), round((y - g.y0) / g.cell_size)
+            return g.x0 + col * g.cell_size, g.y0 + row * g.cell_size, heading
+        if ahead <= 0:
+            return s.x, s.y, s.heading
+        rate = self.last_command.heading_rate if self.last_command is not None and self.steering else 0.0
+        x, y, h = arc_advance(s.x, s.y, s.heading, rate, kin.speed, ahead)
+        return float(x), float(y), float(h)
 
     def _forget_departed(self) -> None:
         """A peer whose liveliness token vanished is forgotten at once, so its task goes back to the
@@ -192,9 +205,10 @@ class Companion:
         self._departed = self._seen_alive - alive
         self._seen_alive |= alive
 
-    def step(self, k: int) -> Command:
+    def step(self, k: int, ahead: float = 0.0) -> Command:
+        """Step k from the pose predicted `ahead` seconds on (the start of step k)."""
         self._forget_departed()
-        x, y, heading = self._pose()
+        x, y, heading = self._pose(ahead)
         seen = self.camera.take(round(k * self.dt * 1e6))
         own = self.last_position if self.last_position is not None else np.array([x, y])
         inbox = self.mesh.inbox(k, (float(own[0]), float(own[1])))
@@ -272,11 +286,12 @@ class Companion:
             if not self._check_link() or not self.link.state.has_pose:
                 continue
             t = self.link.state.time_s
+            lead = LEAD * self.dt
             if next_k is None:
-                next_k = math.ceil(t / self.dt - 1e-9)
-            if t + 1e-6 >= next_k * self.dt:
-                k = math.floor(t / self.dt + 1e-6)
-                self.step(k)
+                next_k = math.ceil((t + lead) / self.dt - 1e-9)
+            if t + lead + 1e-6 >= next_k * self.dt:
+                k = math.floor((t + lead) / self.dt + 1e-6)
+                self.step(k, ahead=k * self.dt - t)
                 next_k = k + 1
             elif (
                 self.opts.command_mode in STREAM_PERIOD_S
