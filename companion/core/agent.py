@@ -104,7 +104,9 @@ class Agent:
         self.seen = np.zeros(n, dtype=bool)
         self.found: set[int] = set()
         self.peers: dict[int, UavState] = {}
-        self._tracks: dict[int, np.ndarray] = {}  # each peer's position at its stamp, then its plan
+        horizon = m.algorithm.horizon
+        self._track = np.zeros((world.n_uavs, horizon + 1, 2))  # each peer's position, then its plan
+        self._stamp = np.full(world.n_uavs, -1)  # the step of each peer's state; -1 unknown
         self.rejected = 0
         self.task = -1
         self.task_reward = 0.0
@@ -119,13 +121,20 @@ class Agent:
     def forget(self, uav: int) -> None:
         """Drop what is known of a UAV that has left (its task is free for the next auction)."""
         self.peers.pop(uav, None)
-        self._tracks.pop(uav, None)
+        self._stamp[uav] = -1
 
     def _remember(self, state: UavState) -> None:
         old = self.peers.get(state.uav)
         if state.uav != self.uav and (old is None or state.stamp > old.stamp):
             self.peers[state.uav] = state
-            self._tracks[state.uav] = np.array([(state.x, state.y), *state.plan])
+            track = self._track[state.uav]
+            track[0] = state.x, state.y
+            n = min(len(state.plan), track.shape[0] - 1)
+            if n:
+                track[1 : n + 1] = state.plan[:n]
+            for i in range(n + 1, track.shape[0]):  # a shorter plan goes on at its last velocity
+                track[i] = 2 * track[i - 1] - track[i - 2] if i >= 2 else track[i - 1]
+            self._stamp[state.uav] = state.stamp
 
     def _ingest(
         self, inbox: Iterable[Message], k: int
@@ -153,7 +162,7 @@ class Agent:
                     if old is None or state.stamp > old.stamp:
                         self._remember(state)
         for u in [u for u, s in self.peers.items() if s.stamp < oldest]:
-            del self.peers[u], self._tracks[u]
+            self.forget(u)
         return looks, bids
 
     # -- map -----------------------------------------------------------------------------------
@@ -241,19 +250,16 @@ class Agent:
         if not self.peers:
             empty = np.zeros((0, len(turns), 2))
             return np.zeros((0, 2)), np.zeros((0, horizon + 1, 2)), empty, np.zeros(0, dtype=np.bool_)
-        ids = sorted(self.peers)
-        states = [self.peers[u] for u in ids]
-        tracks = predict_tracks(
-            np.stack([self._tracks[u] for u in ids]), np.array([s.stamp for s in states]), k, horizon + 1
-        )
+        ids = np.flatnonzero(self._stamp >= 0)
+        tracks = predict_tracks(self._track[ids], self._stamp[ids], k, horizon + 1)
         now = np.concatenate((position[None, :], tracks[:, 0, :]))
         rows = mst_neighbours(kruskal_mst(now), 0) - 1
         paths = self.world.paths
         nxt = np.empty((len(rows), len(turns), 2))
         for n, r in enumerate(rows):
-            nxt[n] = paths.next_positions(tracks[r, 0, 0], tracks[r, 0, 1], _heading_at(states[r], k))
-        yields = np.array([states[r].uav < self.uav for r in rows], dtype=np.bool_)
-        return tracks[rows, 0, :], tracks[rows], nxt, yields
+            state = self.peers[int(ids[r])]
+            nxt[n] = paths.next_positions(tracks[r, 0, 0], tracks[r, 0, 1], _heading_at(state, k))
+        return tracks[rows, 0, :], tracks[rows], nxt, ids[rows] < self.uav
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
         w, m = self.world, self.world.mission
