@@ -327,13 +327,18 @@ class _Worker:
                 self.proc.stdin.close()
         except OSError:
             pass
-        try:
-            self.proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(timeout=15)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
+        _reap(self.proc)
+
+
+def _reap(proc: subprocess.Popen) -> None:
+    """Wait for a process we asked to stop; kill it by PID if it lingers; close its pipe."""
+    try:
+        proc.wait(timeout=15)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=15)
+    if proc.stdout is not None:
+        proc.stdout.close()
 
 
 class _Pool:
@@ -380,13 +385,7 @@ class _Router:
     def stop(self) -> None:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
-        try:
-            self.proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(timeout=15)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
+        _reap(self.proc)
 
 
 def _proc_cpu_s(pid: int) -> float:

@@ -12,6 +12,8 @@ import math
 
 import msgspec
 
+from companion.core.wire import MsgpackCodec
+
 FRAME_VERSION = 1
 MAX_DETECTIONS = 4096
 
@@ -42,20 +44,9 @@ def camera_key(key_prefix: str, mission_name: str, uav: int) -> str:
     return f"{key_prefix}/{mission_name}/uav/{uav}/camera"
 
 
-_encoder = msgspec.msgpack.Encoder()
-_decoder = msgspec.msgpack.Decoder(CameraFrame)
-
-
-def encode(frame: CameraFrame) -> bytes:
-    return _encoder.encode(frame)
-
-
-def decode(data: bytes) -> CameraFrame:
-    """Wire bytes to a frame; raises DetectionError for anything undecodable."""
-    try:
-        return _decoder.decode(data)
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-        raise DetectionError(f"undecodable: {exc}") from None
+_codec: MsgpackCodec[CameraFrame] = MsgpackCodec(CameraFrame, DetectionError, "camera frame")
+encode = _codec.encode
+decode = _codec.decode  # raises DetectionError for anything undecodable
 
 
 def _valid_lat_lon(lat: float, lon: float) -> bool:

@@ -27,6 +27,7 @@ import numpy as np
 import zenoh
 
 from companion.core.messages import PROTOCOL_VERSION, Message, MessageError, check
+from companion.core.wire import MsgpackCodec
 from companion.mission import Mission, MissionError, load_mission
 from companion.zenoh_config import MeshConfig, open_session, router_config
 
@@ -46,20 +47,9 @@ class Bundle(msgspec.Struct, frozen=True, kw_only=True):
     messages: Annotated[tuple[Message, ...], msgspec.Meta(max_length=MAX_BUNDLE_MESSAGES)] = ()
 
 
-_encoder = msgspec.msgpack.Encoder()
-_decoder = msgspec.msgpack.Decoder(Bundle)
-
-
-def encode_bundle(bundle: Bundle) -> bytes:
-    return _encoder.encode(bundle)
-
-
-def decode_bundle(data: bytes) -> Bundle:
-    """Wire bytes to a bundle; raises MessageError for anything undecodable."""
-    try:
-        return _decoder.decode(data)
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-        raise MessageError(f"undecodable bundle: {exc}") from None
+_codec: MsgpackCodec[Bundle] = MsgpackCodec(Bundle, MessageError, "bundle")
+encode_bundle = _codec.encode
+decode_bundle = _codec.decode  # raises MessageError for anything undecodable
 
 
 def check_bundle(bundle: Bundle, n_uavs: int, n_cells: int, n_tasks: int) -> None:

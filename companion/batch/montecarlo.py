@@ -99,8 +99,21 @@ def ci95(values: np.ndarray) -> float:
     return float(1.96 * values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
 
 
+SUMMARY_KEYS = frozenset(
+    {
+        "runs",
+        "mean_target_time",
+        "targets_found_fraction",
+        "final_mean_uncertainty",
+        "min_lambda2",
+        "min_distance",
+        "seconds_per_1000_steps",
+    }
+)  # the keys every summary.json entry carries, batch engine and flown missions alike
+
+
 def summarize(results: list[RunResult]) -> dict[str, float | int]:
-    """The summary.json entry of one algorithm."""
+    """The summary.json entry of one algorithm (SUMMARY_KEYS, plus confidence intervals and coverage)."""
     times = np.array([r.target_times().mean() if len(r.target_steps) else 0.0 for r in results])
     found = np.array([np.mean(r.target_steps >= 0) if len(r.target_steps) else 1.0 for r in results])
     final_unc = np.array([r.uncertainty[-1] for r in results])

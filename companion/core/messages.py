@@ -12,6 +12,8 @@ import math
 
 import msgspec
 
+from companion.core.wire import MsgpackCodec
+
 PROTOCOL_VERSION = 1
 MAX_PLAN = 16
 
@@ -70,20 +72,9 @@ class ClaimsMsg(_Header, tag="claims"):
 
 Message = StateMsg | CoverageMsg | BidsMsg | ClaimsMsg
 
-_encoder = msgspec.msgpack.Encoder()
-_decoder = msgspec.msgpack.Decoder(Message)
-
-
-def encode(msg: Message) -> bytes:
-    return _encoder.encode(msg)
-
-
-def decode(data: bytes) -> Message:
-    """Wire bytes to a message; raises MessageError for anything malformed."""
-    try:
-        return _decoder.decode(data)
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-        raise MessageError(f"undecodable: {exc}") from None
+_codec: MsgpackCodec[Message] = MsgpackCodec(Message, MessageError, "message")
+encode = _codec.encode
+decode = _codec.decode  # raises MessageError for anything undecodable
 
 
 def _finite(*values: float) -> bool:

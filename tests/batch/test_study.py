@@ -12,19 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.batch.montecarlo import run_specs, specs_for, summarize
+from companion.batch.montecarlo import SUMMARY_KEYS, run_specs, specs_for, summarize
 from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
-SUMMARY_KEYS = {
-    "mean_target_time",
-    "targets_found_fraction",
-    "final_mean_uncertainty",
-    "min_lambda2",
-    "min_distance",
-    "seconds_per_1000_steps",
-    "runs",
-}
 
 
 def test_proposed_finds_targets_sooner_than_both_baselines_on_scenario3() -> None:

@@ -13,19 +13,11 @@ import pytest
 from pymavlink import mavutil
 
 from companion.batch.engine import simulate
+from companion.batch.montecarlo import SUMMARY_KEYS
 from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO1 = ROOT / "mission_files/scenario1.toml"
-SUMMARY_KEYS = {
-    "mean_target_time",
-    "targets_found_fraction",
-    "final_mean_uncertainty",
-    "min_lambda2",
-    "min_distance",
-    "seconds_per_1000_steps",
-    "runs",
-}
 
 
 def _mission_copy(tmp_path: Path, prefix: str, base_port: int) -> Path:
