@@ -16,6 +16,7 @@ from companion.core.agent import Agent, Command, Observation
 from companion.core.connectivity import algebraic_connectivity, pairwise_distances
 from companion.core.messages import Message, decode, encode
 from companion.core.prior import draw_targets
+from companion.core.uncertainty import global_average_uncertainty
 from companion.core.world import Stream, World, build_world, instance_rng
 from companion.mission import Mission
 
@@ -141,7 +142,7 @@ def simulate(
     started = time.perf_counter()
     steps = mission.steps if steps is None else steps
     world = world or build_world(mission, seed, run)
-    grid, n = world.grid, mission.n_uavs
+    n = mission.n_uavs
     agents = [Agent(world, i) for i in range(n)]
     targets = draw_targets(world.prior, mission.prior.targets, instance_rng(seed, run, Stream.TARGETS))
     radio = Radio(mission.comms.range, mission.comms.loss, instance_rng(seed, run, Stream.RADIO), wire)
@@ -162,8 +163,7 @@ def simulate(
                 detections=tuple(map(tuple, scorer.target_xy[sees[i]].tolist())),
             )
             outputs.append(agent.step(obs, inboxes[i]))
-        uncertainty = sum(float(a.eta.sum()) for a in agents) / (n * grid.n_cells)  # eq. 30
-        scorer.record(k, poses[:, :2], uncertainty, sees)
+        scorer.record(k, poses[:, :2], global_average_uncertainty([a.eta for a in agents]), sees)
         if traj is not None and tasks is not None:
             traj[k] = poses
             tasks[k] = [c.task for c, _ in outputs]

@@ -36,7 +36,7 @@ from companion.core.messages import (
     UavState,
 )
 from companion.core.rhc import grid_path_cells, path_expense, region_key, search_benefit, select_path
-from companion.core.tasks import keep_task, task_completion, task_income, total_cost
+from companion.core.tasks import keep_task, rewards, task_completion, total_cost
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
 
@@ -182,7 +182,7 @@ class Agent:
         if done.all():
             return ()
         cost = total_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs)
-        reward = task_income(self.eta * w.prior, tess) / cost
+        reward = rewards(self.eta * w.prior, cost, tess)
         return tuple(np.where(done | (cost > a.c_max), 0.0, reward).tolist())
 
     def _plan_task(self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict) -> bool:

@@ -68,11 +68,9 @@ def total_cost(
     )
 
 
-def rewards(
-    importance: FloatArray, position: FloatArray, neighbours: FloatArray, tess: Tessellation, w: CostWeights
-) -> FloatArray:
-    """Eq. 15: R_ij = r_ij / C_ij for every task j."""
-    return task_income(importance, tess) / total_cost(position, neighbours, tess.generators, tess.areas, w)
+def rewards(importance: FloatArray, cost: FloatArray, tess: Tessellation) -> FloatArray:
+    """Eq. 15: R_ij = r_ij / C_ij for every task j, given the costs C_ij of eq. 18."""
+    return task_income(importance, tess) / cost
 
 
 def task_completion(covered_cells: int, task_cells: int) -> float:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numba import njit
 
@@ -40,6 +42,6 @@ def importance(eta: FloatArray, prior: FloatArray) -> FloatArray:
     return eta * prior
 
 
-def global_average_uncertainty(etas: FloatArray) -> float:
-    """Eq. 30: mean over UAVs and cells of eta_{i,p,k} (etas has one row per UAV)."""
-    return float(np.mean(etas))
+def global_average_uncertainty(etas: Sequence[FloatArray]) -> float:
+    """Eq. 30: mean over UAVs and cells of eta_{i,p,k} (one map per UAV)."""
+    return sum(float(e.sum()) for e in etas) / sum(e.size for e in etas)

@@ -71,7 +71,8 @@ def test_income_and_reward_on_a_tiny_tessellation() -> None:
     assert task_income(s, tess) == pytest.approx([0.3, 0.7])
     # from (40, 20), no neighbours: C^t = d / 50 + 3 * 3200 / 1000 = [0 + 9.6, 80/50 + 9.6] = [9.6, 11.2]
     # R = r / C = [0.3 / 9.6, 0.7 / 11.2] = [0.03125, 0.0625]
-    r = rewards(s, np.array([40.0, 20.0]), np.zeros((0, 2)), tess, W)
+    cost = total_cost(np.array([40.0, 20.0]), np.zeros((0, 2)), tess.generators, tess.areas, W)
+    r = rewards(s, cost, tess)
     assert r == pytest.approx([0.03125, 0.0625])
 
 
