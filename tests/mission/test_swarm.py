@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import subprocess
 import sys
@@ -63,6 +64,15 @@ def test_scripted_mission_scenario1_sped_up_passes_its_criteria(tmp_path: Path, 
     assert json.loads((out / "criteria.json").read_text()) == {"passed": True, "failures": []}
     for png in ("prior_cvt.png", "trajectories.png", "uncertainty.png", "targets_found.png", "links.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
+    for i in range(m.n_uavs):  # real time plans from the predicted start of each step: no lag
+        with (out / f"uav{i}.csv").open() as f:
+            rows = list(csv.DictReader(f))
+        pairs = [(a, b) for a, b in itertools.pairwise(rows) if int(b["step"]) == int(a["step"]) + 1]
+        flown = sum(
+            abs(float(b["x"]) - float(a["cmd_x"])) < 1 and abs(float(b["y"]) - float(a["cmd_y"])) < 1
+            for a, b in pairs
+        )
+        assert flown >= 0.95 * len(pairs), f"uav {i} flew {flown} of {len(pairs)} planned steps"
     for i in range(m.n_uavs):  # a real MAVLink log of what the companion heard and said
         log = mavutil.mavlink_connection(str(out / f"uav{i}.tlog"))
         kinds = set()
