@@ -95,7 +95,7 @@ def _bench(args: argparse.Namespace) -> int:
     from companion.batch.experiments import bench, format_bench
 
     missions = [load_mission(m) for m in args.missions]
-    result = bench(missions, args.runs, args.steps, args.seed, args.workers)
+    result = bench(missions, args.runs, args.steps, args.seed, args.workers, args.study_runs)
     print(format_bench(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
@@ -186,6 +186,9 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--steps", type=int, default=1000)
     be.add_argument("--seed", type=int, default=1)
     be.add_argument("--workers", type=int, default=None)
+    be.add_argument(
+        "--study-runs", type=int, default=8, help="runs per mission and algorithm in the throughput"
+    )
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
     be.set_defaults(func=_bench)
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.batch import plots, report
-from companion.core.connectivity import algebraic_connectivity, pairwise_distances
+from companion.core.connectivity import algebraic_connectivity, min_pair_distance
 from companion.core.world import World, build_world
 from companion.evaluation import evaluate, failed_criteria, read_logs, truth_cells
 from companion.mission import load_mission
@@ -101,9 +101,8 @@ def _live_line(world: World, logs: dict, targets: np.ndarray) -> tuple[str, int]
             )
     found = int(seen.sum())
     unc = float(np.mean([r["mean_eta"] for r in latest]))
-    lam = algebraic_connectivity(pos, m.comms.range) if len(pos) > 1 else 0.0
-    d = pairwise_distances(pos)
-    mind = float(d[~np.eye(len(pos), dtype=bool)].min()) if len(pos) > 1 else float("inf")
+    lam = algebraic_connectivity(pos, m.comms.range)
+    mind = min_pair_distance(pos)
     line = (
         f"step {step:5d}  targets {found}/{len(targets)}  mean uncertainty {unc:.4f}  "
         f"lambda_2 {lam:.4f}  min distance {mind:7.1f} m"

@@ -13,12 +13,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.core.agent import Agent, Command, Observation
-from companion.core.connectivity import algebraic_connectivity, pairwise_distances
+from companion.core.connectivity import algebraic_connectivity, min_pair_distance, pairwise_distances
 from companion.core.messages import Message, decode, encode
 from companion.core.prior import draw_targets
-from companion.core.uncertainty import global_average_uncertainty
+from companion.core.uncertainty import global_average_uncertainty, mark_seen
 from companion.core.world import Stream, World, build_world, instance_rng
 from companion.mission import Mission
+
+_NO_TASKS = np.zeros(0, dtype=np.int64)  # mark_seen without per-task counts
 
 
 @dataclass
@@ -57,7 +59,8 @@ class Scorer:
         self.world, self.targets = world, targets
         self.target_xy = world.grid.centres[targets]
         self.first = np.full(len(targets), -1)
-        self.covered = np.zeros(world.grid.n_cells + 1, dtype=bool)  # + the FOV padding slot
+        self.covered = np.zeros(world.grid.n_cells, dtype=bool)
+        self.n_covered = 0
         self.unc, self.found, self.cov, self.lam, self.mind = (np.zeros(steps) for _ in range(5))
 
     def sightings(self, positions: np.ndarray) -> np.ndarray:
@@ -72,14 +75,12 @@ class Scorer:
         sees = self.sightings(positions) if sees is None else sees
         self.first[(self.first < 0) & sees.any(axis=0)] = k
         self.found[k] = np.count_nonzero(self.first >= 0)
-        self.covered[self.world.grid.fov_cells(positions).ravel()] = True
-        self.cov[k] = self.covered[:-1].mean()
+        cells = self.world.grid.fov_cells(positions).ravel()
+        self.n_covered += mark_seen(self.covered, _NO_TASKS, _NO_TASKS, cells)
+        self.cov[k] = self.n_covered / self.world.grid.n_cells
         self.unc[k] = uncertainty
         self.lam[k] = algebraic_connectivity(positions, m.comms.range)
-        n = len(positions)
-        self.mind[k] = (
-            float(pairwise_distances(positions)[~np.eye(n, dtype=bool)].min()) if n > 1 else math.inf
-        )
+        self.mind[k] = min_pair_distance(positions)
 
     def result(self, run: int, seed: int, seconds: float, **extra: object) -> RunResult:
         steps = len(self.unc)
@@ -107,18 +108,19 @@ class Radio:
         self.comm_range, self.loss, self.rng, self.wire = comm_range, loss, rng, wire
 
     def deliver(self, positions: np.ndarray, outboxes: list[list[Message]]) -> list[list[Message]]:
+        """Each receiver's inbox: the in-range senders' messages, by sender id then outbox order."""
         n = len(outboxes)
         in_range = pairwise_distances(positions) <= self.comm_range
+        if self.wire:
+            outboxes = [[decode(encode(msg)) for msg in outbox] for outbox in outboxes]
+        if self.loss == 0:
+            return [[m for i in range(n) if i != j and in_range[i, j] for m in outboxes[i]] for j in range(n)]
         inboxes: list[list[Message]] = [[] for _ in range(n)]
-        for i, outbox in enumerate(outboxes):
+        for i, outbox in enumerate(outboxes):  # loss draws in (sender, message, receiver) order
             for msg in outbox:
-                data = encode(msg) if self.wire else None
                 for j in range(n):
-                    if j == i or not in_range[i, j]:
-                        continue
-                    if self.loss > 0 and self.rng.random() < self.loss:
-                        continue
-                    inboxes[j].append(decode(data) if data is not None else msg)
+                    if j != i and in_range[i, j] and self.rng.random() >= self.loss:
+                        inboxes[j].append(msg)
         return inboxes
 
 

@@ -27,6 +27,7 @@ from companion.core import pheromone as phero
 from companion.core.auction import claim_priority, local_auction
 from companion.core.connectivity import kruskal_mst, mst_neighbours
 from companion.core.geometry import FloatArray
+from companion.core.kinematics import reachable_positions
 from companion.core.messages import (
     BidsMsg,
     ClaimsMsg,
@@ -83,12 +84,36 @@ def predict_tracks(seqs: FloatArray, stamps: np.ndarray, first: int, count: int)
     return out
 
 
-def _heading_at(state: UavState, k: int) -> float:
-    """A UAV's heading at step k from its last state: the planned heading of that step, else the last one."""
-    i = k - state.stamp - 1
-    if i < 0 or not state.plan_headings:
-        return state.heading
-    return state.plan_headings[min(i, len(state.plan_headings) - 1)]
+@njit(cache=True)
+def swarm_view(
+    track: FloatArray,
+    heads: FloatArray,
+    stamps: np.ndarray,
+    k: int,
+    position: FloatArray,
+    first_steps: FloatArray,
+    me: int,
+) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
+    """The MST (eq. 26) over this UAV at `position` and the UAVs it knows of (stamp >= 0), at t_k.
+
+    `track[u]`/`heads[u]` hold UAV u's position/heading at its stamp followed by its plan. Returns
+    the MST neighbours' positions at t_k, their predicted tracks over t_k..t_{k+M}, every position
+    each of them can reach at t_{k+1} (eq. 2 from its predicted pose at t_k), and whether UAV `me`
+    yields to each (right of way to the lower id).
+    """
+    ids = np.flatnonzero(stamps >= 0)
+    horizon = track.shape[1] - 1
+    tracks = predict_tracks(track[ids], stamps[ids], k, horizon + 1)
+    now = np.empty((ids.shape[0] + 1, 2))
+    now[0] = position
+    now[1:] = tracks[:, 0, :]
+    rows = mst_neighbours(kruskal_mst(now), 0) - 1
+    nxt = np.empty((rows.shape[0], first_steps.shape[1], 2))
+    for n in range(rows.shape[0]):
+        u = ids[rows[n]]
+        heading = heads[u, min(max(k - stamps[u], 0), horizon)]
+        nxt[n] = reachable_positions(first_steps, tracks[rows[n], 0, 0], tracks[rows[n], 0, 1], heading)
+    return tracks[rows, 0, :], tracks[rows], nxt, ids[rows] < me
 
 
 class Agent:
@@ -106,6 +131,7 @@ class Agent:
         self.peers: dict[int, UavState] = {}
         horizon = m.algorithm.horizon
         self._track = np.zeros((world.n_uavs, horizon + 1, 2))  # each peer's position, then its plan
+        self._heads = np.zeros((world.n_uavs, horizon + 1))  # each peer's heading, then its plan's
         self._stamp = np.full(world.n_uavs, -1)  # the step of each peer's state; -1 unknown
         self.rejected = 0
         self.task = -1
@@ -123,18 +149,34 @@ class Agent:
         self.peers.pop(uav, None)
         self._stamp[uav] = -1
 
-    def _remember(self, state: UavState) -> None:
-        old = self.peers.get(state.uav)
-        if state.uav != self.uav and (old is None or state.stamp > old.stamp):
-            self.peers[state.uav] = state
-            track = self._track[state.uav]
-            track[0] = state.x, state.y
-            n = min(len(state.plan), track.shape[0] - 1)
-            if n:
-                track[1 : n + 1] = state.plan[:n]
-            for i in range(n + 1, track.shape[0]):  # a shorter plan goes on at its last velocity
-                track[i] = 2 * track[i - 1] - track[i - 2] if i >= 2 else track[i - 1]
-            self._stamp[state.uav] = state.stamp
+    def _remember(self, states: Iterable[UavState]) -> None:
+        """Keep the newest state of each peer, with its track and headings as arrays."""
+        newest: dict[int, UavState] = {}
+        for state in states:
+            old = newest.get(state.uav) or self.peers.get(state.uav)
+            if state.uav != self.uav and (old is None or state.stamp > old.stamp):
+                newest[state.uav] = state
+        if not newest:
+            return
+        horizon = self._track.shape[1] - 1
+        rows: list[float] = []
+        for u, state in newest.items():
+            self.peers[u] = state
+            plan, heads = state.plan[:horizon], state.plan_headings[:horizon]
+            if len(plan) < horizon:  # a shorter plan goes on at its last velocity
+                track = [(state.x, state.y), *plan]
+                while len(track) <= horizon:
+                    (x1, y1), (x2, y2) = track[-2:] if len(track) >= 2 else track * 2
+                    track.append((2 * x2 - x1, 2 * y2 - y1))
+                plan = track[1:]
+            heads = (state.heading, *heads)
+            heads += heads[-1:] * (horizon + 1 - len(heads))
+            rows += (state.stamp, state.x, state.y, *sum(plan, ()), *heads)
+        ids = np.fromiter(newest, dtype=np.int64, count=len(newest))
+        table = np.array(rows).reshape(len(ids), -1)
+        self._stamp[ids] = table[:, 0]
+        self._track[ids] = table[:, 1 : 2 * horizon + 3].reshape(-1, horizon + 1, 2)
+        self._heads[ids] = table[:, 2 * horizon + 3 :]
 
     def _ingest(
         self, inbox: Iterable[Message], k: int
@@ -144,12 +186,13 @@ class Agent:
         looks: list[np.ndarray] = []
         bids: dict[int, tuple[float, ...]] = {}
         oldest = k - self.world.mission.comms.peer_timeout_steps
+        states: list[UavState] = []
         for msg in inbox:
             if msg.sender == self.uav or not oldest <= msg.stamp <= k:
                 self.rejected += 1
                 continue
             if isinstance(msg, StateMsg):
-                self._remember(msg.state)
+                states.append(msg.state)
             elif isinstance(msg, CoverageMsg):
                 looks.append(np.asarray(msg.cells, dtype=np.int64))
                 self.found.update(msg.detections)
@@ -157,10 +200,8 @@ class Agent:
                 if msg.stamp == k - 1:
                     bids[msg.sender] = msg.rewards
             else:
-                for state in msg.known:
-                    old = self.peers.get(state.uav)
-                    if old is None or state.stamp > old.stamp:
-                        self._remember(state)
+                states.extend(msg.known)
+        self._remember(states)
         for u in [u for u, s in self.peers.items() if s.stamp < oldest]:
             self.forget(u)
         return looks, bids
@@ -238,28 +279,14 @@ class Agent:
         return cells, grid.fov_cells(pts), prefix
 
     def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
-        """MST (eq. 26) over this UAV and the UAVs it knows of at t_k.
-
-        Returns the MST neighbours' positions at t_k, their predicted tracks over t_k..t_{k+M}, every
-        position each of them can reach at t_{k+1} (eq. 2 from its pose at t_k), and whether this
-        UAV yields to each (right of way to the lower id).
-        """
-        horizon = self.world.mission.algorithm.horizon
-        kin = self.world.kinematics
-        turns = kin.turn_options
+        """`swarm_view` of what this UAV knows at t_k (eq. 26 and the neighbours' predicted motion)."""
         if not self.peers:
-            empty = np.zeros((0, len(turns), 2))
+            horizon, turns = self._track.shape[1] - 1, self.world.paths.first_steps.shape[1]
+            empty = np.zeros((0, turns, 2))
             return np.zeros((0, 2)), np.zeros((0, horizon + 1, 2)), empty, np.zeros(0, dtype=np.bool_)
-        ids = np.flatnonzero(self._stamp >= 0)
-        tracks = predict_tracks(self._track[ids], self._stamp[ids], k, horizon + 1)
-        now = np.concatenate((position[None, :], tracks[:, 0, :]))
-        rows = mst_neighbours(kruskal_mst(now), 0) - 1
-        paths = self.world.paths
-        nxt = np.empty((len(rows), len(turns), 2))
-        for n, r in enumerate(rows):
-            state = self.peers[int(ids[r])]
-            nxt[n] = paths.next_positions(tracks[r, 0, 0], tracks[r, 0, 1], _heading_at(state, k))
-        return tracks[rows, 0, :], tracks[rows], nxt, ids[rows] < self.uav
+        return swarm_view(
+            self._track, self._heads, self._stamp, k, position, self.world.paths.first_steps, self.uav
+        )
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
         w, m = self.world, self.world.mission

@@ -16,24 +16,42 @@ def pairwise_distances(positions: FloatArray) -> FloatArray:
     return np.sqrt(np.sum(diff * diff, axis=-1))
 
 
+@njit(cache=True)
 def weighted_adjacency(positions: FloatArray, comm_range: float) -> FloatArray:
     """Eq. 5: A = [w_ij a_ij] with a_ij = 1 iff d_ij <= R_c and w_ij = exp(-d_ij / R_c)^3."""
-    d = pairwise_distances(positions)
-    a = (d <= comm_range) & ~np.eye(len(positions), dtype=bool)
-    return np.where(a, np.exp(-d / comm_range) ** 3, 0.0)
+    n = positions.shape[0]
+    a = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = math.hypot(positions[i, 0] - positions[j, 0], positions[i, 1] - positions[j, 1])
+            if d <= comm_range:
+                a[i, j] = a[j, i] = math.exp(-d / comm_range) ** 3
+    return a
 
 
+@njit(cache=True)
 def laplacian(positions: FloatArray, comm_range: float) -> FloatArray:
     """Eqs. 4, 6, 7: L = D - A, D the diagonal degree matrix of the weighted adjacency."""
     a = weighted_adjacency(positions, comm_range)
     return np.diag(a.sum(axis=1)) - a
 
 
+@njit(cache=True)
 def algebraic_connectivity(positions: FloatArray, comm_range: float) -> float:
     """lambda_2(L): the second-smallest Laplacian eigenvalue; > 0 iff the range graph is connected."""
-    if len(positions) < 2:
+    if positions.shape[0] < 2:
         return 0.0
-    return float(np.linalg.eigvalsh(laplacian(positions, comm_range))[1])
+    return np.linalg.eigvalsh(laplacian(positions, comm_range))[1]
+
+
+@njit(cache=True)
+def min_pair_distance(positions: FloatArray) -> float:
+    """min_{i != j} ||mu_i - mu_j||; infinite for fewer than two UAVs."""
+    best = math.inf
+    for i in range(positions.shape[0]):
+        for j in range(i + 1, positions.shape[0]):
+            best = min(best, math.hypot(positions[i, 0] - positions[j, 0], positions[i, 1] - positions[j, 1]))
+    return best
 
 
 @njit(cache=True)
@@ -73,7 +91,13 @@ def kruskal_mst(positions: FloatArray) -> np.ndarray:
     return edges
 
 
+@njit(cache=True)
 def mst_neighbours(edges: np.ndarray, node: int) -> np.ndarray:
     """Ñ_i: the nodes joined to `node` by an MST edge, ascending."""
-    found = [j if i == node else i for i, j in edges.tolist() if node in (i, j)]
-    return np.array(sorted(found), dtype=np.int64)
+    found = np.empty(edges.shape[0], dtype=np.int64)
+    n = 0
+    for e in range(edges.shape[0]):
+        if edges[e, 0] == node or edges[e, 1] == node:
+            found[n] = edges[e, 1] if edges[e, 0] == node else edges[e, 0]
+            n += 1
+    return np.sort(found[:n])

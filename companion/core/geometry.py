@@ -177,11 +177,5 @@ class Grid:
 
     def fov_cell_list(self, point: ArrayLike) -> IntArray:
         """Eq. 3 for one point: the sorted indices of the cells in its FOV."""
-        x, y = (float(v) for v in np.asarray(point, dtype=float).reshape(2))
-        col, row = round((x - self.x0) / self.cell_size), round((y - self.y0) / self.cell_size)
-        centre = (self.x0 + col * self.cell_size == x) and (self.y0 + row * self.cell_size == y)
-        if centre and 0 <= col < self.nx and 0 <= row < self.ny and self.lattice[row, col] >= 0:
-            cells = self.fov_table[self.lattice[row, col]]  # a UAV on a cell centre (grid mode)
-        else:
-            cells = self.fov_cells(np.array([[x, y]]))[0]
+        cells = self.fov_cells(np.asarray(point, dtype=float).reshape(1, 2))[0]
         return np.sort(cells[cells < self.n_cells])

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+from numba import njit
 
 from companion.core.geometry import FloatArray
 
@@ -37,6 +38,27 @@ def arc_advance(
     dx = np.where(straight, speed * dt * np.cos(h), speed / w_safe * (np.sin(h1) - np.sin(h)))
     dy = np.where(straight, speed * dt * np.sin(h), speed / w_safe * (np.cos(h) - np.cos(h1)))
     return x + dx, y + dy, h1
+
+
+@njit(cache=True)
+def reachable_positions(first_steps: FloatArray, x: float, y: float, heading: float) -> FloatArray:
+    """Every position reachable one step from the pose (x, y, heading): shape (n_turns, 2).
+
+    `first_steps` is `PathTree.first_steps`: eight tables, one per 45-degree heading (grid mode),
+    or one table for heading 0 that is rotated (continuous mode).
+    """
+    tables, n = first_steps.shape[0], first_steps.shape[1]
+    out = np.empty((n, 2))
+    if tables == 8:
+        o = first_steps[round(heading / _EIGHTH) % 8]
+        for q in range(n):
+            out[q, 0], out[q, 1] = x + o[q, 0], y + o[q, 1]
+    else:
+        c, s = math.cos(heading), math.sin(heading)
+        for q in range(n):
+            ox, oy = first_steps[0, q, 0], first_steps[0, q, 1]
+            out[q, 0], out[q, 1] = x + c * ox - s * oy, y + s * ox + c * oy
+    return out
 
 
 def wrap_angle(a: FloatArray | float) -> FloatArray:
@@ -149,17 +171,9 @@ class PathTree:
         return np.stack([x + c * o[..., 0] - s * o[..., 1], y + s * o[..., 0] + c * o[..., 1]], axis=-1)
 
     @cached_property
-    def _first_steps(self) -> FloatArray:
+    def first_steps(self) -> FloatArray:
         """Per heading table, the distinct first-step offsets (one per turn option)."""
         return np.stack([np.unique(table[:, 0, :].round(9), axis=0) for table in self.offsets])
-
-    def next_positions(self, x: float, y: float, heading: float) -> FloatArray:
-        """Every position reachable one step from the pose (x, y, heading): shape (n_turns, 2)."""
-        o = self._first_steps[self._table(heading)]
-        if self.kinematics.mode == "grid":
-            return o + np.array((x, y))
-        c, s = math.cos(heading), math.sin(heading)
-        return np.stack([x + c * o[:, 0] - s * o[:, 1], y + s * o[:, 0] + c * o[:, 1]], axis=-1)
 
     def headings_along(self, heading: float, path: int) -> tuple[float, ...]:
         """The heading after each step of path `path` from `heading`, wrapped to [-pi, pi)."""

@@ -24,17 +24,20 @@ def apply_looks(eta: FloatArray, cells: IntArray, gamma: float) -> None:
 
 
 @njit(cache=True)
-def mark_seen(seen: np.ndarray, covered: IntArray, labels: IntArray, cells: IntArray) -> None:
+def mark_seen(seen: np.ndarray, covered: IntArray, labels: IntArray, cells: IntArray) -> int:
     """Record first looks: `seen[p]` turns True and the covered-cell count of p's task grows (eq. 20).
 
-    `covered` may be empty (no tasks); `labels[p]` is the task of cell p.
+    `covered` may be empty (no tasks); `labels[p]` is the task of cell p. Returns the number of
+    cells seen for the first time.
     """
-    n = seen.shape[0]
+    n, new = seen.shape[0], 0
     for c in cells:
         if 0 <= c < n and not seen[c]:
             seen[c] = True
+            new += 1
             if covered.shape[0] > 0:
                 covered[labels[c]] += 1
+    return new
 
 
 def importance(eta: FloatArray, prior: FloatArray) -> FloatArray:
