@@ -102,4 +102,7 @@ def open_session(cfg: MeshConfig) -> zenoh.Session:
 
 
 def _config(tree: dict) -> zenoh.Config:
-    return zenoh.Config.from_json5(json.dumps(tree))
+    """Shared memory off: large payloads would otherwise go through SHM segments between local
+    processes, with two watchdog threads per process polling them (measured: a tenth of a core
+    across 50 companions); the mesh's bundles are a few kilobytes and radio links have no SHM."""
+    return zenoh.Config.from_json5(json.dumps({**tree, "transport": {"shared_memory": {"enabled": False}}}))

@@ -129,6 +129,8 @@ class Agent:
         self.seen = np.zeros(n, dtype=bool)
         self.found: set[int] = set()
         self.peers: dict[int, UavState] = {}
+        self.neighbours: dict[int, tuple[int, ...]] = {}  # heard from at this step -> whom they heard
+        self._heard: tuple[int, ...] = ()  # whom we reported to have heard, in our last StateMsg
         horizon = m.algorithm.horizon
         self._track = np.zeros((world.n_uavs, horizon + 1, 2))  # each peer's position, then its plan
         self._heads = np.zeros((world.n_uavs, horizon + 1))  # each peer's heading, then its plan's
@@ -187,12 +189,15 @@ class Agent:
         bids: dict[int, tuple[float, ...]] = {}
         oldest = k - self.world.mission.comms.peer_timeout_steps
         states: list[UavState] = []
+        self.neighbours = {}
         for msg in inbox:
             if msg.sender == self.uav or not oldest <= msg.stamp <= k:
                 self.rejected += 1
                 continue
             if isinstance(msg, StateMsg):
                 states.append(msg.state)
+                if msg.stamp == k - 1:
+                    self.neighbours[msg.sender] = msg.heard
             elif isinstance(msg, CoverageMsg):
                 looks.append(np.asarray(msg.cells, dtype=np.int64))
                 self.found.update(msg.detections)
@@ -205,6 +210,35 @@ class Agent:
         for u in [u for u, s in self.peers.items() if s.stamp < oldest]:
             self.forget(u)
         return looks, bids
+
+    def _relay(self) -> list[int]:
+        """The peers whose latest state goes out in this step's ClaimsMsg, ascending.
+
+        Every UAV reports whom it heard first-hand at its previous step (`StateMsg.heard`); we
+        know the reports of the UAVs we heard this step, and our own. A peer p is relayed for a
+        UAV l we heard when l did not hear p itself, unless a UAV that l heard and that heard p
+        (per the reports we know) has a lower id than ours: the lowest such UAV relays p to l.
+        The true lowest one sees itself as lowest in its own view, so no pair is left out where
+        the reports hold; where l is farther than two hops from p, everyone that has p relays.
+        A swarm in which everyone hears everyone relays nothing.
+        """
+        reports = {u: heard for u, heard in self.neighbours.items()}
+        reports[self.uav] = self._heard
+        heard_by: dict[int, int] = {}  # p -> mask of the UAVs reported to have heard p
+        for m, heard in reports.items():
+            for p in heard:
+                heard_by[p] = heard_by.get(p, 0) | 1 << m
+        me = 1 << self.uav
+        need: set[int] = set()
+        for u in self.neighbours:
+            heard_u = sum(1 << v for v in set(reports[u]))
+            for p in self.peers:
+                if p == u or p in need or heard_u >> p & 1:
+                    continue
+                relayers = heard_u & heard_by.get(p, 0)
+                if not relayers or relayers & -relayers == me:
+                    need.add(p)
+        return sorted(need)
 
     # -- map -----------------------------------------------------------------------------------
     def _update_map(self, looks: list[np.ndarray]) -> None:
@@ -347,12 +381,14 @@ class Agent:
             self.uav, k, obs.x, obs.y, obs.heading, plan, self.task, self.task_reward, plan_headings
         )
         head = {"sender": self.uav, "stamp": k, "x": obs.x, "y": obs.y}
+        heard, relay = tuple(sorted(self.neighbours)), self._relay()
+        self._heard = heard
         outbox: list[Message] = [
-            StateMsg(**head, state=me),
+            StateMsg(**head, state=me, heard=heard),
             CoverageMsg(**head, cells=tuple(own_cells.tolist()), detections=own_detections),
         ]
-        if self.peers:
-            outbox.append(ClaimsMsg(**head, known=tuple(self.peers[u] for u in sorted(self.peers))))
+        if relay:
+            outbox.append(ClaimsMsg(**head, known=tuple(self.peers[u] for u in relay)))
         if announce:
             assert self.bids is not None
             outbox.append(BidsMsg(**head, rewards=self.bids))

@@ -30,13 +30,16 @@ def arc_advance(
     speed: float,
     dt: float,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Eq. 2 integrated exactly over dt with constant turn rate omega (rad/s): a circular arc."""
+    """Eq. 2 integrated exactly over dt with constant turn rate omega (rad/s): a circular arc.
+
+    The chord has length v dt sinc(omega dt / 2) and points along the mid-arc heading, a form
+    that stays exact as omega -> 0 (no cancellation in sin(h1) - sin(h) over a tiny omega).
+    """
     x, y, h, w = (np.asarray(a, dtype=float) for a in (x, y, heading, omega))
+    half = w * dt / 2
+    chord = speed * dt * np.sinc(half / np.pi)
     h1 = h + w * dt
-    straight = np.abs(w) < 1e-12
-    w_safe = np.where(straight, 1.0, w)
-    dx = np.where(straight, speed * dt * np.cos(h), speed / w_safe * (np.sin(h1) - np.sin(h)))
-    dy = np.where(straight, speed * dt * np.sin(h), speed / w_safe * (np.cos(h) - np.cos(h1)))
+    dx, dy = chord * np.cos(h + half), chord * np.sin(h + half)
     return x + dx, y + dy, h1
 
 

@@ -14,7 +14,7 @@ import msgspec
 
 from companion.core.wire import MsgpackCodec
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 MAX_PLAN = 16
 
 
@@ -46,9 +46,11 @@ class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
 
 
 class StateMsg(_Header, tag="state"):
-    """The sender's own state (pose, plan, task)."""
+    """The sender's own state (pose, plan, task) and the UAVs whose StateMsg it received at its
+    previous step (its first-hand neighbours: what the others need not relay to it)."""
 
     state: UavState
+    heard: tuple[int, ...] = ()
 
 
 class CoverageMsg(_Header, tag="coverage"):
@@ -106,6 +108,8 @@ def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
         _check_state(msg.state, n_uavs, n_tasks)
         if msg.state.uav != msg.sender:
             raise MessageError("state of another uav in a state message")
+        if len(msg.heard) >= n_uavs or any(not 0 <= u < n_uavs for u in msg.heard):
+            raise MessageError("heard list with unknown uavs")
     elif isinstance(msg, CoverageMsg):
         if len(msg.cells) > n_cells or any(not 0 <= c < n_cells for c in msg.cells + msg.detections):
             raise MessageError("cell index out of range")

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from companion.batch.engine import initial_poses
+from companion.batch.engine import Radio, initial_poses
 from companion.core.agent import Agent, Observation, predict_tracks
 from companion.core.connectivity import pairwise_distances
-from companion.core.messages import BidsMsg, Message, StateMsg, check, decode, encode
+from companion.core.messages import BidsMsg, ClaimsMsg, Message, StateMsg, check, decode, encode
 from companion.core.world import build_world
 
 
@@ -110,3 +113,74 @@ def test_baselines_never_take_tasks(scenario1, algorithm: str) -> None:
         for cmd, out in outs:
             assert cmd.task == -1
             assert not any(isinstance(m, BidsMsg) for m in out)
+
+
+def _hops(near: np.ndarray) -> np.ndarray:
+    """Hop distance between every pair of the range graph `near` (-1: not connected)."""
+    n = len(near)
+    hops = np.full((n, n), -1)
+    for s in range(n):
+        hops[s, s], frontier, d = 0, [s], 0
+        while frontier:
+            d += 1
+            frontier = [v for u in frontier for v in np.flatnonzero(near[u]) if hops[s, v] < 0]
+            for v in frontier:
+                hops[s, v] = d
+    return hops
+
+
+def _static_swarm(scenario1, points: list[tuple[float, float]], steps: int):
+    """Agents of UAVs held at `points` (the observation never moves) exchanging messages over
+    the batch engine's radio for `steps` steps; yields (k, agents, outboxes) after each step."""
+    vehicles = [msgspec.structs.replace(scenario1.vehicles[0], x=x, y=y) for x, y in points]
+    mission = msgspec.structs.replace(scenario1, vehicles=vehicles).with_algorithm("no-ta")
+    world = build_world(mission, 1, 0)
+    agents = [Agent(world, i) for i in range(len(points))]
+    positions = np.array(points, dtype=float)
+    radio = Radio(mission.comms.range, 0.0, np.random.default_rng(0), wire=True)
+    inboxes: list[list[Message]] = [[] for _ in agents]
+    for k in range(steps):
+        outs = [
+            a.step(Observation(step=k, x=x, y=y, heading=0.0), inboxes[i])
+            for i, (a, (x, y)) in enumerate(zip(agents, points, strict=True))
+        ]
+        yield k, agents, [out for _, out in outs]
+        inboxes = radio.deliver(positions, [out for _, out in outs])
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.tuples(st.integers(-24, 24), st.integers(-24, 24)), min_size=2, max_size=9, unique=True))
+def test_relays_bring_every_state_one_step_per_hop(scenario1, cells: list[tuple[int, int]]) -> None:
+    """Multi-hop dissemination: with relays only where a neighbour did not hear a peer itself, UAV
+    i still knows UAV j's state of step k - hops(i, j) after step k, as a full flood would."""
+    points = [(40.0 * cx + 20.0, 40.0 * cy + 20.0) for cx, cy in cells]
+    near = pairwise_distances(np.array(points)) <= scenario1.comms.range
+    hops = _hops(near)
+    steps = int(hops.max()) + 4  # reports of whom each heard settle after two steps
+    for k, agents, _ in _static_swarm(scenario1, points, steps):
+        if k < 2 + hops.max():
+            continue
+        for i, a in enumerate(agents):
+            for j in range(len(agents)):
+                if i != j and hops[i, j] > 0:
+                    assert a.peers[j].stamp == k - hops[i, j], (i, j, hops[i, j])
+                elif i != j:
+                    assert j not in a.peers
+
+
+def test_a_swarm_where_everyone_hears_everyone_relays_nothing(scenario1) -> None:
+    points = [(20.0 + 200.0 * i, 20.0) for i in range(4)]  # 600 m across, R_c 1000 m
+    for k, _, outs in _static_swarm(scenario1, points, 6):
+        relays = [m for out in outs for m in out if isinstance(m, ClaimsMsg)]
+        assert k < 2 or not relays  # before the first reports of whom each heard, all relay
+
+
+def test_a_chain_relays_through_its_middle(scenario1) -> None:
+    r = scenario1.comms.range
+    points = [(20.0, 20.0), (20.0 + 0.9 * r, 20.0), (20.0 + 1.8 * r, 20.0)]  # 0 - 1 - 2
+    *_, (k, agents, outs) = _static_swarm(scenario1, points, 6)
+    relays = {
+        i: [s.uav for m in out if isinstance(m, ClaimsMsg) for s in m.known] for i, out in enumerate(outs)
+    }
+    assert relays == {0: [], 1: [0, 2], 2: []}
+    assert agents[0].peers[2].stamp == k - 2 and agents[2].peers[0].stamp == k - 2

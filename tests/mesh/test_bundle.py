@@ -8,7 +8,7 @@ import msgspec
 import pytest
 from mesh_helpers import N_CELLS, N_TASKS, outbox
 
-from companion.core.messages import ClaimsMsg, CoverageMsg, MessageError, UavState
+from companion.core.messages import PROTOCOL_VERSION, ClaimsMsg, CoverageMsg, MessageError, UavState
 from companion.mesh import MAX_BUNDLE_MESSAGES, Bundle, check_bundle, decode_bundle, encode_bundle
 
 
@@ -33,7 +33,7 @@ def test_empty_bundle_is_valid() -> None:
 @pytest.mark.parametrize(
     ("changes", "reason"),
     [
-        ({"v": 2}, "version"),
+        ({"v": PROTOCOL_VERSION + 1}, "version"),
         ({"sender": 4}, "sender"),
         ({"sender": -1}, "sender"),
         ({"stamp": -1}, "stamp"),

@@ -14,7 +14,7 @@ import zenoh
 from mesh_helpers import N_CELLS, make_mission, outbox, until
 
 from companion.batch.engine import Radio
-from companion.core.messages import ClaimsMsg, CoverageMsg, Message, UavState
+from companion.core.messages import PROTOCOL_VERSION, ClaimsMsg, CoverageMsg, Message, UavState
 from companion.mesh import Bundle, Mesh, encode_bundle, key_base
 from companion.mission import Mission
 from companion.zenoh_config import peer_config
@@ -146,7 +146,7 @@ def test_malformed_and_hostile_payloads_are_dropped_and_counted(open_mesh: OpenM
     hostile = [
         ("uav/1/msg", b"garbage"),
         ("uav/1/msg", b""),
-        ("uav/1/msg", bundle(v=2)),
+        ("uav/1/msg", bundle(v=PROTOCOL_VERSION + 1)),
         ("uav/1/msg", b"\x91" + b"\x00" * 4096),  # over max_bundle_bytes
         ("uav/1/msg", bundle(sender=2)),  # sender differs from the key
         ("uav/0/msg", bundle(sender=0)),  # claims the receiver's id
