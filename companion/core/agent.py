@@ -18,6 +18,8 @@ again (synchronisation). A held task is reevaluated every step (eqs. 20-21).
 from __future__ import annotations
 
 from collections.abc import Iterable
+from functools import reduce
+from operator import or_
 
 import msgspec
 import numpy as np
@@ -36,7 +38,7 @@ from companion.core.messages import (
     StateMsg,
     UavState,
 )
-from companion.core.rhc import grid_path_cells, path_expense, region_key, search_benefit, select_path
+from companion.core.rhc import choose_path, grid_path_cells
 from companion.core.tasks import keep_task, rewards, task_completion, total_cost
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
@@ -86,33 +88,34 @@ def predict_tracks(seqs: FloatArray, stamps: np.ndarray, first: int, count: int)
 
 @njit(cache=True)
 def swarm_view(
-    track: FloatArray,
-    heads: FloatArray,
-    stamps: np.ndarray,
+    ids: np.ndarray,
+    table: FloatArray,
     k: int,
     position: FloatArray,
     first_steps: FloatArray,
     me: int,
 ) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
-    """The MST (eq. 26) over this UAV at `position` and the UAVs it knows of (stamp >= 0), at t_k.
+    """The MST (eq. 26) over this UAV at `position` and the UAVs `ids` it knows of, at t_k.
 
-    `track[u]`/`heads[u]` hold UAV u's position/heading at its stamp followed by its plan. Returns
+    Row r of `table` holds UAV ids[r]'s last state: its stamp, its position then its planned path
+    (M + 1 points, x and y), its heading then the heading at each planned point (M + 1). Returns
     the MST neighbours' positions at t_k, their predicted tracks over t_k..t_{k+M}, every position
     each of them can reach at t_{k+1} (eq. 2 from its predicted pose at t_k), and whether UAV `me`
     yields to each (right of way to the lower id).
     """
-    ids = np.flatnonzero(stamps >= 0)
-    horizon = track.shape[1] - 1
-    tracks = predict_tracks(track[ids], stamps[ids], k, horizon + 1)
+    horizon = (table.shape[1] - 1) // 3 - 1
+    stamps = table[:, 0].astype(np.int64)
+    track = np.ascontiguousarray(table[:, 1 : 2 * horizon + 3]).reshape(-1, horizon + 1, 2)
+    tracks = predict_tracks(track, stamps, k, horizon + 1)
     now = np.empty((ids.shape[0] + 1, 2))
     now[0] = position
     now[1:] = tracks[:, 0, :]
     rows = mst_neighbours(kruskal_mst(now), 0) - 1
     nxt = np.empty((rows.shape[0], first_steps.shape[1], 2))
     for n in range(rows.shape[0]):
-        u = ids[rows[n]]
-        heading = heads[u, min(max(k - stamps[u], 0), horizon)]
-        nxt[n] = reachable_positions(first_steps, tracks[rows[n], 0, 0], tracks[rows[n], 0, 1], heading)
+        r = rows[n]
+        heading = table[r, 2 * horizon + 3 + min(max(k - stamps[r], 0), horizon)]
+        nxt[n] = reachable_positions(first_steps, tracks[r, 0, 0], tracks[r, 0, 1], heading)
     return tracks[rows, 0, :], tracks[rows], nxt, ids[rows] < me
 
 
@@ -132,9 +135,8 @@ class Agent:
         self.neighbours: dict[int, tuple[int, ...]] = {}  # heard from at this step -> whom they heard
         self._heard: tuple[int, ...] = ()  # whom we reported to have heard, in our last StateMsg
         horizon = m.algorithm.horizon
-        self._track = np.zeros((world.n_uavs, horizon + 1, 2))  # each peer's position, then its plan
-        self._heads = np.zeros((world.n_uavs, horizon + 1))  # each peer's heading, then its plan's
-        self._stamp = np.full(world.n_uavs, -1)  # the step of each peer's state; -1 unknown
+        self._horizon = horizon
+        self._rows: dict[int, tuple[float, ...]] = {}  # each peer's state as a `swarm_view` row
         self.rejected = 0
         self.task = -1
         self.task_reward = 0.0
@@ -149,23 +151,19 @@ class Agent:
     def forget(self, uav: int) -> None:
         """Drop what is known of a UAV that has left (its task is free for the next auction)."""
         self.peers.pop(uav, None)
-        self._stamp[uav] = -1
+        self._rows.pop(uav, None)
 
     def _remember(self, states: Iterable[UavState]) -> None:
-        """Keep the newest state of each peer, with its track and headings as arrays."""
-        newest: dict[int, UavState] = {}
+        """Keep the newest state of each peer, and its `swarm_view` row: a plan shorter than the
+        horizon goes on at its last velocity, headings past the plan stay at the last one."""
+        horizon = self._horizon
         for state in states:
-            old = newest.get(state.uav) or self.peers.get(state.uav)
-            if state.uav != self.uav and (old is None or state.stamp > old.stamp):
-                newest[state.uav] = state
-        if not newest:
-            return
-        horizon = self._track.shape[1] - 1
-        rows: list[float] = []
-        for u, state in newest.items():
-            self.peers[u] = state
+            old = self.peers.get(state.uav)
+            if state.uav == self.uav or (old is not None and state.stamp <= old.stamp):
+                continue
+            self.peers[state.uav] = state
             plan, heads = state.plan[:horizon], state.plan_headings[:horizon]
-            if len(plan) < horizon:  # a shorter plan goes on at its last velocity
+            if len(plan) < horizon:
                 track = [(state.x, state.y), *plan]
                 while len(track) <= horizon:
                     (x1, y1), (x2, y2) = track[-2:] if len(track) >= 2 else track * 2
@@ -173,12 +171,7 @@ class Agent:
                 plan = track[1:]
             heads = (state.heading, *heads)
             heads += heads[-1:] * (horizon + 1 - len(heads))
-            rows += (state.stamp, state.x, state.y, *sum(plan, ()), *heads)
-        ids = np.fromiter(newest, dtype=np.int64, count=len(newest))
-        table = np.array(rows).reshape(len(ids), -1)
-        self._stamp[ids] = table[:, 0]
-        self._track[ids] = table[:, 1 : 2 * horizon + 3].reshape(-1, horizon + 1, 2)
-        self._heads[ids] = table[:, 2 * horizon + 3 :]
+            self._rows[state.uav] = (state.stamp, state.x, state.y, *sum(plan, ()), *heads)
 
     def _ingest(
         self, inbox: Iterable[Message], k: int
@@ -222,16 +215,17 @@ class Agent:
         the reports hold; where l is farther than two hops from p, everyone that has p relays.
         A swarm in which everyone hears everyone relays nothing.
         """
-        reports = {u: heard for u, heard in self.neighbours.items()}
-        reports[self.uav] = self._heard
+        if not self.neighbours:
+            return []
+        reports = {**self.neighbours, self.uav: self._heard}
         heard_by: dict[int, int] = {}  # p -> mask of the UAVs reported to have heard p
         for m, heard in reports.items():
             for p in heard:
                 heard_by[p] = heard_by.get(p, 0) | 1 << m
         me = 1 << self.uav
         need: set[int] = set()
-        for u in self.neighbours:
-            heard_u = sum(1 << v for v in set(reports[u]))
+        for u, heard in self.neighbours.items():
+            heard_u = reduce(or_, (1 << v for v in heard), 0)
             for p in self.peers:
                 if p == u or p in need or heard_u >> p & 1:
                     continue
@@ -314,13 +308,13 @@ class Agent:
 
     def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
         """`swarm_view` of what this UAV knows at t_k (eq. 26 and the neighbours' predicted motion)."""
-        if not self.peers:
-            horizon, turns = self._track.shape[1] - 1, self.world.paths.first_steps.shape[1]
-            empty = np.zeros((0, turns, 2))
-            return np.zeros((0, 2)), np.zeros((0, horizon + 1, 2)), empty, np.zeros(0, dtype=np.bool_)
-        return swarm_view(
-            self._track, self._heads, self._stamp, k, position, self.world.paths.first_steps, self.uav
-        )
+        first_steps = self.world.paths.first_steps
+        if not self._rows:
+            empty = np.zeros((0, first_steps.shape[1], 2))
+            return np.zeros((0, 2)), np.zeros((0, self._horizon + 1, 2)), empty, np.zeros(0, dtype=np.bool_)
+        ids = sorted(self._rows)
+        table = np.array([self._rows[u] for u in ids])
+        return swarm_view(np.array(ids), table, k, position, first_steps, self.uav)
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
         w, m = self.world, self.world.mission
@@ -357,13 +351,25 @@ class Agent:
             region = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
         else:
             labels, region = cells, (-1, position, 1.0)
-        benefit = search_benefit(pts, fov, self._values, a.delta[0], labels, *region, a.delta[1])
         c = m.comms
-        expense, violation = path_expense(
-            pts, nbr_tracks, nbr_next, yields, w.paths.max_step, c.range, c.attraction, c.safety, c.repulsion
+        best = choose_path(
+            pts,
+            fov,
+            prefix,
+            self._values,
+            labels,
+            *region,
+            a.delta,
+            a.chi,
+            nbr_tracks,
+            nbr_next,
+            yields,
+            w.paths.max_step,
+            (c.range, c.attraction, c.safety, c.repulsion),
+            grid.region.normals,
+            grid.region.offsets,
+            grid.cell_size,
         )
-        region = region_key(prefix, pts, grid.region.normals, grid.region.offsets, grid.cell_size)
-        best = select_path(a.chi[0] * benefit - a.chi[1] * expense, region, violation)
 
         turn = float(w.paths.sequences[best, 0])
         plan = tuple(map(tuple, pts[best].tolist()))

@@ -53,6 +53,24 @@ def _fov_lookup(
     return out
 
 
+@njit(cache=True)
+def _fov_list(
+    x: float,
+    y: float,
+    x0: float,
+    y0: float,
+    size: float,
+    lattice: IntArray,
+    offsets: IntArray,
+    radius2: float,
+) -> IntArray:
+    """The cells of `_fov_lookup` for one point, without padding, ascending."""
+    point = np.empty((1, 2))
+    point[0, 0], point[0, 1] = x, y
+    cells = _fov_lookup(point, x0, y0, size, lattice, offsets, radius2, -1)[0]
+    return np.sort(cells[cells >= 0])
+
+
 @dataclass(frozen=True)
 class ConvexPolygon:
     """A convex polygon stored as half-planes `normals @ p <= offsets` (counter-clockwise)."""
@@ -177,5 +195,7 @@ class Grid:
 
     def fov_cell_list(self, point: ArrayLike) -> IntArray:
         """Eq. 3 for one point: the sorted indices of the cells in its FOV."""
-        cells = self.fov_cells(np.asarray(point, dtype=float).reshape(1, 2))[0]
-        return np.sort(cells[cells < self.n_cells])
+        x, y = np.asarray(point, dtype=float).reshape(2)
+        return _fov_list(
+            x, y, self.x0, self.y0, self.cell_size, self.lattice, self.fov_offsets, self.fov_radius**2 + 1e-6
+        )

@@ -148,6 +148,7 @@ def grid_path_cells(
     return cells, fov, prefix
 
 
+@njit(cache=True)
 def region_key(
     prefix: IntArray, points: FloatArray, normals: FloatArray, offsets: FloatArray, cell_size: float
 ) -> FloatArray:
@@ -156,8 +157,16 @@ def region_key(
     points lie beyond the boundary (summed, in cells), so that a UAV outside turns back at once."""
     if prefix.max() > 0:  # paths that leave at once cannot compete with one that does not
         return prefix.astype(np.float64)
-    beyond = np.maximum(np.max(points @ normals.T - offsets, axis=-1), 0.0).sum(axis=1)
-    return -beyond / cell_size
+    n_paths, horizon = points.shape[0], points.shape[1]
+    out = np.zeros(n_paths)
+    for i in range(n_paths):
+        for m in range(horizon):
+            beyond = -np.inf
+            for e in range(normals.shape[0]):
+                d = points[i, m, 0] * normals[e, 0] + points[i, m, 1] * normals[e, 1] - offsets[e]
+                beyond = max(beyond, d)
+            out[i] -= max(beyond, 0.0) / cell_size
+    return out
 
 
 @njit(cache=True)
@@ -181,3 +190,36 @@ def select_path(scores: FloatArray, region: FloatArray, violation: FloatArray) -
         ):
             best = i
     return best
+
+
+@njit(cache=True)
+def choose_path(
+    points: FloatArray,
+    fov: IntArray,
+    prefix: IntArray,
+    values_padded: FloatArray,
+    point_labels: IntArray,
+    task: int,
+    generator: FloatArray,
+    circumradius: float,
+    delta: tuple[float, float],
+    chi: tuple[float, float],
+    neighbour_tracks: FloatArray,
+    neighbour_next: FloatArray,
+    yields_to: np.ndarray,
+    step: float,
+    comms: tuple[float, float, float, float],
+    normals: FloatArray,
+    offsets: FloatArray,
+    cell_size: float,
+) -> int:
+    """Eq. 22: the path maximising chi_1 J^A - chi_2 J^B (eqs. 25, 29) under the region and first-step
+    constraints (`region_key`, `select_path`). `comms` is (R_c, R'_c, R_s, R'_s)."""
+    benefit = search_benefit(
+        points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1]
+    )
+    expense, violation = path_expense(
+        points, neighbour_tracks, neighbour_next, yields_to, step, comms[0], comms[1], comms[2], comms[3]
+    )
+    region = region_key(prefix, points, normals, offsets, cell_size)
+    return select_path(chi[0] * benefit - chi[1] * expense, region, violation)
