@@ -11,16 +11,15 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from companion.core.agent import Agent, Command, Observation
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance, pairwise_distances
 from companion.core.messages import Message, decode, encode
 from companion.core.prior import draw_targets
-from companion.core.uncertainty import global_average_uncertainty, mark_seen
+from companion.core.uncertainty import global_average_uncertainty
 from companion.core.world import Stream, World, build_world, instance_rng
 from companion.mission import Mission
-
-_NO_TASKS = np.zeros(0, dtype=np.int64)  # mark_seen without per-task counts
 
 
 @dataclass
@@ -49,6 +48,37 @@ class RunResult:
         return np.where(self.target_steps >= 0, self.target_steps, self.steps)
 
 
+@njit(cache=True)
+def _ground_truth(
+    k: int,
+    positions: np.ndarray,
+    target_xy: np.ndarray,
+    radius2: float,
+    first: np.ndarray,
+    covered: np.ndarray,
+    fov_cells: np.ndarray,
+    comm_range: float,
+) -> tuple[np.ndarray, int, int, float, float]:
+    """One step of `Scorer.record`: (UAV, target) pairs in view, targets found so far (first-seen
+    steps updated in place), cells looked at for the first time, lambda_2 and the minimum distance."""
+    n, n_targets = positions.shape[0], target_xy.shape[0]
+    sees = np.zeros((n, n_targets), dtype=np.bool_)
+    found = 0
+    for t in range(n_targets):
+        for i in range(n):
+            dx, dy = positions[i, 0] - target_xy[t, 0], positions[i, 1] - target_xy[t, 1]
+            sees[i, t] = dx * dx + dy * dy <= radius2
+            if sees[i, t] and first[t] < 0:
+                first[t] = k
+        found += first[t] >= 0
+    new = 0
+    for c in fov_cells.ravel():
+        if 0 <= c < covered.shape[0] and not covered[c]:
+            covered[c] = True
+            new += 1
+    return sees, found, new, algebraic_connectivity(positions, comm_range), min_pair_distance(positions)
+
+
 class Scorer:
     """Ground-truth metrics of one run, step by step (a target is found when its cell centre is
     within R_A of some UAV): targets found, coverage, lambda_2 and the minimum pairwise distance,
@@ -63,24 +93,25 @@ class Scorer:
         self.n_covered = 0
         self.unc, self.found, self.cov, self.lam, self.mind = (np.zeros(steps) for _ in range(5))
 
-    def sightings(self, positions: np.ndarray) -> np.ndarray:
-        """(UAV, target) pairs in view: the target's cell centre within R_A (eq. 3)."""
-        d2 = np.sum((positions[:, None, :] - self.target_xy[None, :, :]) ** 2, axis=-1)
-        return d2 <= self.world.mission.sensor.radius**2 + 1e-6
-
-    def record(
-        self, k: int, positions: np.ndarray, uncertainty: float, sees: np.ndarray | None = None
-    ) -> None:
-        m = self.world.mission
-        sees = self.sightings(positions) if sees is None else sees
-        self.first[(self.first < 0) & sees.any(axis=0)] = k
-        self.found[k] = np.count_nonzero(self.first >= 0)
-        cells = self.world.grid.fov_cells(positions).ravel()
-        self.n_covered += mark_seen(self.covered, _NO_TASKS, _NO_TASKS, cells)
-        self.cov[k] = self.n_covered / self.world.grid.n_cells
+    def record(self, k: int, positions: np.ndarray, uncertainty: float = math.nan) -> np.ndarray:
+        """Score the UAVs at `positions` at step k; returns which UAV sees which target (eq. 3).
+        The uncertainty of step k may be handed in later (`unc[k]`)."""
+        m, grid = self.world.mission, self.world.grid
+        sees, found, new, lam, mind = _ground_truth(
+            k,
+            positions,
+            self.target_xy,
+            m.sensor.radius**2 + 1e-6,
+            self.first,
+            self.covered,
+            grid.fov_cells(positions),
+            m.comms.range,
+        )
+        self.n_covered += new
+        self.found[k], self.lam[k], self.mind[k] = found, lam, mind
+        self.cov[k] = self.n_covered / grid.n_cells
         self.unc[k] = uncertainty
-        self.lam[k] = algebraic_connectivity(positions, m.comms.range)
-        self.mind[k] = min_pair_distance(positions)
+        return sees
 
     def result(self, run: int, seed: int, seconds: float, **extra: object) -> RunResult:
         steps = len(self.unc)
@@ -154,7 +185,7 @@ def simulate(
     tasks = np.zeros((steps, n), dtype=np.int64) if record else None
     inboxes: list[list[Message]] = [[] for _ in range(n)]
     for k in range(steps):
-        sees = scorer.sightings(poses[:, :2])
+        sees = scorer.record(k, poses[:, :2])
         outputs: list[tuple[Command, list[Message]]] = []
         for i, agent in enumerate(agents):
             obs = Observation(
@@ -165,7 +196,7 @@ def simulate(
                 detections=tuple(map(tuple, scorer.target_xy[sees[i]].tolist())),
             )
             outputs.append(agent.step(obs, inboxes[i]))
-        scorer.record(k, poses[:, :2], global_average_uncertainty([a.eta for a in agents]), sees)
+        scorer.unc[k] = global_average_uncertainty([a.eta for a in agents])
         if traj is not None and tasks is not None:
             traj[k] = poses
             tasks[k] = [c.task for c, _ in outputs]

@@ -16,6 +16,9 @@ def pairwise_distances(positions: FloatArray) -> FloatArray:
     return np.sqrt(np.sum(diff * diff, axis=-1))
 
 
+CONNECTED_LAMBDA2 = 1e-12
+
+
 @njit(cache=True)
 def weighted_adjacency(positions: FloatArray, comm_range: float) -> FloatArray:
     """Eq. 5: A = [w_ij a_ij] with a_ij = 1 iff d_ij <= R_c and w_ij = exp(-d_ij / R_c)^3."""
@@ -38,10 +41,16 @@ def laplacian(positions: FloatArray, comm_range: float) -> FloatArray:
 
 @njit(cache=True)
 def algebraic_connectivity(positions: FloatArray, comm_range: float) -> float:
-    """lambda_2(L): the second-smallest Laplacian eigenvalue; > 0 iff the range graph is connected."""
+    """lambda_2(L): the second-smallest Laplacian eigenvalue; > 0 iff the range graph is connected.
+
+    A disconnected graph's lambda_2 is 0, which the eigensolver returns as +-1e-17 or so: values
+    below `CONNECTED_LAMBDA2` are returned as exactly 0. (Every edge within R_c weighs at least
+    e^-3, so a connected swarm's lambda_2 is many orders of magnitude above it.)
+    """
     if positions.shape[0] < 2:
         return 0.0
-    return np.linalg.eigvalsh(laplacian(positions, comm_range))[1]
+    lam = np.linalg.eigvalsh(laplacian(positions, comm_range))[1]
+    return lam if lam >= CONNECTED_LAMBDA2 else 0.0
 
 
 @njit(cache=True)

@@ -180,6 +180,12 @@ class PathTree:
 
     def headings_along(self, heading: float, path: int) -> tuple[float, ...]:
         """The heading after each step of path `path` from `heading`, wrapped to [-pi, pi)."""
-        i = self._table(heading)
-        start = i * _EIGHTH if self.kinematics.mode == "grid" else heading
-        return tuple(((start + self.turned[i, path] + math.pi) % (2 * math.pi) - math.pi).tolist())
+        if self.kinematics.mode == "grid":
+            return self._grid_headings[self._table(heading)][path]
+        return tuple(((heading + self.turned[0, path] + math.pi) % (2 * math.pi) - math.pi).tolist())
+
+    @cached_property
+    def _grid_headings(self) -> list[list[tuple[float, ...]]]:
+        """Grid mode: `headings_along` for each of the eight start headings and every path."""
+        wrapped = (np.arange(8)[:, None, None] * _EIGHTH + self.turned + math.pi) % (2 * math.pi) - math.pi
+        return [[tuple(row) for row in table.tolist()] for table in wrapped]
