@@ -17,7 +17,7 @@ from companion.core.agent import Agent, Command, Observation
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance, pairwise_distances
 from companion.core.messages import Message, decode, encode
 from companion.core.prior import draw_targets
-from companion.core.uncertainty import global_average_uncertainty
+from companion.core.uncertainty import global_average_uncertainty, mark_seen
 from companion.core.world import Stream, World, build_world, instance_rng
 from companion.mission import Mission
 
@@ -71,11 +71,8 @@ def _ground_truth(
             if sees[i, t] and first[t] < 0:
                 first[t] = k
         found += first[t] >= 0
-    new = 0
-    for c in fov_cells.ravel():
-        if 0 <= c < covered.shape[0] and not covered[c]:
-            covered[c] = True
-            new += 1
+    no_tasks = np.zeros(0, dtype=np.int64)  # mark_seen without per-task counts
+    new = mark_seen(covered, no_tasks, no_tasks, fov_cells.ravel())
     return sees, found, new, algebraic_connectivity(positions, comm_range), min_pair_distance(positions)
 
 
