@@ -126,7 +126,7 @@ class _Uav:
             self.world.prior, mission.prior.targets, instance_rng(mission.seed, 0, Stream.TARGETS)
         )
         self.targets = self.world.grid.centres[targets]
-        self.r_a2 = mission.sensor.radius**2 + 1e-6
+        self.r_a2 = self.world.grid.fov_radius2
         v = mission.vehicles[uav]
         self.pose = (float(v.x), float(v.y), math.radians(v.heading_deg))
         self.previous = (float(v.x), float(v.y))

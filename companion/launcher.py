@@ -96,7 +96,7 @@ def _live_line(world: World, logs: dict, targets: np.ndarray) -> tuple[str, int]
     for rows in logs.values():
         if rows:
             p = np.array([(r["x"], r["y"]) for r in rows.values()])
-            seen |= (np.sum((p[:, None, :] - xy[None, :, :]) ** 2, axis=-1) <= m.sensor.radius**2 + 1e-6).any(
+            seen |= (np.sum((p[:, None, :] - xy[None, :, :]) ** 2, axis=-1) <= world.grid.fov_radius2).any(
                 axis=0
             )
     found = int(seen.sum())

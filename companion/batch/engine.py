@@ -98,7 +98,7 @@ class Scorer:
             k,
             positions,
             self.target_xy,
-            m.sensor.radius**2 + 1e-6,
+            grid.fov_radius2,
             self.first,
             self.covered,
             grid.fov_cells(positions),
@@ -184,23 +184,18 @@ def simulate(
     for k in range(steps):
         sees = scorer.record(k, poses[:, :2])
         outputs: list[tuple[Command, list[Message]]] = []
+        seen = sees.any(axis=1).tolist()
         for i, agent in enumerate(agents):
-            obs = Observation(
-                step=k,
-                x=float(poses[i, 0]),
-                y=float(poses[i, 1]),
-                heading=float(poses[i, 2]),
-                detections=tuple(map(tuple, scorer.target_xy[sees[i]].tolist())),
-            )
+            x, y, h = poses[i].tolist()
+            detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
+            obs = Observation(step=k, x=x, y=y, heading=h, detections=detections)
             outputs.append(agent.step(obs, inboxes[i]))
         scorer.unc[k] = global_average_uncertainty([a.eta for a in agents])
         if traj is not None and tasks is not None:
             traj[k] = poses
             tasks[k] = [c.task for c, _ in outputs]
         inboxes = radio.deliver(poses[:, :2], [out for _, out in outputs])
-        turns = np.array([c.turn for c, _ in outputs])
-        x, y, h = world.kinematics.advance(poses[:, 0], poses[:, 1], poses[:, 2], turns)
-        poses = np.column_stack([x, y, h])
+        poses = world.kinematics.advance_poses(poses, np.array([c.turn for c, _ in outputs]))
     return scorer.result(
         run,
         seed,

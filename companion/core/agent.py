@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from functools import reduce
+from itertools import chain
 from operator import or_
 
 import msgspec
@@ -38,7 +39,7 @@ from companion.core.messages import (
     StateMsg,
     UavState,
 )
-from companion.core.rhc import choose_path, grid_path_cells
+from companion.core.rhc import choose_grid_path, choose_path
 from companion.core.tasks import keep_task, rewards, task_completion, total_cost
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
@@ -127,8 +128,10 @@ class Agent:
         self.world, self.uav = world, uav
         self.algorithm = m.algorithm.name
         n = world.grid.n_cells
-        self.eta = np.full(n, m.uncertainty.eta0)
-        self._values = np.zeros(n + 1)  # padded map gathered by the RHC (eq. 25)
+        self._eta_padded = np.zeros(n + 1)  # eta followed by the 0 that FOV padding gathers (eq. 25)
+        self.eta = self._eta_padded[:-1]
+        self.eta[:] = m.uncertainty.eta0
+        self._values = self._eta_padded if self.algorithm == "proposed" else np.zeros(n + 1)
         self.seen = np.zeros(n, dtype=bool)
         self.found: set[int] = set()
         self.peers: dict[int, UavState] = {}
@@ -169,32 +172,33 @@ class Agent:
                     (x1, y1), (x2, y2) = track[-2:] if len(track) >= 2 else track * 2
                     track.append((2 * x2 - x1, 2 * y2 - y1))
                 plan = track[1:]
-            heads = (state.heading, *heads)
-            heads += heads[-1:] * (horizon + 1 - len(heads))
-            self._rows[state.uav] = (state.stamp, state.x, state.y, *sum(plan, ()), *heads)
+            if len(heads) < horizon:
+                heads += (heads or (state.heading,))[-1:] * (horizon - len(heads))
+            flat = chain.from_iterable(plan)
+            self._rows[state.uav] = (state.stamp, state.x, state.y, *flat, state.heading, *heads)
 
-    def _ingest(
-        self, inbox: Iterable[Message], k: int
-    ) -> tuple[list[np.ndarray], dict[int, tuple[float, ...]]]:
-        """Sort the inbox by kind. Messages are validated where they enter (`messages.check`); here
-        only their timing counts."""
-        looks: list[np.ndarray] = []
+    def _ingest(self, inbox: Iterable[Message], k: int, looks: list[int]) -> dict[int, tuple[float, ...]]:
+        """Sort the inbox by kind: the neighbours' FOV cells go onto `looks`, states and claims into
+        what this UAV knows of the others; returns the bids of this auction round. Messages are
+        validated where they enter (`messages.check`); here only their timing counts."""
         bids: dict[int, tuple[float, ...]] = {}
         oldest = k - self.world.mission.comms.peer_timeout_steps
         states: list[UavState] = []
-        self.neighbours = {}
+        self.neighbours = neighbours = {}
         for msg in inbox:
             if msg.sender == self.uav or not oldest <= msg.stamp <= k:
                 self.rejected += 1
                 continue
-            if isinstance(msg, StateMsg):
+            kind = type(msg)
+            if kind is StateMsg:
                 states.append(msg.state)
                 if msg.stamp == k - 1:
-                    self.neighbours[msg.sender] = msg.heard
-            elif isinstance(msg, CoverageMsg):
-                looks.append(np.asarray(msg.cells, dtype=np.int64))
-                self.found.update(msg.detections)
-            elif isinstance(msg, BidsMsg):
+                    neighbours[msg.sender] = msg.heard
+            elif kind is CoverageMsg:
+                looks += msg.cells
+                if msg.detections:
+                    self.found.update(msg.detections)
+            elif kind is BidsMsg:
                 if msg.stamp == k - 1:
                     bids[msg.sender] = msg.rewards
             else:
@@ -202,7 +206,7 @@ class Agent:
         self._remember(states)
         for u in [u for u, s in self.peers.items() if s.stamp < oldest]:
             self.forget(u)
-        return looks, bids
+        return bids
 
     def _relay(self) -> list[int]:
         """The peers whose latest state goes out in this step's ClaimsMsg, ascending.
@@ -235,9 +239,9 @@ class Agent:
         return sorted(need)
 
     # -- map -----------------------------------------------------------------------------------
-    def _update_map(self, looks: list[np.ndarray]) -> None:
-        """Eqs. 10-11 and the covered-cell count of each task (eq. 20)."""
-        cells = np.concatenate(looks)
+    def _update_map(self, looks: list[int]) -> None:
+        """Eqs. 10-11 and the covered-cell count of each task (eq. 20) for the FOV cells `looks`."""
+        cells = np.array(looks, dtype=np.int64)
         apply_looks(self.eta, cells, self.world.mission.uncertainty.gamma)
         mark_seen(self.seen, self.covered, self._labels, cells)
 
@@ -289,16 +293,15 @@ class Agent:
         return self.bids is not None
 
     # -- step ----------------------------------------------------------------------------------
-    def _path_cells(self, pts: FloatArray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Cell under each path point, the FOV cells of each point (eq. 3), and the in-region prefix.
+    def _continuous_path_cells(self, pts: FloatArray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Continuous mode: the cell under each path point, the FOV cells of each point (eq. 3), and
+        the in-region prefix (grid mode does all this inside `choose_grid_path`).
 
-        In continuous mode a path's last point must also leave room to turn back (a turning diameter
-        from the boundary), else the path counts one point short: three steps of eq. 2 cannot see
-        the U-turn a corner needs.
+        A path's last point must also leave room to turn back (a turning diameter from the
+        boundary), else the path counts one point short: three steps of eq. 2 cannot see the
+        U-turn a corner needs.
         """
         grid, kin = self.world.grid, self.world.kinematics
-        if kin.mode == "grid":
-            return grid_path_cells(pts, grid.x0, grid.y0, grid.cell_size, grid.lattice, grid.fov_table)
         cells = grid.cell_at(pts)
         depth = -np.max(pts @ grid.region.normals.T - grid.region.offsets, axis=-1)  # metres inside
         prefix = np.cumprod(depth >= 0, axis=1).sum(axis=1)
@@ -320,9 +323,10 @@ class Agent:
         w, m = self.world, self.world.mission
         grid, k, a = w.grid, obs.step, m.algorithm
         position = np.array([obs.x, obs.y])
-        own_cells = grid.fov_cell_list(position)
-        looks, bids = self._ingest(inbox, k)
-        self._update_map([own_cells, *looks])
+        own_cells = grid.fov_cell_list((obs.x, obs.y)).tolist()
+        looks = own_cells.copy()
+        bids = self._ingest(inbox, k, looks)
+        self._update_map(looks)
         if obs.detections:
             detected = grid.cell_at(np.array(obs.detections, dtype=float))
             own_detections = tuple(sorted({int(c) for c in detected if c >= 0}))
@@ -333,8 +337,6 @@ class Agent:
         announce = self._plan_task(k, position, mst_now, bids) if self.algorithm == "proposed" else False
 
         # RHC: eq. 24 over every path of eq. 23, eq. 22 picks the best
-        pts = w.paths.expand(obs.x, obs.y, obs.heading)
-        cells, fov, prefix = self._path_cells(pts)
         if self.algorithm == "no-ta":
             self._values[:-1] = self.eta * w.prior
         elif self.phi is not None:
@@ -343,22 +345,13 @@ class Agent:
                 grid, self.phi, self.eta * w.prior, p.deposit, p.evaporation, p.diffusion
             )
             self._values[:-1] = self.eta + p.weight * self.phi
-        else:
-            self._values[:-1] = self.eta
         tess = w.tessellation
         if self.task >= 0 and tess is not None:
-            labels = self._labels[cells]  # cell -1 (outside) reads the trailing -1
             region = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
         else:
-            labels, region = cells, (-1, position, 1.0)
+            region = (-1, position, 1.0)
         c = m.comms
-        best = choose_path(
-            pts,
-            fov,
-            prefix,
-            self._values,
-            labels,
-            *region,
+        limits = (
             a.delta,
             a.chi,
             nbr_tracks,
@@ -370,9 +363,21 @@ class Agent:
             grid.region.offsets,
             grid.cell_size,
         )
+        if w.kinematics.mode == "grid":
+            offsets = w.paths.offsets_from(obs.heading)
+            best, path = choose_grid_path(
+                obs.x, obs.y, offsets, grid.x0, grid.y0, grid.lattice, grid.fov_table, self._values,
+                self._labels, *region, *limits,
+            )  # fmt: skip
+        else:
+            pts = w.paths.expand(obs.x, obs.y, obs.heading)
+            cells, fov, prefix = self._continuous_path_cells(pts)
+            labels = self._labels[cells] if region[0] >= 0 else cells  # cell -1 reads the trailing -1
+            best = choose_path(pts, fov, prefix, self._values, labels, *region, *limits)
+            path = pts[best]
 
         turn = float(w.paths.sequences[best, 0])
-        plan = tuple(map(tuple, pts[best].tolist()))
+        plan = tuple(map(tuple, path.tolist()))
         plan_headings = w.paths.headings_along(obs.heading, best)
         command = Command(
             step=k,
@@ -391,7 +396,7 @@ class Agent:
         self._heard = heard
         outbox: list[Message] = [
             StateMsg(**head, state=me, heard=heard),
-            CoverageMsg(**head, cells=tuple(own_cells.tolist()), detections=own_detections),
+            CoverageMsg(**head, cells=tuple(own_cells), detections=own_detections),
         ]
         if relay:
             outbox.append(ClaimsMsg(**head, known=tuple(self.peers[u] for u in relay)))

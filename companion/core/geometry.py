@@ -182,7 +182,7 @@ class Grid:
             self.cell_size,
             self.lattice,
             self.fov_offsets,
-            self.fov_radius**2 + 1e-6,
+            self.fov_radius2,
             self.n_cells,
         )
         return flat.reshape((*p.shape[:-1], self.fov_offsets.shape[0]))
@@ -193,9 +193,13 @@ class Grid:
         pad = np.full((1, self.fov_offsets.shape[0]), self.n_cells)
         return np.vstack([self.fov_cells(self.centres), pad])
 
-    def fov_cell_list(self, point: ArrayLike) -> IntArray:
-        """Eq. 3 for one point: the sorted indices of the cells in its FOV."""
-        x, y = np.asarray(point, dtype=float).reshape(2)
-        return _fov_list(
-            x, y, self.x0, self.y0, self.cell_size, self.lattice, self.fov_offsets, self.fov_radius**2 + 1e-6
-        )
+    @cached_property
+    def fov_radius2(self) -> float:
+        """R_A^2 with a margin for rounding: a cell centre at exactly R_A is in view."""
+        return self.fov_radius**2 + 1e-6
+
+    def fov_cell_list(self, point: tuple[float, float] | FloatArray) -> IntArray:
+        """Eq. 3 for one point (x, y): the sorted indices of the cells in its FOV."""
+        x, y = point
+        g = (self.x0, self.y0, self.cell_size, self.lattice, self.fov_offsets, self.fov_radius2)
+        return _fov_list(float(x), float(y), *g)

@@ -64,6 +64,18 @@ def reachable_positions(first_steps: FloatArray, x: float, y: float, heading: fl
     return out
 
 
+@njit(cache=True)
+def grid_advance(poses: FloatArray, turns: FloatArray, cell_size: float) -> FloatArray:
+    """Grid-mode eq. 2 for every UAV: rows (x, y, heading) after one step with the given turns."""
+    out = np.empty_like(poses)
+    for i in range(poses.shape[0]):
+        h1 = np.round((poses[i, 2] + turns[i]) / _EIGHTH) * _EIGHTH
+        out[i, 0] = poses[i, 0] + cell_size * np.round(math.cos(h1))
+        out[i, 1] = poses[i, 1] + cell_size * np.round(math.sin(h1))
+        out[i, 2] = (h1 + math.pi) % (2 * math.pi) - math.pi
+    return out
+
+
 def wrap_angle(a: FloatArray | float) -> FloatArray:
     """Angle wrapped to [-pi, pi)."""
     return (np.asarray(a, dtype=float) + math.pi) % (2 * math.pi) - math.pi
@@ -116,6 +128,12 @@ class Kinematics:
         x1, y1, h1 = arc_advance(x, y, heading, np.asarray(turn) / self.dt, self.speed, self.dt)
         return x1, y1, wrap_angle(h1)
 
+    def advance_poses(self, poses: FloatArray, turns: FloatArray) -> FloatArray:
+        """`advance` for rows (x, y, heading) of several UAVs at once."""
+        if self.mode == "grid":
+            return grid_advance(poses, turns, self.cell_size)
+        return np.column_stack(self.advance(poses[:, 0], poses[:, 1], poses[:, 2], turns))
+
     def paths(
         self, x: float, y: float, heading: float, sequences: FloatArray
     ) -> tuple[FloatArray, FloatArray]:
@@ -164,6 +182,10 @@ class PathTree:
 
     def _table(self, heading: float) -> int:
         return round(heading / _EIGHTH) % 8 if self.kinematics.mode == "grid" else 0
+
+    def offsets_from(self, heading: float) -> FloatArray:
+        """The path points relative to the UAV's position (n_l, M, 2) for a grid-mode `heading`."""
+        return self.offsets[self._table(heading)]
 
     def expand(self, x: float, y: float, heading: float) -> FloatArray:
         """Path points w(k+m|k) of shape (n_l, M, 2) from the pose (x, y, heading)."""

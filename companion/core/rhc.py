@@ -223,3 +223,66 @@ def choose_path(
     )
     region = region_key(prefix, points, normals, offsets, cell_size)
     return select_path(chi[0] * benefit - chi[1] * expense, region, violation)
+
+
+@njit(cache=True)
+def choose_grid_path(
+    x: float,
+    y: float,
+    offsets: FloatArray,
+    x0: float,
+    y0: float,
+    lattice: IntArray,
+    fov_table: IntArray,
+    values_padded: FloatArray,
+    cell_labels: IntArray,
+    task: int,
+    generator: FloatArray,
+    circumradius: float,
+    delta: tuple[float, float],
+    chi: tuple[float, float],
+    neighbour_tracks: FloatArray,
+    neighbour_next: FloatArray,
+    yields_to: np.ndarray,
+    step: float,
+    comms: tuple[float, float, float, float],
+    normals: FloatArray,
+    region_offsets: FloatArray,
+    cell_size: float,
+) -> tuple[int, FloatArray]:
+    """Grid mode in one call: the paths of eq. 23 from (x, y) (`offsets` is the `PathTree` table of
+    the UAV's heading), their cells and FOVs (`grid_path_cells`), and `choose_path`. The task of
+    each path point is read from `cell_labels` (-1 outside the region). Returns the chosen path's
+    index and its points."""
+    pts = np.empty(offsets.shape)
+    for i in range(offsets.shape[0]):
+        for m in range(offsets.shape[1]):
+            pts[i, m, 0], pts[i, m, 1] = offsets[i, m, 0] + x, offsets[i, m, 1] + y
+    cells, fov, prefix = grid_path_cells(pts, x0, y0, cell_size, lattice, fov_table)
+    point_labels = np.full(cells.shape, -1, dtype=np.int64)
+    if task >= 0:
+        for i in range(cells.shape[0]):
+            for m in range(cells.shape[1]):
+                if cells[i, m] >= 0:
+                    point_labels[i, m] = cell_labels[cells[i, m]]
+    best = choose_path(
+        pts,
+        fov,
+        prefix,
+        values_padded,
+        point_labels,
+        task,
+        generator,
+        circumradius,
+        delta,
+        chi,
+        neighbour_tracks,
+        neighbour_next,
+        yields_to,
+        step,
+        comms,
+        normals,
+        region_offsets,
+        cell_size,
+    )
+    return best, pts[best]

@@ -47,4 +47,4 @@ def importance(eta: FloatArray, prior: FloatArray) -> FloatArray:
 
 def global_average_uncertainty(etas: Sequence[FloatArray]) -> float:
     """Eq. 30: mean over UAVs and cells of eta_{i,p,k} (one map per UAV)."""
-    return sum(float(e.sum()) for e in etas) / sum(e.size for e in etas)
+    return sum(float(np.add.reduce(e)) for e in etas) / sum(e.size for e in etas)
