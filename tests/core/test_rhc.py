@@ -12,6 +12,8 @@ from hypothesis import strategies as st
 from companion.core.geometry import ConvexPolygon, Grid
 from companion.core.kinematics import Kinematics, PathTree
 from companion.core.rhc import (
+    choose_grid_path,
+    choose_path,
     grid_path_cells,
     path_expense,
     region_key,
@@ -205,3 +207,34 @@ def test_chosen_path_stays_in_the_region(scenario_grid: Grid, col: int, row: int
     assert prefix[best] == prefix.max()
     if prefix.max() == 3:
         assert inside[best].all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.integers(-2, 51), st.integers(-2, 51), st.integers(0, 7), st.integers(-1, 9), st.integers(0, 2**32 - 1)
+)
+def test_grid_path_choice_in_one_call_matches_its_parts(
+    scenario_grid: Grid, col: int, row: int, h8: int, task: int, seed: int
+) -> None:
+    """`choose_grid_path` = `PathTree.expand` + `grid_path_cells` + the task labels + `choose_path`,
+    from anywhere on or just off the grid, with or without a task and a neighbour."""
+    g = scenario_grid
+    rng = np.random.default_rng(seed)
+    tree = PathTree.build(Kinematics("grid", 20.0, 2.0, math.pi / 4, 40.0), 3)
+    x, y, heading = -980.0 + 40 * col, -980.0 + 40 * row, h8 * math.pi / 4
+    values = np.append(rng.random(g.n_cells), 0.0)
+    cell_labels = np.append(rng.integers(0, 10, g.n_cells), -1)
+    n_nbrs = int(rng.integers(0, 3))
+    tracks = np.array([x, y]) + rng.normal(0, 150, (n_nbrs, 4, 2))
+    nexts = tracks[:, :1, :] + rng.normal(0, 40, (n_nbrs, 3, 2))
+    rest = (task, np.array([x + 100.0, y - 50.0]), 200.0, (1.0, 0.5), (1.0, 0.01), tracks, nexts)
+    rest += (rng.random(n_nbrs) < 0.5, tree.max_step, (500.0, 400.0, 60.0, 100.0))
+    rest += (g.region.normals, g.region.offsets, g.cell_size)
+    best, path = choose_grid_path(
+        x, y, tree.offsets_from(heading), g.x0, g.y0, g.lattice, g.fov_table, values, cell_labels, *rest
+    )
+    pts = tree.expand(x, y, heading)
+    cells, fov, prefix = grid_path_cells(pts, g.x0, g.y0, g.cell_size, g.lattice, g.fov_table)
+    labels = np.where(cells >= 0, cell_labels[cells], -1)
+    assert best == choose_path(pts, fov, prefix, values, labels, *rest)
+    assert np.array_equal(path, pts[best])
