@@ -120,6 +120,40 @@ def swarm_view(
     return tracks[rows, 0, :], tracks[rows], nxt, ids[rows] < me
 
 
+RELAY_MEMO_SIZE = 1024
+
+
+def relay_set(
+    me: int, own_heard: tuple[int, ...], neighbours: dict[int, tuple[int, ...]], peers: Iterable[int]
+) -> tuple[int, ...]:
+    """The peers whose latest state UAV `me` relays, ascending.
+
+    Every UAV reports whom it heard first-hand at its previous step (`StateMsg.heard`); `me` knows
+    the reports of the UAVs it heard this step (`neighbours`) and its own (`own_heard`). A peer p
+    is relayed for a UAV l that `me` heard when l did not hear p itself, unless a UAV that l heard
+    and that heard p (per the reports `me` knows) has a lower id than `me`: the lowest such UAV
+    relays p to l. The true lowest one sees itself as lowest in its own view, so no pair is left
+    out where the reports hold; where l is farther than two hops from p, everyone that has p
+    relays. A swarm in which everyone hears everyone relays nothing.
+    """
+    reports = {**neighbours, me: own_heard}
+    heard_by: dict[int, int] = {}  # p -> mask of the UAVs reported to have heard p
+    for m, heard in reports.items():
+        for p in heard:
+            heard_by[p] = heard_by.get(p, 0) | 1 << m
+    bit = 1 << me
+    need: set[int] = set()
+    for u, heard in neighbours.items():
+        heard_u = reduce(or_, (1 << v for v in heard), 0)
+        for p in peers:
+            if p == u or p in need or heard_u >> p & 1:
+                continue
+            relayers = heard_u & heard_by.get(p, 0)
+            if not relayers or relayers & -relayers == bit:
+                need.add(p)
+    return tuple(sorted(need))
+
+
 class Agent:
     """The distributed cooperative search algorithm for UAV `uav` (0-based)."""
 
@@ -137,6 +171,7 @@ class Agent:
         self.peers: dict[int, UavState] = {}
         self.neighbours: dict[int, tuple[int, ...]] = {}  # heard from at this step -> whom they heard
         self._heard: tuple[int, ...] = ()  # whom we reported to have heard, in our last StateMsg
+        self._relay_memo: dict[tuple, tuple[int, ...]] = {}
         horizon = m.algorithm.horizon
         self._horizon = horizon
         self._rows: dict[int, tuple[float, ...]] = {}  # each peer's state as a `swarm_view` row
@@ -208,35 +243,18 @@ class Agent:
             self.forget(u)
         return bids
 
-    def _relay(self) -> list[int]:
-        """The peers whose latest state goes out in this step's ClaimsMsg, ascending.
-
-        Every UAV reports whom it heard first-hand at its previous step (`StateMsg.heard`); we
-        know the reports of the UAVs we heard this step, and our own. A peer p is relayed for a
-        UAV l we heard when l did not hear p itself, unless a UAV that l heard and that heard p
-        (per the reports we know) has a lower id than ours: the lowest such UAV relays p to l.
-        The true lowest one sees itself as lowest in its own view, so no pair is left out where
-        the reports hold; where l is farther than two hops from p, everyone that has p relays.
-        A swarm in which everyone hears everyone relays nothing.
-        """
+    def _relay(self) -> tuple[int, ...]:
+        """The peers whose latest state goes out in this step's ClaimsMsg, ascending (`relay_set`
+        of this step's reports; a swarm keeps its layout for many steps, so answers are reused)."""
         if not self.neighbours:
-            return []
-        reports = {**self.neighbours, self.uav: self._heard}
-        heard_by: dict[int, int] = {}  # p -> mask of the UAVs reported to have heard p
-        for m, heard in reports.items():
-            for p in heard:
-                heard_by[p] = heard_by.get(p, 0) | 1 << m
-        me = 1 << self.uav
-        need: set[int] = set()
-        for u, heard in self.neighbours.items():
-            heard_u = reduce(or_, (1 << v for v in heard), 0)
-            for p in self.peers:
-                if p == u or p in need or heard_u >> p & 1:
-                    continue
-                relayers = heard_u & heard_by.get(p, 0)
-                if not relayers or relayers & -relayers == me:
-                    need.add(p)
-        return sorted(need)
+            return ()
+        key = (self._heard, tuple(self.neighbours.items()), tuple(self.peers))
+        relay = self._relay_memo.get(key)
+        if relay is None:
+            if len(self._relay_memo) >= RELAY_MEMO_SIZE:
+                self._relay_memo.clear()
+            relay = self._relay_memo[key] = relay_set(self.uav, self._heard, self.neighbours, self.peers)
+        return relay
 
     # -- map -----------------------------------------------------------------------------------
     def _update_map(self, looks: list[int]) -> None:
@@ -341,9 +359,8 @@ class Agent:
             self._values[:-1] = self.eta * w.prior
         elif self.phi is not None:
             p = a.pheromone
-            self.phi = phero.step_field(
-                grid, self.phi, self.eta * w.prior, p.deposit, p.evaporation, p.diffusion
-            )
+            field = (p.deposit, p.evaporation, p.diffusion)
+            self.phi = phero.step_field(grid, self.phi, self.eta, w.prior, *field)
             self._values[:-1] = self.eta + p.weight * self.phi
         tess = w.tessellation
         if self.task >= 0 and tess is not None:

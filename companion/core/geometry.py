@@ -194,6 +194,16 @@ class Grid:
         return np.vstack([self.fov_cells(self.centres), pad])
 
     @cached_property
+    def lattice_neighbours(self) -> IntArray:
+        """Row p: the cells below, above, left and right of cell p on the lattice (-1 where none)."""
+        out = np.full((self.n_cells, 4), -1, dtype=np.int64)
+        padded = np.pad(self.lattice, 1, constant_values=-1)
+        rows, cols = np.nonzero(self.lattice >= 0)
+        for k, (dr, dc) in enumerate(((-1, 0), (1, 0), (0, -1), (0, 1))):
+            out[self.lattice[rows, cols], k] = padded[rows + 1 + dr, cols + 1 + dc]
+        return out
+
+    @cached_property
     def fov_radius2(self) -> float:
         """R_A^2 with a margin for rounding: a cell centre at exactly R_A is in view."""
         return self.fov_radius**2 + 1e-6

@@ -23,34 +23,36 @@ from companion.core.geometry import FloatArray, Grid, IntArray
 
 @njit(cache=True)
 def _step(
-    lattice: IntArray,
+    neighbours: IntArray,
     phi: FloatArray,
-    importance: FloatArray,
+    eta: FloatArray,
+    prior: FloatArray,
     deposit: float,
     evaporation: float,
     diffusion: float,
 ) -> FloatArray:
-    ny, nx = lattice.shape
     out = np.empty_like(phi)
-    for r in range(ny):
-        for c in range(nx):
-            p = lattice[r, c]
-            if p < 0:
-                continue
-            total, count = 0.0, 0
-            for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-                rr, cc = r + dr, c + dc
-                if 0 <= rr < ny and 0 <= cc < nx and lattice[rr, cc] >= 0:
-                    total += phi[lattice[rr, cc]]
-                    count += 1
-            mean4 = total / count if count else phi[p]
-            out[p] = (1.0 - evaporation) * ((1.0 - diffusion) * phi[p] + diffusion * mean4)
-            out[p] += deposit * importance[p]
+    for p in range(phi.shape[0]):
+        total, count = 0.0, 0
+        for q in neighbours[p]:
+            if q >= 0:
+                total += phi[q]
+                count += 1
+        mean4 = total / count if count else phi[p]
+        out[p] = (1.0 - evaporation) * ((1.0 - diffusion) * phi[p] + diffusion * mean4)
+        out[p] += deposit * (eta[p] * prior[p])
     return out
 
 
 def step_field(
-    grid: Grid, phi: FloatArray, importance: FloatArray, deposit: float, evaporation: float, diffusion: float
+    grid: Grid,
+    phi: FloatArray,
+    eta: FloatArray,
+    prior: FloatArray,
+    deposit: float,
+    evaporation: float,
+    diffusion: float,
 ) -> FloatArray:
-    """One step of deposit, 4-neighbour diffusion (no flux across the region edge) and evaporation."""
-    return _step(grid.lattice, phi, importance, deposit, evaporation, diffusion)
+    """One step of deposit (in proportion to s = eta * Pr, eq. 12), 4-neighbour diffusion (no flux
+    across the region edge) and evaporation."""
+    return _step(grid.lattice_neighbours, phi, eta, prior, deposit, evaporation, diffusion)
