@@ -358,10 +358,7 @@ class Agent:
         if self.algorithm == "no-ta":
             self._values[:-1] = self.eta * w.prior
         elif self.phi is not None:
-            p = a.pheromone
-            field = (p.deposit, p.evaporation, p.diffusion)
-            self.phi = phero.step_field(grid, self.phi, self.eta, w.prior, *field)
-            self._values[:-1] = self.eta + p.weight * self.phi
+            self.phi = phero.step_field(grid, self.phi, self.eta, w.prior, a.pheromone, self._values)
         tess = w.tessellation
         if self.task >= 0 and tess is not None:
             region = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))

@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from companion.core.geometry import FloatArray, Grid, IntArray
+from companion.mission import Pheromone
 
 
 @njit(cache=True)
@@ -30,29 +31,30 @@ def _step(
     deposit: float,
     evaporation: float,
     diffusion: float,
+    weight: float,
+    sensed: FloatArray,
 ) -> FloatArray:
     out = np.empty_like(phi)
     for p in range(phi.shape[0]):
         total, count = 0.0, 0
-        for q in neighbours[p]:
+        for j in range(4):
+            q = neighbours[p, j]
             if q >= 0:
                 total += phi[q]
                 count += 1
         mean4 = total / count if count else phi[p]
         out[p] = (1.0 - evaporation) * ((1.0 - diffusion) * phi[p] + diffusion * mean4)
         out[p] += deposit * (eta[p] * prior[p])
+        sensed[p] = eta[p] + weight * out[p]
     return out
 
 
 def step_field(
-    grid: Grid,
-    phi: FloatArray,
-    eta: FloatArray,
-    prior: FloatArray,
-    deposit: float,
-    evaporation: float,
-    diffusion: float,
+    grid: Grid, phi: FloatArray, eta: FloatArray, prior: FloatArray, p: Pheromone, sensed: FloatArray
 ) -> FloatArray:
     """One step of deposit (in proportion to s = eta * Pr, eq. 12), 4-neighbour diffusion (no flux
-    across the region edge) and evaporation."""
-    return _step(grid.lattice_neighbours, phi, eta, prior, deposit, evaporation, diffusion)
+    across the region edge) and evaporation; returns the new field and writes the map the RHC
+    senses, eta + weight * phi, into the first cells of `sensed`."""
+    return _step(
+        grid.lattice_neighbours, phi, eta, prior, p.deposit, p.evaporation, p.diffusion, p.weight, sensed
+    )

@@ -8,8 +8,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from companion.core import pheromone
 from companion.core.geometry import ConvexPolygon, Grid
-from companion.core.pheromone import step_field
+from companion.mission import Pheromone
+
+
+def step_field(
+    grid: Grid, phi: np.ndarray, eta: np.ndarray, prior: np.ndarray, q: float, rho: float, d: float
+) -> np.ndarray:
+    """The new field; checks on the way that the sensed map is eta + weight * phi (weight 0.5)."""
+    sensed = np.full(grid.n_cells + 1, np.nan)
+    params = Pheromone(deposit=q, evaporation=rho, diffusion=d, weight=0.5)
+    out = pheromone.step_field(grid, phi, eta, prior, params, sensed)
+    assert sensed[:-1] == pytest.approx(eta + 0.5 * out)
+    return out
 
 
 @pytest.fixture(scope="module")
