@@ -12,8 +12,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from numba import njit
 
-from companion.core.geometry import FloatArray
+from companion.core.geometry import FloatArray, IntArray
 
 
 def local_auction(
@@ -25,25 +26,38 @@ def local_auction(
     {uav: (task, reward)}; a bidder is left out only when no task with a positive reward remains.
     """
     order = np.argsort(np.asarray(bidders), kind="stable")
-    ids = [int(bidders[i]) for i in order]
-    r = np.where(available[None, :], np.asarray(bids, dtype=float)[order], -np.inf)
-    r = np.where(r > 0, r, -np.inf)
-    result: dict[int, tuple[int, float]] = {}
-    open_rows = np.ones(len(ids), dtype=bool)
-    while open_rows.any():
-        live = np.where(open_rows[:, None], r, -np.inf)
-        best = live.max(axis=0)
-        tasks = np.flatnonzero(np.isfinite(best))
-        if tasks.size == 0:
-            break
-        winners = np.argmax(live[:, tasks], axis=0)  # first (lowest id) among equals
-        for row in np.unique(winners):
-            won = tasks[winners == row]
-            j = int(won[np.argmax(r[row, won])])
-            result[ids[row]] = (j, float(r[row, j]))
-            open_rows[row] = False
-            r[:, j] = -np.inf
-    return result
+    r = np.asarray(bids, dtype=float)[order]
+    r = np.where(available[None, :] & (r > 0), r, -np.inf)
+    tasks = _auction_rounds(r).tolist()
+    return {int(bidders[order[row]]): (j, float(r[row, j])) for row, j in enumerate(tasks) if j >= 0}
+
+
+@njit(cache=True)
+def _auction_rounds(r: FloatArray) -> IntArray:
+    """The rounds of Algorithm 2 over rewards `r` (rows by ascending UAV id, -inf where a bidder
+    may not take a task): each task goes to its highest open bidder (the first row among equals),
+    each winner keeps the best task it won (the first among equals), and its row and task leave
+    the auction. Returns each row's task, -1 for none."""
+    n, m = r.shape
+    task = np.full(n, -1, dtype=np.int64)
+    winner = np.empty(m, dtype=np.int64)
+    taken = np.zeros(m, dtype=np.bool_)
+    while True:
+        winner[:] = -1
+        for j in range(m):
+            best = -np.inf
+            for i in range(n):
+                if not taken[j] and task[i] < 0 and r[i, j] > best:
+                    best, winner[j] = r[i, j], i
+        if (winner < 0).all():
+            return task
+        for i in range(n):
+            mine = -1
+            for j in range(m):
+                if winner[j] == i and (mine < 0 or r[i, j] > r[i, mine]):
+                    mine = j
+            if mine >= 0:
+                task[i], taken[mine] = mine, True
 
 
 def claim_priority(reward: float, uav: int) -> tuple[float, int]:

@@ -82,3 +82,31 @@ def test_auction_properties(case: tuple) -> None:
         best = valid.max()
         u_best = min(u for u in ids if np.any(valid[row[u]] == best))
         assert result[u_best][1] == best
+
+
+def reference_auction(ids: list[int], bids: np.ndarray, available: np.ndarray) -> dict:
+    """Algorithm 2 written out plainly: every round, each task goes to the open bidder with the
+    highest positive reward (the lowest id among equals); each winner keeps its best task (the
+    lowest task among equals); winners and their tasks leave; repeat until nothing is won."""
+    open_ids, free, result = set(ids), {j for j in range(bids.shape[1]) if available[j]}, {}
+    row = {u: i for i, u in enumerate(ids)}
+    while True:
+        won: dict[int, list[int]] = {}
+        for j in sorted(free):
+            offers = [(bids[row[u], j], -u) for u in open_ids if bids[row[u], j] > 0]
+            if offers:
+                won.setdefault(-max(offers)[1], []).append(j)
+        if not won:
+            return result
+        for u, tasks in won.items():
+            j = max(tasks, key=lambda t: (bids[row[u], t], -t))
+            result[u] = (j, float(bids[row[u], j]))
+            open_ids.discard(u)
+            free.discard(j)
+
+
+@settings(max_examples=200, deadline=None)
+@given(auctions())
+def test_auction_matches_algorithm_2_written_out(case: tuple) -> None:
+    ids, bids, available = case
+    assert local_auction(ids, bids.copy(), available.copy()) == reference_auction(ids, bids, available)
