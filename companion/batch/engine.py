@@ -138,16 +138,16 @@ class Radio:
     def deliver(self, positions: np.ndarray, outboxes: list[list[Message]]) -> list[list[Message]]:
         """Each receiver's inbox: the in-range senders' messages, by sender id then outbox order."""
         n = len(outboxes)
-        in_range = pairwise_distances(positions) <= self.comm_range
+        in_range = (pairwise_distances(positions) <= self.comm_range).tolist()
         if self.wire:
             outboxes = [[decode(encode(msg)) for msg in outbox] for outbox in outboxes]
         if self.loss == 0:
-            return [[m for i in range(n) if i != j and in_range[i, j] for m in outboxes[i]] for j in range(n)]
+            return [[m for i in range(n) if i != j and in_range[i][j] for m in outboxes[i]] for j in range(n)]
         inboxes: list[list[Message]] = [[] for _ in range(n)]
         for i, outbox in enumerate(outboxes):  # loss draws in (sender, message, receiver) order
             for msg in outbox:
                 for j in range(n):
-                    if j != i and in_range[i, j] and self.rng.random() >= self.loss:
+                    if j != i and in_range[i][j] and self.rng.random() >= self.loss:
                         inboxes[j].append(msg)
         return inboxes
 

@@ -10,10 +10,16 @@ from numba import njit
 from companion.core.geometry import FloatArray
 
 
+@njit(cache=True)
 def pairwise_distances(positions: FloatArray) -> FloatArray:
     """||mu_i - mu_j|| for every pair."""
-    diff = positions[:, None, :] - positions[None, :, :]
-    return np.sqrt(np.sum(diff * diff, axis=-1))
+    n = positions.shape[0]
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            dx, dy = positions[i, 0] - positions[j, 0], positions[i, 1] - positions[j, 1]
+            out[i, j] = math.sqrt(dx * dx + dy * dy)
+    return out
 
 
 CONNECTED_LAMBDA2 = 1e-12
