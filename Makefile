@@ -3,8 +3,11 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 OUT ?= out/scenario1
+STUDY_RUNS ?= 1000
+STUDY_OUT ?= out/study
+SWEEP_RUNS ?= 50
 
-.PHONY: install run mc test bench clean
+.PHONY: install run mc study test bench clean
 
 $(BIN)/uavsearch: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +25,18 @@ run: install
 mc: install
 	$(BIN)/uavsearch mc --mission mission_files/scenario1.toml \
 		--algorithms proposed,no-ta,pheromone --runs 20 --steps 1000 --seed 1 --out out/mc/scenario1
+
+# The paper's whole study (docs/results.md): 3 scenarios x 3 algorithms x 1,000 runs x 1,000 steps,
+# then the n_g sweep; prints the wall time of the study. STUDY_RUNS=20 SWEEP_RUNS=5 make a quick one.
+study: install
+	@start=$$(date +%s); \
+	for s in 1 2 3; do \
+		$(BIN)/uavsearch mc --mission mission_files/scenario$$s.toml --algorithms proposed,no-ta,pheromone \
+			--runs $(STUDY_RUNS) --steps 1000 --seed 1 --out $(STUDY_OUT)/scenario$$s || exit 1; \
+	done; \
+	echo "the whole study took $$(( $$(date +%s) - start )) s"
+	$(BIN)/uavsearch sweep --mission mission_files/scenario2.toml --param n_g \
+		--values 10,20,30,40,50,60,70,80,90 --runs $(SWEEP_RUNS) --steps 1000 --seed 1 --out $(STUDY_OUT)/sweep_n_g
 
 test: install
 	$(BIN)/ruff check .

@@ -148,7 +148,8 @@ def test_bench_cli_prints_figures(tmp_path: Path) -> None:
     assert {r["algorithm"] for r in result["per_algorithm"]} == {"proposed", "no-ta", "pheromone"}
     t = result["throughput"]
     assert t["runs"] == 8 * 3 and 0 < t["startup_seconds"] <= t["wall_seconds"]
-    assert result["paper_study_estimate_minutes"] > 0
+    assert result["study_estimate_minutes"] > 0
+    assert result["study_definition"].startswith("1 mission x 3 algorithms x 1,000 runs")
 
 
 def test_bad_mission_file_is_a_clear_error_without_traceback(tmp_path: Path) -> None:
