@@ -237,23 +237,14 @@ def choose_grid_path(
     values_padded: FloatArray,
     cell_labels: IntArray,
     task: int,
-    generator: FloatArray,
-    circumradius: float,
-    delta: tuple[float, float],
-    chi: tuple[float, float],
-    neighbour_tracks: FloatArray,
-    neighbour_next: FloatArray,
-    yields_to: np.ndarray,
-    step: float,
-    comms: tuple[float, float, float, float],
-    normals: FloatArray,
-    region_offsets: FloatArray,
-    cell_size: float,
+    *rest: object,
 ) -> tuple[int, FloatArray]:
     """Grid mode in one call: the paths of eq. 23 from (x, y) (`offsets` is the `PathTree` table of
-    the UAV's heading), their cells and FOVs (`grid_path_cells`), and `choose_path`. The task of
-    each path point is read from `cell_labels` (-1 outside the region). Returns the chosen path's
-    index and its points."""
+    the UAV's heading), their cells and FOVs (`grid_path_cells`), and `choose_path`, which takes
+    `rest` (its arguments after `task`: generator, circumradius, ..., cell_size). The task of each
+    path point is read from `cell_labels` (-1 outside the region). Returns the chosen path's index
+    and its points."""
+    cell_size = rest[-1]
     pts = np.empty(offsets.shape)
     for i in range(offsets.shape[0]):
         for m in range(offsets.shape[1]):
@@ -265,24 +256,5 @@ def choose_grid_path(
             for m in range(cells.shape[1]):
                 if cells[i, m] >= 0:
                     point_labels[i, m] = cell_labels[cells[i, m]]
-    best = choose_path(
-        pts,
-        fov,
-        prefix,
-        values_padded,
-        point_labels,
-        task,
-        generator,
-        circumradius,
-        delta,
-        chi,
-        neighbour_tracks,
-        neighbour_next,
-        yields_to,
-        step,
-        comms,
-        normals,
-        region_offsets,
-        cell_size,
-    )
+    best = choose_path(pts, fov, prefix, values_padded, point_labels, task, *rest)
     return best, pts[best]
