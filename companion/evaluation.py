@@ -17,21 +17,41 @@ from companion.batch.engine import RunResult, Scorer
 from companion.core.world import World
 
 
-def read_logs(out: Path, n_uavs: int) -> dict[int, dict[int, dict[str, float]]]:
-    """{uav: {step: row}} from the companions' uav{i}.csv logs (missing files give empty logs)."""
-    logs: dict[int, dict[int, dict[str, float]]] = {}
-    for i in range(n_uavs):
-        rows: dict[int, dict[str, float]] = {}
-        path = out / f"uav{i}.csv"
-        if path.exists():
-            with path.open(newline="") as f:
-                for row in csv.DictReader(f):
-                    try:
-                        rows[int(row["step"])] = {k: float(v) for k, v in row.items()}
-                    except (TypeError, ValueError):  # a line cut short by a kill
-                        continue
-        logs[i] = rows
-    return logs
+class CompanionLogs:
+    """The companions' uav{i}.csv logs, {uav: {step: row}}, followed as they grow: `poll` parses
+    only the complete lines written since the previous call, so a long mission is not reread
+    every time and a line a kill cut short is never taken for a shorter number."""
+
+    def __init__(self, out: Path, n_uavs: int) -> None:
+        self.paths = [out / f"uav{i}.csv" for i in range(n_uavs)]
+        self.logs: dict[int, dict[int, dict[str, float]]] = {i: {} for i in range(n_uavs)}
+        self._read = [0] * n_uavs  # bytes consumed per file
+        self._columns: list[list[str]] = [[] for _ in range(n_uavs)]
+
+    def poll(self) -> dict[int, list[dict[str, float]]]:
+        """Read what each log gained (missing files are empty logs); returns the new rows."""
+        new: dict[int, list[dict[str, float]]] = {i: [] for i in self.logs}
+        for i, path in enumerate(self.paths):
+            try:
+                with path.open("rb") as f:
+                    f.seek(self._read[i])
+                    data = f.read()
+            except FileNotFoundError:
+                continue
+            end = data.rfind(b"\n") + 1
+            self._read[i] += end
+            for fields in csv.reader(data[:end].decode(errors="replace").splitlines()):
+                if not self._columns[i]:
+                    self._columns[i] = fields
+                    continue
+                try:
+                    row = {k: float(v) for k, v in zip(self._columns[i], fields, strict=True)}
+                    step = int(row["step"])
+                except (KeyError, ValueError):  # a damaged line
+                    continue
+                self.logs[i][step] = row
+                new[i].append(row)
+        return new
 
 
 def truth_cells(path: Path) -> np.ndarray:

@@ -22,12 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from companion.batch import plots, report
+from companion.batch.engine import warm_up
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance
 from companion.core.world import World, build_world
-from companion.evaluation import evaluate, failed_criteria, read_logs, truth_cells
+from companion.evaluation import CompanionLogs, evaluate, failed_criteria, truth_cells
 from companion.mission import load_mission
 
-START_TIMEOUT_S = 60.0
+START_TIMEOUT_S = 120.0
 STOP_TIMEOUT_S = 15.0
 
 
@@ -84,30 +85,32 @@ def _wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float)
     raise RuntimeError(f"{log.name}: '{text}' not seen within {timeout:.0f} s")
 
 
-def _live_line(world: World, logs: dict, targets: np.ndarray) -> tuple[str, int]:
+def _live_line(
+    world: World,
+    logs: CompanionLogs,
+    new: dict[int, list[dict[str, float]]],
+    xy: np.ndarray,
+    seen: np.ndarray,
+) -> str:
+    """The progress line; marks in `seen` the targets (centres `xy`) in view of the rows in `new`."""
     m = world.mission
-    latest = [rows[max(rows)] for rows in logs.values() if rows]
+    for rows in new.values():
+        if rows:
+            p = np.array([(r["x"], r["y"]) for r in rows])
+            near = np.sum((p[:, None, :] - xy[None, :, :]) ** 2, axis=-1) <= world.grid.fov_radius2
+            seen |= near.any(axis=0)
+    latest = [rows[max(rows)] for rows in logs.logs.values() if rows]
     if not latest:
-        return "waiting for the companions", 0
+        return "waiting for the companions"
     step = int(min(r["step"] for r in latest))
     pos = np.array([(r["x"], r["y"]) for r in latest])
-    xy = world.grid.centres[targets]
-    seen = np.zeros(len(targets), dtype=bool)
-    for rows in logs.values():
-        if rows:
-            p = np.array([(r["x"], r["y"]) for r in rows.values()])
-            seen |= (np.sum((p[:, None, :] - xy[None, :, :]) ** 2, axis=-1) <= world.grid.fov_radius2).any(
-                axis=0
-            )
-    found = int(seen.sum())
     unc = float(np.mean([r["mean_eta"] for r in latest]))
     lam = algebraic_connectivity(pos, m.comms.range)
     mind = min_pair_distance(pos)
-    line = (
-        f"step {step:5d}  targets {found}/{len(targets)}  mean uncertainty {unc:.4f}  "
+    return (
+        f"step {step:5d}  targets {int(seen.sum())}/{len(xy)}  mean uncertainty {unc:.4f}  "
         f"lambda_2 {lam:.4f}  min distance {mind:7.1f} m"
     )
-    return line, found
 
 
 def run_mission(opts: RunOptions) -> int:
@@ -120,6 +123,10 @@ def run_mission(opts: RunOptions) -> int:
     for stale in out.glob("uav*.*"):
         stale.unlink()
     world = build_world(mission, seed, 0)
+    logs = CompanionLogs(out, mission.n_uavs)
+    if opts.progress:
+        print("loading the algorithm's compiled kernels (compiling them on a first run)", flush=True)
+    warm_up(mission)  # once here, so that the companions load the kernels from numba's cache
     py = sys.executable
     children = Children()
     stop = threading.Event()
@@ -179,16 +186,16 @@ def run_mission(opts: RunOptions) -> int:
         sim = children.start("sim", sim_argv, out / "sim.log")
         _wait_for_line(out / "sim.log", f"vehicle {mission.n_uavs - 1} ", sim, START_TIMEOUT_S)
         targets = truth_cells(out / "truth.json")
+        seen = np.zeros(len(targets), dtype=bool)
         last_print = 0.0
         while not stop.is_set():
             time.sleep(0.5)
-            logs = read_logs(out, mission.n_uavs)
-            line, found = _live_line(world, logs, targets)
+            line = _live_line(world, logs, logs.poll(), world.grid.centres[targets], seen)
             if opts.progress and time.monotonic() - last_print >= 2.0:
                 print(line, flush=True)
                 last_print = time.monotonic()
             companions = [p for n, p in children.procs.items() if n.startswith("companion")]
-            all_found = found == len(targets) and not opts.keep_going
+            all_found = seen.all() and not opts.keep_going
             if all_found or all(p.poll() is not None for p in companions):
                 break
             if sim.poll() is not None:
@@ -198,7 +205,8 @@ def run_mission(opts: RunOptions) -> int:
         children.stop()
         for s, h in previous.items():
             signal.signal(s, h)
-    result = evaluate(world, read_logs(out, mission.n_uavs), targets, time.monotonic() - started, seed)
+    logs.poll()
+    result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed)
     if result.steps == 0:
         print(
             "error: no step was flown (see the companion and sim logs in the output directory)",

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.batch.engine import warm_up
 from companion.camera_feed import CameraFeed
 from companion.core.agent import Agent, Command, Observation
 from companion.core.kinematics import arc_advance
@@ -257,6 +258,8 @@ class Companion:
         return alive
 
     def run(self, stop: threading.Event) -> int:
+        seconds = warm_up(self.opts.mission)  # no compiling inside the first real steps
+        log.info("uav %d: algorithm ready in %.1f s", self.opts.uav, seconds)
         log.info("uav %d: waiting for the vehicle at %s", self.opts.uav, self.opts.vehicle_url)
         self.link.wait_heartbeat(120.0, stop.is_set)
         log.info("uav %d: vehicle system %d is up", self.opts.uav, self.link.state.system)

@@ -10,6 +10,7 @@ import math
 import time
 from dataclasses import dataclass, field
 
+import msgspec
 import numpy as np
 from numba import njit
 
@@ -204,3 +205,16 @@ def simulate(
         tasks=tasks,
         rejected_messages=sum(a.rejected for a in agents),
     )
+
+
+WARM_UP_STEPS = 30  # enough for bids, an auction and reevaluation (algorithm "proposed")
+WARM_UP_UAVS = 4  # compiled code does not depend on the swarm's size
+
+
+def warm_up(mission: Mission) -> float:
+    """Run the batch engine for a few steps of the mission (its first few vehicles) so that numba
+    compiles every kernel the agents use, or loads it from its disk cache (`cache=True`): a fresh
+    checkout compiles for tens of seconds, which a companion must not spend inside its first
+    real-time steps. Returns the seconds taken."""
+    small = msgspec.structs.replace(mission, vehicles=mission.vehicles[:WARM_UP_UAVS])
+    return simulate(small, mission.seed, 0, WARM_UP_STEPS).seconds

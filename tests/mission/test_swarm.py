@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import itertools
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -32,13 +33,16 @@ def _mission_copy(tmp_path: Path, prefix: str, base_port: int) -> Path:
     return path
 
 
-def _run(mission: Path, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+def _run(
+    mission: Path, out: Path, *extra: str, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "companion.cli", "run", str(mission), "--out", str(out), *extra],
         capture_output=True,
         text=True,
         cwd=ROOT,
         timeout=900,
+        env=env,
     )
 
 
@@ -53,9 +57,11 @@ def _trajectory(out: Path, steps: int, n: int) -> np.ndarray:
 
 
 def test_scripted_mission_scenario1_sped_up_passes_its_criteria(tmp_path: Path, free_base_port: int) -> None:
+    """The main job as on a fresh machine: numba's cache is empty, so the kernels compile first."""
     mission = _mission_copy(tmp_path, "scripted", free_base_port)
     out = tmp_path / "out"
-    proc = _run(mission, out, "--speedup", "10", "--steps", "300", "--quiet")
+    fresh = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    proc = _run(mission, out, "--speedup", "10", "--steps", "300", "--quiet", env=fresh)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     summary = json.loads((out / "summary.json").read_text())["proposed"]
     assert set(summary) >= SUMMARY_KEYS

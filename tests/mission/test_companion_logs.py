@@ -1,0 +1,66 @@
+"""Following the companions' CSV logs while they grow (companion.evaluation.CompanionLogs)."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+from companion.evaluation import CompanionLogs
+
+COLUMNS = ["step", "x", "y", "heading", "task", "mean_eta"]
+
+
+def line(*values: object) -> bytes:
+    """One row as the companion's csv.writer writes it (\\r\\n terminated)."""
+    buf = io.StringIO()
+    csv.writer(buf).writerow(values)
+    return buf.getvalue().encode()
+
+
+def append(path: Path, data: bytes) -> None:
+    with path.open("ab") as f:
+        f.write(data)
+
+
+def test_rows_are_read_once_as_the_log_grows(tmp_path: Path) -> None:
+    logs = CompanionLogs(tmp_path, 2)
+    assert logs.poll() == {0: [], 1: []}  # no files yet
+    log0 = tmp_path / "uav0.csv"
+    append(log0, line(*COLUMNS) + line(0, 10.0, 20.0, 0.5, -1, 1.0))
+    new = logs.poll()
+    assert [r["step"] for r in new[0]] == [0] and new[1] == []
+    assert logs.logs[0][0]["x"] == 10.0
+    assert logs.poll() == {0: [], 1: []}  # nothing new, nothing reread
+    append(log0, line(1, 11.0, 21.0, 0.5, 3, 0.9) + line(2, 12.0, 22.0, 0.5, 3, 0.8))
+    assert [r["step"] for r in logs.poll()[0]] == [1, 2]
+    assert sorted(logs.logs[0]) == [0, 1, 2] and logs.logs[0][2]["task"] == 3
+
+
+def test_a_line_is_taken_only_once_it_is_complete(tmp_path: Path) -> None:
+    log = tmp_path / "uav0.csv"
+    logs = CompanionLogs(tmp_path, 1)
+    row = line(7, 123.4567, 20.0, 0.5, -1, 0.75)
+    header = line(*COLUMNS)
+    append(log, header[:5])  # even the header arrives in pieces
+    assert logs.poll() == {0: []}
+    append(log, header[5:] + row[:9])  # "7,123.45": a number cut short must not be read as 123.45
+    assert logs.poll() == {0: []}
+    append(log, row[9:])
+    (got,) = logs.poll()[0]
+    assert got["step"] == 7 and got["x"] == 123.4567
+
+
+def test_a_line_cut_short_by_a_kill_is_never_read(tmp_path: Path) -> None:
+    log = tmp_path / "uav0.csv"
+    append(log, line(*COLUMNS) + line(0, 1.0, 2.0, 0.0, -1, 1.0) + line(1, 3.0, 4.0, 0.0, -1, 0.9)[:6])
+    logs = CompanionLogs(tmp_path, 1)
+    logs.poll()
+    assert sorted(logs.logs[0]) == [0]
+
+
+def test_damaged_lines_are_skipped_and_the_rest_is_read(tmp_path: Path) -> None:
+    log = tmp_path / "uav0.csv"
+    append(log, line(*COLUMNS) + b"garbage,\xff\xfe\r\n" + line(3, 1.0, 2.0, 0.0, -1, 0.5) + b"1,2\r\n")
+    logs = CompanionLogs(tmp_path, 1)
+    assert [r["step"] for r in logs.poll()[0]] == [3]
