@@ -119,12 +119,10 @@ class Kinematics:
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Pose after one sampling step with the given turn (rad)."""
         if self.mode == "grid":
-            h1 = np.round((np.asarray(heading, dtype=float) + turn) / _EIGHTH) * _EIGHTH
-            return (
-                np.asarray(x, dtype=float) + self.cell_size * np.round(np.cos(h1)),
-                np.asarray(y, dtype=float) + self.cell_size * np.round(np.sin(h1)),
-                wrap_angle(h1),
-            )
+            x, y, h, q = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (x, y, heading, turn)))
+            poses = np.stack([x.ravel(), y.ravel(), h.ravel()], axis=1)
+            out = grid_advance(poses, np.ascontiguousarray(q.ravel()), self.cell_size)
+            return out[:, 0].reshape(x.shape), out[:, 1].reshape(x.shape), out[:, 2].reshape(x.shape)
         x1, y1, h1 = arc_advance(x, y, heading, np.asarray(turn) / self.dt, self.speed, self.dt)
         return x1, y1, wrap_angle(h1)
 
