@@ -13,12 +13,12 @@ from typing import Any
 
 import numpy as np
 
-from companion import detections
 from companion.core.geometry import Grid
 from companion.core.prior import draw_targets
 from companion.core.world import Stream, build_grid, build_prior, instance_rng
-from companion.frames import LocalFrame
 from companion.mission import Mission
+from companion.node import detections
+from companion.node.frames import LocalFrame
 
 LOOPBACK_PREFIXES = ("tcp/127.0.0.1:", "udp/127.0.0.1:", "tcp/localhost:", "unixsock-stream/")
 

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from companion.core.kinematics import Kinematics
-from companion.detections import CameraFrame
-from companion.frames import LocalFrame
 from companion.mission import Mission
+from companion.node.detections import CameraFrame
+from companion.node.frames import LocalFrame
 from sim_vehicles import camera as cam
 from sim_vehicles.clock import LockstepClock, RealTimeClock
 from sim_vehicles.dynamics.flight import ContinuousFlight, Flight, GridFlight
@@ -39,8 +39,10 @@ M = mavlink
 MAX_TICKS_PER_LOOP = 500  # keep serving sockets when far behind
 STATS_TEXT_INTERVAL = 5.0  # wall s between "bad input" STATUSTEXTs of one vehicle
 RELATIVE_FRAMES = (
-    M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-    M.MAV_FRAME_GLOBAL_TERRAIN_ALT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,  # flat terrain at home
+    M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    M.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,  # flat terrain at home
 )
 AMSL_FRAMES = (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT)
 SILENT = frozenset({"HEARTBEAT", "SYSTEM_TIME", "RADIO_STATUS", "MISSION_ACK"})
@@ -97,8 +99,9 @@ class HostedVehicle:
             f, i = self.host.flight, self.index
             x, y, h, up = self.position()
             lat, lon, alt = self.frame.to_geodetic(x, y, up)
-            self._pose = Pose(x, y, h, up, float(f.vx[i]), float(f.vy[i]), float(f.vz[i]),
-                              float(f.omega[i]), lat, lon, alt)
+            self._pose = Pose(
+                x, y, h, up, float(f.vx[i]), float(f.vy[i]), float(f.vz[i]), float(f.omega[i]), lat, lon, alt
+            )
             self._pose_tick = self.host.tick
         return self._pose
 
@@ -178,8 +181,12 @@ class HostedVehicle:
             if payload is None:
                 self.stats.rejected += 1
             else:
-                self.reply(M.MAVLink_file_transfer_protocol_message(
-                    0, msg.get_srcSystem(), msg.get_srcComponent(), payload), addr)
+                self.reply(
+                    M.MAVLink_file_transfer_protocol_message(
+                        0, msg.get_srcSystem(), msg.get_srcComponent(), payload
+                    ),
+                    addr,
+                )
         elif kind == "TIMESYNC":
             if msg.tc1 == 0:
                 self.reply(M.MAVLink_timesync_message(round(self.t * 1e9), msg.ts1), addr)
@@ -233,8 +240,9 @@ class HostedVehicle:
     def report_bad_input(self, wall: float) -> None:
         counts = (self.stats.bad_frames, self.stats.rejected)
         if counts != self._stats_reported and wall - self._stats_said >= STATS_TEXT_INTERVAL:
-            self.vehicle.say(f"Bad input: {counts[0]} bad frames, {counts[1]} rejected values",
-                             M.MAV_SEVERITY_NOTICE)
+            self.vehicle.say(
+                f"Bad input: {counts[0]} bad frames, {counts[1]} rejected values", M.MAV_SEVERITY_NOTICE
+            )
             self._stats_reported, self._stats_said = counts, wall
             self.flush()
 
@@ -274,8 +282,14 @@ class Host:
         try:
             bind = options.host or mission.sim.host
             for i, v in enumerate(mission.vehicles):
-                vehicle = Vehicle(i, flavour, ParamStore(specs, flavour.name, k.mode == "grid"),
-                                  (v.x, v.y), k.altitude, k.step)
+                vehicle = Vehicle(
+                    i,
+                    flavour,
+                    ParamStore(specs, flavour.name, k.mode == "grid"),
+                    (v.x, v.y),
+                    k.altitude,
+                    k.step,
+                )
                 endpoint = MavlinkEndpoint(bind, mission.vehicle_port(i), i + 1)
                 hv = HostedVehicle(self, i, vehicle, endpoint)
                 self.hosted.append(hv)
@@ -283,8 +297,9 @@ class Host:
             if options.truth is not None:
                 record = cam.truth_record(mission, self.seed, self.grid, self.targets, self.frame)
                 cam.write_truth(options.truth, record)
-            self.camera = cam.Camera(mission, self.grid, self.targets,
-                                     cam.instance_rng(self.seed, 0, cam.Stream.CAMERA))
+            self.camera = cam.Camera(
+                mission, self.grid, self.targets, cam.instance_rng(self.seed, 0, cam.Stream.CAMERA)
+            )
             self.cell_lat, self.cell_lon = self.frame.cells_to_geodetic(self.grid.centres)
             if options.camera:
                 connect = options.zenoh_connect
@@ -401,8 +416,11 @@ class Host:
         """Full-precision state of one vehicle at the current step (lockstep)."""
         if self.bus is not None:
             self._publish_frame(hv)
-        for msgid in (M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, M.MAVLINK_MSG_ID_ATTITUDE,
-                      M.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
+        for msgid in (
+            M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+            M.MAVLINK_MSG_ID_ATTITUDE,
+            M.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+        ):
             hv.broadcast(hv.build(msgid))
 
     def _publish_frame(self, hv: HostedVehicle) -> None:
@@ -410,8 +428,17 @@ class Host:
         p = hv.pose()
         cells = self.camera.detect(p.x, p.y)
         found = tuple(zip(self.cell_lat[cells].tolist(), self.cell_lon[cells].tolist(), strict=True))
-        self.bus.publish(CameraFrame(uav=hv.index, time_usec=round(self.t * 1e6), lat=p.lat, lon=p.lon,
-                                     alt=p.alt, heading=p.heading, detections=found))
+        self.bus.publish(
+            CameraFrame(
+                uav=hv.index,
+                time_usec=round(self.t * 1e6),
+                lat=p.lat,
+                lon=p.lon,
+                alt=p.alt,
+                heading=p.heading,
+                detections=found,
+            )
+        )
         self.stats.frames_published += 1
 
     def close(self) -> None:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.frames import LocalFrame, heading_to_yaw
+from companion.node.frames import LocalFrame, heading_to_yaw
 from sim_vehicles.modes import Behaviour
 from sim_vehicles.vehicle import Vehicle
 
@@ -27,7 +27,9 @@ DEFAULT_RATES_HZ = {
 }
 DATA_STREAMS = {  # REQUEST_DATA_STREAM groups, as ArduPilot maps them
     M.MAV_DATA_STREAM_EXTENDED_STATUS: (
-        M.MAVLINK_MSG_ID_SYS_STATUS, M.MAVLINK_MSG_ID_GPS_RAW_INT, M.MAVLINK_MSG_ID_MISSION_CURRENT,
+        M.MAVLINK_MSG_ID_SYS_STATUS,
+        M.MAVLINK_MSG_ID_GPS_RAW_INT,
+        M.MAVLINK_MSG_ID_MISSION_CURRENT,
     ),
     M.MAV_DATA_STREAM_POSITION: (M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
     M.MAV_DATA_STREAM_EXTRA1: (M.MAVLINK_MSG_ID_ATTITUDE,),
@@ -37,15 +39,22 @@ DATA_STREAMS = {  # REQUEST_DATA_STREAM groups, as ArduPilot maps them
 DATA_STREAMS[M.MAV_DATA_STREAM_ALL] = tuple(m for ids in DATA_STREAMS.values() for m in ids)
 MAX_RATE_HZ = 50.0
 SENSORS = (
-    M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | M.MAV_SYS_STATUS_SENSOR_3D_MAG
-    | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | M.MAV_SYS_STATUS_SENSOR_GPS
-    | M.MAV_SYS_STATUS_AHRS | M.MAV_SYS_STATUS_PREARM_CHECK
+    M.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | M.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | M.MAV_SYS_STATUS_SENSOR_GPS
+    | M.MAV_SYS_STATUS_AHRS
+    | M.MAV_SYS_STATUS_PREARM_CHECK
 )
 CAPABILITIES = (
-    M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
-    | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
     | M.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+    | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 )
 SW_VERSION = {"ardupilot": (4, 6, 0), "px4": (1, 15, 0)}
 
@@ -162,15 +171,30 @@ class TelemetryBuilder:
     def gps_raw_int(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         cog = round(math.degrees(heading_to_yaw(math.atan2(pose.vy, pose.vx))) * 100) % 36000
         return M.MAVLink_gps_raw_int_message(
-            int(t * 1e6), M.GPS_FIX_TYPE_3D_FIX, round(pose.lat * 1e7), round(pose.lon * 1e7),
-            round(pose.alt * 1000), 80, 120, round(pose.groundspeed * 100), cog, 12,
+            int(t * 1e6),
+            M.GPS_FIX_TYPE_3D_FIX,
+            round(pose.lat * 1e7),
+            round(pose.lon * 1e7),
+            round(pose.alt * 1000),
+            80,
+            120,
+            round(pose.groundspeed * 100),
+            cog,
+            12,
         )
 
     def global_position_int(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         hdg = round(math.degrees(heading_to_yaw(pose.heading)) * 100) % 36000
         return M.MAVLink_global_position_int_message(
-            _ms(t), round(pose.lat * 1e7), round(pose.lon * 1e7), round(pose.alt * 1000),
-            round(pose.up * 1000), round(pose.vy * 100), round(pose.vx * 100), round(-pose.vz * 100), hdg,
+            _ms(t),
+            round(pose.lat * 1e7),
+            round(pose.lon * 1e7),
+            round(pose.alt * 1000),
+            round(pose.up * 1000),
+            round(pose.vy * 100),
+            round(pose.vx * 100),
+            round(-pose.vz * 100),
+            hdg,
         )
 
     def local_position_ned(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
@@ -181,16 +205,12 @@ class TelemetryBuilder:
     def attitude(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         yaw_rate = -pose.omega  # CW positive, as MAVLink's yaw
         roll = math.atan(pose.groundspeed * yaw_rate / 9.80665)
-        return M.MAVLink_attitude_message(
-            _ms(t), roll, 0.0, heading_to_yaw(pose.heading), 0.0, 0.0, yaw_rate
-        )
+        return M.MAVLink_attitude_message(_ms(t), roll, 0.0, heading_to_yaw(pose.heading), 0.0, 0.0, yaw_rate)
 
     def vfr_hud(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         hdg = round(math.degrees(heading_to_yaw(pose.heading))) % 360
         throttle = 50 if self.vehicle.armed else 0
-        return M.MAVLink_vfr_hud_message(
-            pose.groundspeed, pose.groundspeed, hdg, throttle, pose.alt, pose.vz
-        )
+        return M.MAVLink_vfr_hud_message(pose.groundspeed, pose.groundspeed, hdg, throttle, pose.alt, pose.vz)
 
     def system_time(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         return M.MAVLink_system_time_message(self.epoch + int(t * 1e6), _ms(t))
@@ -203,8 +223,17 @@ class TelemetryBuilder:
         lat, lon, alt = self.home
         hx, hy = self.vehicle.home
         return M.MAVLink_home_position_message(
-            round(lat * 1e7), round(lon * 1e7), round(alt * 1000), hy, hx, 0.0,
-            [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(t * 1e6),
+            round(lat * 1e7),
+            round(lon * 1e7),
+            round(alt * 1000),
+            hy,
+            hx,
+            0.0,
+            [1.0, 0.0, 0.0, 0.0],
+            0.0,
+            0.0,
+            0.0,
+            int(t * 1e6),
         )
 
     def extended_sys_state(self, t: float, pose: Pose) -> mavlink.MAVLink_message:

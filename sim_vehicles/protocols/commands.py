@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.frames import yaw_to_heading
+from companion.node.frames import yaw_to_heading
 from sim_vehicles.telemetry import DEFAULT_RATES_HZ
 
 if TYPE_CHECKING:
@@ -59,9 +59,7 @@ def handle_command(hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Addres
         if result == M.MAV_RESULT_DENIED:
             hv.stats.rejected += 1
     hv.reply(
-        M.MAVLink_command_ack_message(
-            cmd.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
-        ),
+        M.MAVLink_command_ack_message(cmd.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()),
         addr,
     )
     for msgid in follow_up:

@@ -34,7 +34,11 @@ def test_proposed_finds_targets_sooner_than_both_baselines_on_scenario3() -> Non
 
 def _uavsearch(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "companion.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=600
+        [sys.executable, "-m", "companion.app.cli", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=600,
     )
 
 
@@ -181,7 +185,7 @@ def test_sigterm_stops_a_study_and_its_workers(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "companion.cli",
+            "companion.app.cli",
             "mc",
             "--mission",
             "mission_files/scenario1.toml",

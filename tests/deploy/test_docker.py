@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from companion.cli import build_parser
+from companion.app.cli import build_parser
 from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]

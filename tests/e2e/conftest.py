@@ -233,7 +233,7 @@ class Procs:
         argv = [
             PY,
             "-m",
-            "companion.cli",
+            "companion.app.cli",
             "companion",
             "--mission",
             str(mission.path),

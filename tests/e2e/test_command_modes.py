@@ -33,7 +33,7 @@ def test_command_mode_flies_the_vehicle(
         [
             PY,
             "-m",
-            "companion.cli",
+            "companion.app.cli",
             "run",
             str(mission.path),
             "--command-mode",

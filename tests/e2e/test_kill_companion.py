@@ -51,7 +51,7 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
         [
             PY,
             "-m",
-            "companion.cli",
+            "companion.app.cli",
             "run",
             str(mission.path),
             "--speedup",

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from mesh_helpers import N_CELLS, N_TASKS
 
-from companion.mesh import Mesh
 from companion.mission import Mission
+from companion.node.mesh import Mesh
 
 HERE = Path(__file__).resolve().parent
 
@@ -30,7 +30,7 @@ def open_mesh() -> Iterator[Callable[..., Mesh]]:
 
 @pytest.fixture
 def spawn() -> Iterator[Callable[..., subprocess.Popen[str]]]:
-    """Start `python -m companion.mesh router ...` or a peer_proc.py peer; stop leftovers by PID."""
+    """Start `python -m companion.node.mesh router ...` or a peer_proc.py peer; stop leftovers by PID."""
     procs: list[subprocess.Popen[str]] = []
 
     def start(*args: str) -> subprocess.Popen[str]:

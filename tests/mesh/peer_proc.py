@@ -14,8 +14,8 @@ from pathlib import Path
 import msgspec
 from mesh_helpers import N_CELLS, N_TASKS, outbox
 
-from companion.mesh import Mesh
 from companion.mission import Mission
+from companion.node.mesh import Mesh
 
 
 def main(argv: list[str]) -> int:

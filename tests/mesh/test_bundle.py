@@ -9,7 +9,7 @@ import pytest
 from mesh_helpers import N_CELLS, N_TASKS, outbox
 
 from companion.core.messages import PROTOCOL_VERSION, ClaimsMsg, CoverageMsg, MessageError, UavState
-from companion.mesh import MAX_BUNDLE_MESSAGES, Bundle, check_bundle, decode_bundle, encode_bundle
+from companion.node.mesh import MAX_BUNDLE_MESSAGES, Bundle, check_bundle, decode_bundle, encode_bundle
 
 
 def _bundle(**changes: object) -> Bundle:

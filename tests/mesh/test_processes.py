@@ -15,8 +15,8 @@ import msgspec
 import pytest
 from mesh_helpers import ROOT, make_mission, outbox, until
 
-from companion.mesh import Mesh, router_main, run_router
 from companion.mission import Mission, load_mission
+from companion.node.mesh import Mesh, router_main, run_router
 
 pytestmark = pytest.mark.timeout(60)
 Spawn = Callable[..., subprocess.Popen[str]]
@@ -72,7 +72,7 @@ def test_clients_talk_through_a_router_process_that_exits_0_on_sigterm(
 ) -> None:
     path = _client_mission(tmp_path)
     mission = load_mission(path)
-    router = spawn("-m", "companion.mesh", "router", "--mission", str(path))
+    router = spawn("-m", "companion.node.mesh", "router", "--mission", str(path))
     assert _readline(router) == f"router listening on {mission.mesh.router}"
     a, b = open_mesh(mission, 0), open_mesh(mission, 1)
     assert a.wait_alive({1}, 15.0) == set()

@@ -1,4 +1,4 @@
-"""Following the companions' CSV logs while they grow (companion.evaluation.CompanionLogs)."""
+"""Following the companions' CSV logs while they grow (companion.app.evaluation.CompanionLogs)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import csv
 import io
 from pathlib import Path
 
-from companion.evaluation import CompanionLogs
+from companion.app.evaluation import CompanionLogs
 
 COLUMNS = ["step", "x", "y", "heading", "task", "mean_eta"]
 

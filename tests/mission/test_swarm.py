@@ -37,7 +37,7 @@ def _run(
     mission: Path, out: Path, *extra: str, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "companion.cli", "run", str(mission), "--out", str(out), *extra],
+        [sys.executable, "-m", "companion.app.cli", "run", str(mission), "--out", str(out), *extra],
         capture_output=True,
         text=True,
         cwd=ROOT,

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from companion import detections
 from companion.core.kinematics import Kinematics
 from companion.mission import load_mission
+from companion.node import detections
 from sim_vehicles.camera import draw_truth
 from tests.sim.conftest import M, Mav, free_tcp_port, write_mission
 
@@ -44,17 +44,22 @@ def test_lockstep_grid_and_camera(tmp_path: Path, start_sim) -> None:
     mission = load_mission(path)
     frames: list[detections.CameraFrame] = []
     lock = threading.Lock()
-    cfg = {"mode": "peer", "listen": {"endpoints": [f"tcp/127.0.0.1:{zport}"]},
-           "scouting": {"multicast": {"enabled": False}}}
+    cfg = {
+        "mode": "peer",
+        "listen": {"endpoints": [f"tcp/127.0.0.1:{zport}"]},
+        "scouting": {"multicast": {"enabled": False}},
+    }
     with zenoh.open(zenoh.Config.from_json5(json.dumps(cfg))) as session:
+
         def on_sample(sample: zenoh.Sample) -> None:
             with lock:
                 frames.append(detections.decode_checked(sample.payload.to_bytes(), 2))
 
         session.declare_subscriber(f"{prefix}/{mission.name}/uav/*/camera", on_sample)
         truth_path = tmp_path / "truth.json"
-        sim = start_sim(path, "--lockstep", "--truth", str(truth_path),
-                        "--zenoh-connect", f"tcp/127.0.0.1:{zport}", n=2)
+        sim = start_sim(
+            path, "--lockstep", "--truth", str(truth_path), "--zenoh-connect", f"tcp/127.0.0.1:{zport}", n=2
+        )
         a, b = Mav(ports[0], 1), Mav(ports[1], 2)
         truth = json.loads(truth_path.read_text())
         assert [t["cell"] for t in truth["targets"]] == targets.tolist()
@@ -106,7 +111,7 @@ def test_lockstep_grid_and_camera(tmp_path: Path, start_sim) -> None:
 
 
 def _local_of(mission, frame: detections.CameraFrame) -> tuple[float, float]:
-    from companion.frames import LocalFrame
+    from companion.node.frames import LocalFrame
 
     x, y = LocalFrame(mission.region.origin).to_local(frame.lat, frame.lon)
     return round(x / 20) * 20, round(y / 20) * 20  # on the grid at every step boundary

@@ -29,7 +29,7 @@ import zenoh
 from companion.core.messages import PROTOCOL_VERSION, Message, MessageError, check
 from companion.core.wire import MsgpackCodec
 from companion.mission import Mission, MissionError, load_mission
-from companion.zenoh_config import MeshConfig, open_session, router_config
+from companion.node.zenoh_config import MeshConfig, open_session, router_config
 
 MAX_BUNDLE_MESSAGES = 32
 HELD_STAMPS = 8  # bundles kept per sender (bounds memory whatever peers send)
@@ -341,5 +341,5 @@ def router_main(argv: Sequence[str] | None = None) -> int:
 
 if __name__ == "__main__":
     if sys.argv[1:2] != ["router"]:
-        sys.exit("usage: python -m companion.mesh router [--endpoint E | --mission FILE]")
+        sys.exit("usage: python -m companion.node.mesh router [--endpoint E | --mission FILE]")
     sys.exit(router_main(sys.argv[2:]))

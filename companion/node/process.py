@@ -24,15 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from companion.batch.engine import warm_up
-from companion.camera_feed import CameraFeed
 from companion.core.agent import Agent, Command, Observation
 from companion.core.kinematics import arc_advance
 from companion.core.world import build_world
-from companion.detections import camera_key
-from companion.frames import LocalFrame, heading_to_yaw
-from companion.mesh import Mesh
 from companion.mission import Mission
-from companion.vehicle_link import ARDUPILOT_GUIDED, PX4_HOLD, PX4_OFFBOARD, VehicleLink
+from companion.node.camera_feed import CameraFeed
+from companion.node.detections import camera_key
+from companion.node.frames import LocalFrame, heading_to_yaw
+from companion.node.mesh import Mesh
+from companion.node.vehicle_link import ARDUPILOT_GUIDED, PX4_HOLD, PX4_OFFBOARD, VehicleLink
 
 log = logging.getLogger("companion")
 

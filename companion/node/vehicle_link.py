@@ -22,7 +22,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.frames import LocalFrame, yaw_to_heading
+from companion.node.frames import LocalFrame, yaw_to_heading
 
 COMPANION_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
 ARDUPILOT_GUIDED = 15

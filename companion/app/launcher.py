@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.app.evaluation import CompanionLogs, evaluate, failed_criteria, truth_cells
 from companion.batch import plots, report
 from companion.batch.engine import warm_up
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance
 from companion.core.world import World, build_world
-from companion.evaluation import CompanionLogs, evaluate, failed_criteria, truth_cells
 from companion.mission import load_mission
 
 START_TIMEOUT_S = 120.0
@@ -136,7 +136,7 @@ def run_mission(opts: RunOptions) -> int:
         if mission.mesh.mode == "client":
             router = children.start(
                 "router",
-                [py, "-m", "companion.cli", "router", "--mission", str(opts.mission_file)],
+                [py, "-m", "companion.app.cli", "router", "--mission", str(opts.mission_file)],
                 out / "router.log",
             )
             _wait_for_line(out / "router.log", "router listening", router, START_TIMEOUT_S)
@@ -144,7 +144,7 @@ def run_mission(opts: RunOptions) -> int:
             argv = [
                 py,
                 "-m",
-                "companion.cli",
+                "companion.app.cli",
                 "companion",
                 "--mission",
                 str(opts.mission_file),

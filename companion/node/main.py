@@ -9,13 +9,13 @@ import sys
 import threading
 from pathlib import Path
 
-from companion.camera_feed import CameraFeed
 from companion.core.world import Stream, build_world, instance_rng
-from companion.frames import LocalFrame
-from companion.mesh import Mesh
 from companion.mission import load_mission
-from companion.process import Companion, CompanionOptions, camera_key_of, default_vehicle_url
-from companion.vehicle_link import LinkError, VehicleLink
+from companion.node.camera_feed import CameraFeed
+from companion.node.frames import LocalFrame
+from companion.node.mesh import Mesh
+from companion.node.process import Companion, CompanionOptions, camera_key_of, default_vehicle_url
+from companion.node.vehicle_link import LinkError, VehicleLink
 
 
 def run_companion(args: argparse.Namespace) -> int:

@@ -103,13 +103,13 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _companion(args: argparse.Namespace) -> int:
-    from companion.companion_main import run_companion
+    from companion.node.main import run_companion
 
     return run_companion(args)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from companion.launcher import RunOptions, run_mission
+    from companion.app.launcher import RunOptions, run_mission
 
     return run_mission(
         RunOptions(
@@ -128,7 +128,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _router(args: argparse.Namespace) -> int:
-    from companion.mesh import router_main
+    from companion.node.mesh import router_main
 
     argv = ["--endpoint", args.endpoint] if args.endpoint else []
     return router_main([*argv, *(["--mission", args.mission] if args.mission else [])])
@@ -147,7 +147,7 @@ def _sim_bench(args: argparse.Namespace) -> int:
 
 
 def _companion_bench(args: argparse.Namespace) -> int:
-    from companion.bench import bench_main
+    from companion.bench.companion_bench import bench_main
 
     return bench_main(args.args)
 
@@ -192,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
     be.set_defaults(func=_bench)
 
-    from companion.process import COMMAND_MODES
+    from companion.node.process import COMMAND_MODES
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
     co.add_argument("--mission", required=True)

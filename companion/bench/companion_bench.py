@@ -11,7 +11,7 @@
    targets, so the swarm flies as in the batch engine.
 2. **Largest real-time swarm**: N UAVs built from the mission (vehicles on a grid over the region,
    a unique key prefix, free ports), each stepping on the wall clock once per step period, in peer
-   mode and in client mode with one router (`python -m companion.mesh router`). N grows over
+   mode and in client mode with one router (`python -m companion.node.mesh router`). N grows over
    `--sizes` until a trial fails the criterion of `realtime_verdict`.
 
 Worker processes are started with `subprocess` (never forked after Zenoh is opened), talk to this
@@ -44,7 +44,7 @@ import numpy as np
 
 from companion.mission import Mission, Vehicle, load_mission
 
-DEFAULT_MISSION = Path(__file__).resolve().parents[1] / "mission_files" / "scenario1.toml"
+DEFAULT_MISSION = Path(__file__).resolve().parents[2] / "mission_files" / "scenario1.toml"
 # Fewer Zenoh runtime threads per process: many sessions share 2 cores (../shared/notes/zenoh.md).
 LEAN_ZENOH_RUNTIME = (
     "(rx: (handover: app), net: (handover: app), acc: (handover: app), "
@@ -117,7 +117,7 @@ class _Uav:
         from companion.core.agent import Agent
         from companion.core.prior import draw_targets
         from companion.core.world import Stream, build_world, instance_rng
-        from companion.vehicle_link import COMPANION_COMPONENT
+        from companion.node.vehicle_link import COMPANION_COMPONENT
 
         self.mission, self.uav = mission, uav
         self.world = build_world(mission, mission.seed, 0)
@@ -239,7 +239,7 @@ def _reply(**fields: object) -> None:
 
 def worker_main(argv: Sequence[str] | None = None) -> int:
     """A pool worker: JSON commands on stdin (open, go, close), replies on stdout; exits on EOF."""
-    from companion.mesh import Mesh
+    from companion.node.mesh import Mesh
 
     _reply(op="hello", pid=os.getpid())
     mesh: Mesh | None = None
@@ -367,11 +367,11 @@ class _Pool:
 
 
 class _Router:
-    """`python -m companion.mesh router --endpoint E` in its own process, stopped with SIGTERM."""
+    """`python -m companion.node.mesh router --endpoint E` in its own process, stopped with SIGTERM."""
 
     def __init__(self, endpoint: str) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "companion.mesh", "router", "--endpoint", endpoint],
+            [sys.executable, "-m", "companion.node.mesh", "router", "--endpoint", endpoint],
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,
@@ -679,7 +679,8 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
+def main() -> None:
+    """`python -m companion.bench [worker] ...`."""
     if sys.argv[1:2] == ["worker"]:
         sys.exit(worker_main(sys.argv[2:]))
     sys.exit(bench_main(sys.argv[1:]))

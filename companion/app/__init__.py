@@ -1,0 +1,1 @@
+"""The command line, the swarm launcher and the flown-mission evaluation."""

@@ -1,0 +1,1 @@
+"""Benchmarks of the companion process (the batch engine's `uavsearch bench` is in batch.experiments)."""

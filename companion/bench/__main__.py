@@ -1,0 +1,3 @@
+from companion.bench.companion_bench import main
+
+main()
