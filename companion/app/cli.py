@@ -13,6 +13,7 @@ from companion.mission import MissionError, load_mission
 
 def _mc(args: argparse.Namespace) -> int:
     from companion.batch.experiments import compare
+    from companion.batch.report import copy_mission
 
     mission = load_mission(args.mission)
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
@@ -29,6 +30,7 @@ def _mc(args: argparse.Namespace) -> int:
         args.save_trajectories,
         not args.quiet,
     )
+    copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
     print(f"wrote {args.out}/summary.json, runs.csv, curves.csv and plots")
     return 0
@@ -123,8 +125,16 @@ def _run(args: argparse.Namespace) -> int:
             flavour=args.flavour,
             progress=not args.quiet,
             keep_going=args.keep_going,
+            view=args.view,
+            view_port=args.view_port,
         )
     )
+
+
+def _view(args: argparse.Namespace) -> int:
+    from companion.app.view.main import run_view
+
+    return run_view(args)
 
 
 def _router(args: argparse.Namespace) -> int:
@@ -225,7 +235,15 @@ def build_parser() -> argparse.ArgumentParser:
     ru.add_argument(
         "--keep-going", action="store_true", help="fly all the steps even when every target is found"
     )
+    ru.add_argument("--view", action="store_true", help="serve the live map of the swarm (uavsearch view)")
+    ru.add_argument("--view-port", type=int, default=0, help="the live map's port (0: any free port)")
     ru.set_defaults(func=_run)
+
+    from companion.app.view.main import add_arguments as add_view_arguments
+
+    vi = sub.add_parser("view", help="live map of a mission's swarm, or replay of a run, in the browser")
+    add_view_arguments(vi)
+    vi.set_defaults(func=_view)
 
     ro = sub.add_parser("router", help="a Zenoh router for client-mode meshes")
     ro.add_argument("--mission", default=None)
