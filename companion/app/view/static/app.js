@@ -135,8 +135,8 @@
     const f = st.frames[st.cur];
     looksUpTo(st.cur);
     const found = foundUpTo(st.cur);
-    const px = drawMap(f, found);
-    drawPanel(f, found, px);
+    drawMap(f, found);
+    drawPanel(f, found);
     for (const c of document.querySelectorAll("canvas.chart")) drawChart(c);
     $("step-label").textContent = `step ${f.k} (${st.cur + 1}/${st.frames.length})`;
     document.body.dataset.step = f.k;
@@ -162,6 +162,7 @@
     const s = Math.min((w - 2 * m) / (x1 - x0), (h - 2 * m) / (y1 - y0));
     const ox = (w - s * (x1 - x0)) / 2 - s * x0, oy = (h + s * (y1 - y0)) / 2 + s * y0;
     const X = (x) => ox + s * x, Y = (y) => oy - s * y;
+    Object.assign(canvas.dataset, { ox, oy, scale: s });  // world -> CSS pixels, for inspection
     const base = $("base").value, half = sc.grid.cell / 2, side = s * sc.grid.cell + 0.6;
 
     for (let p = 0; p < cells.n; p++) {  // prior and fused uncertainty
@@ -269,7 +270,6 @@
       ctx.fillStyle = "#1d2330";
       ctx.fillText(`k=${t.k}`, x + 9, y - 6);
     }
-    const drawn = [];
     for (const u of uavs) {  // UAVs last, on top
       const x = X(u.x), y = Y(u.y), c = u.silent ? SILENT : colour(u.i);
       if ($("show-fov").checked && !u.silent) {
@@ -300,11 +300,9 @@
       ctx.font = "bold 11px system-ui, sans-serif";
       ctx.fillStyle = u.silent ? SILENT : "#1d2330";
       ctx.fillText(u.silent ? `U${u.i} silent` : `U${u.i}`, x + 10, y + 14);
-      drawn[u.i] = [x, y];
     }
     scaleBar(ctx, s, m, h);
     northArrow(ctx, w, m);
-    return drawn;
   }
 
   // silent: so marked in the frame, or (live, at the latest step) its liveliness token is gone
@@ -357,7 +355,7 @@
   // -- side panel --------------------------------------------------------------------------------
   const fmt = (v, d) => (v === null || v === undefined ? "–" : Number(v).toFixed(d));
 
-  function drawPanel(f, found, drawn) {
+  function drawPanel(f, found) {
     const [nFound, unc, lam, dist] = f.m;
     $("found-count").textContent = nFound;
     $("uncertainty").textContent = fmt(unc, 4);
@@ -376,7 +374,6 @@
       td[5].textContent = u[3] >= 0 ? u[3] : "–";
       Object.assign(tr.dataset, {
         step: f.k, x: u[0], y: u[1], heading: u[2], task: u[3], silent: quiet ? 1 : 0,
-        px: drawn[i] ? drawn[i][0].toFixed(1) : "", py: drawn[i] ? drawn[i][1].toFixed(1) : "",
       });
     }
     const list = $("found-list");
