@@ -83,7 +83,7 @@ def load_replay(
         raise ReplayError(f"{directory / 'summary.json'}: no _meta.seed ({exc})") from None
     traj, runs = _rows(directory / "trajectories.csv", algorithm, run)
     if not traj:
-        wanted = f"{algorithm} run {run}" if algorithm is not None else "any run"
+        wanted = f"{algorithm or 'any algorithm'} run {'any' if run is None else run}"
         raise ReplayError(f"{directory / 'trajectories.csv'}: no rows for {wanted}")
     algorithm, run = traj[0]["algorithm"], int(traj[0]["run"])
     steps_rows, _ = _rows(directory / "steps.csv", algorithm, run)
