@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=DEFAULT_PORT, help="port (0: any free port)")
 
 
-def _warm_kernels() -> None:
+def warm_kernels() -> None:
     """Load (or compile) the core kernels the listener calls, before the first frame needs them."""
     links(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.0]]), 10.0)
     apply_looks(np.ones(2), np.array([0, 1], dtype=np.int64), 0.5)
@@ -45,7 +45,7 @@ def run_view(args: argparse.Namespace) -> int:
     elif args.mission:
         mission = load_mission(args.mission)
         seed = mission.seed if args.seed is None else args.seed
-        _warm_kernels()
+        warm_kernels()
         source = LiveSource(build_world(mission, seed, 0), seed)
     else:
         print("error: give --mission FILE (live) or --replay DIR", file=sys.stderr)

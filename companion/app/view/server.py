@@ -14,7 +14,6 @@ import contextlib
 import json
 import signal
 import socket
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
@@ -132,7 +131,8 @@ async def _scene(request: web.Request) -> web.Response:
 
 
 async def _status(request: web.Request) -> web.Response:
-    return web.json_response(request.app["source"].status())
+    """The source's counters and the number of pages connected."""
+    return web.json_response({**request.app["source"].status(), "pages": len(request.app["sockets"])})
 
 
 async def _push(ws: web.WebSocketResponse, source: Source, query: dict[str, str]) -> None:
@@ -168,6 +168,7 @@ async def _websocket(request: web.Request) -> web.WebSocketResponse:
         pusher.cancel()
         with contextlib.suppress(asyncio.CancelledError, asyncio.TimeoutError, ConnectionError):
             await pusher
+        request.app["sockets"].discard(ws)
         await ws.close()
     return ws
 
@@ -180,7 +181,7 @@ async def _close_sockets(app: web.Application) -> None:
 def make_app(source: Source) -> web.Application:
     app = web.Application()
     app["source"] = source
-    app["sockets"] = weakref.WeakSet()
+    app["sockets"] = set()
     app.router.add_get("/", _index)
     app.router.add_get("/api/scene", _scene)
     app.router.add_get("/api/status", _status)
