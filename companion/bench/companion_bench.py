@@ -354,7 +354,9 @@ class _Viewer:
             time.sleep(0.2)
 
     def cpu_s(self) -> float:
-        return _proc_cpu_s(self.proc.pid) + (_proc_cpu_s(self.browser.pid) if self.browser else 0.0)
+        """CPU seconds of the view server and of the browser with all its processes."""
+        browser = _tree_cpu_s(self.browser.pid) if self.browser else 0.0
+        return _proc_cpu_s(self.proc.pid) + browser
 
     def stop(self) -> None:
         if self.browser is not None:
@@ -486,6 +488,23 @@ def _proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _tree_cpu_s(pid: int) -> float:
+    """CPU seconds of a live process and all its live descendants."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                parents[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+    tree, grew = {pid}, True
+    while grew:
+        new = {p for p, parent in parents.items() if parent in tree and p not in tree}
+        tree |= new
+        grew = bool(new)
+    return sum(_proc_cpu_s(p) for p in tree)
+
+
 def _machine_ticks() -> tuple[int, int]:
     """(busy, total) jiffies over all CPUs from /proc/stat."""
     values = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
@@ -560,7 +579,9 @@ def trial(pool: _Pool, mission: Mission, steps: int, period: float, tmp: Path, v
         "swarm_cores": sum(r["cpu_s"] for r in results) / wall,
         "router_cores": (r1 - r0) / wall,
         "machine_busy_cores": cores * (b1 - b0) / max(1, t1 - t0),
-        "viewer": {**seen, "cores": seen["cpu_s"] / wall} if seen else None,
+        "viewer": {**seen, "cores": seen["cpu_s"] / wall, "cpu_ms_per_step": 1e3 * seen["cpu_s"] / steps}
+        if seen
+        else None,
     }
 
 
@@ -778,7 +799,8 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
                     )
                     print("\n".join(_fmt_latency(s)), flush=True)
                     print(
-                        f"  viewer: {v['cores']:.2f} cores, {v['received']} bundles received,"
+                        f"  viewer: {v['cpu_ms_per_step']:.2f} ms of CPU per step ({v['cores']:.2f} cores),"
+                        f" {v['received']} bundles received,"
                         f" step {v['step']} drawn last, {v['malformed']} malformed, {v['late']} late",
                         flush=True,
                     )
