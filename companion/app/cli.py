@@ -113,22 +113,25 @@ def _companion(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from companion.app.launcher import RunOptions, run_mission
 
-    return run_mission(
-        RunOptions(
-            mission_file=Path(args.mission),
-            out=Path(args.out),
-            speedup=args.speedup,
-            lockstep=args.lockstep,
-            steps=args.steps,
-            seed=args.seed,
-            command_mode=args.command_mode,
-            flavour=args.flavour,
-            progress=not args.quiet,
-            keep_going=args.keep_going,
-            view=args.view,
-            view_port=args.view_port,
-        )
+    options = RunOptions(
+        mission_file=Path(args.mission),
+        out=Path(args.out),
+        speedup=args.speedup,
+        lockstep=args.lockstep,
+        steps=args.steps,
+        seed=args.seed,
+        command_mode=args.command_mode,
+        flavour=args.flavour,
+        progress=not args.quiet,
+        keep_going=args.keep_going,
+        view=args.view,
+        view_port=args.view_port,
     )
+    try:
+        return run_mission(options)
+    except RuntimeError as exc:  # a child that did not start (its log is in the message)
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
 
 
 def _view(args: argparse.Namespace) -> int:
