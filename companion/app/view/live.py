@@ -172,4 +172,4 @@ class MeshListener:
         if session is not None:
             session.close()
         for t in self._threads:
-            t.join(10)
+            t.join(self.world.mission.mesh.connect_timeout + 5)  # a client may be inside zenoh.open
