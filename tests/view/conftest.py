@@ -10,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from playwright.sync_api import BrowserContext, sync_playwright
 
 from tests.e2e.conftest import make_mission, procs  # noqa: F401  (fixtures)
 
@@ -30,15 +31,13 @@ CHROMIUM_FLAGS = [
 
 
 @pytest.fixture(scope="module")
-def browser() -> Iterator[object]:
+def browser() -> Iterator[BrowserContext]:
     """Debian's Chromium under Playwright (a fresh profile). Missing: a skip, or under CI a failure."""
     if not CHROMIUM.exists():
         message = f"{CHROMIUM} is missing: `make test` installs it (apt-get install chromium)"
         if os.environ.get("CI") == "true":
             pytest.fail(message)
         pytest.skip(message)
-    from playwright.sync_api import sync_playwright
-
     profile = tempfile.mkdtemp(prefix="uavsearch-chromium-")
     with sync_playwright() as p:
         context = p.chromium.launch_persistent_context(

@@ -23,15 +23,17 @@ import struct
 import sys
 import time
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import zenoh
 from PIL import Image
+from playwright.sync_api import BrowserContext, Page
 
 from companion.node.mesh import Bundle, encode_bundle, key_base
 from companion.node.zenoh_config import peer_config
-from tests.e2e.conftest import PY, STARTUP_S, Proc, Procs
+from tests.e2e.conftest import PY, STARTUP_S, MissionFile, Proc, Procs
 
 STEPS = 300
 REPLAY_STEP = 150
@@ -53,7 +55,7 @@ def _url_after(proc: Proc, text: str) -> str:
 ROWS = "() => [...document.querySelectorAll('#uavs tbody tr')].map(tr => ({...tr.dataset}))"
 
 
-def _frozen(page, shot: Path) -> tuple[list[dict[str, str]], dict[str, float]]:  # type: ignore[no-untyped-def]
+def _frozen(page: Page, shot: Path) -> tuple[list[dict[str, str]], dict]:
     """Stop following the live mesh, let the page draw, screenshot it; the UAV table's rows and
     where the map's world-to-screen transform puts (x, y): screen (left + ox + s x, top + oy - s y)."""
     page.locator("#follow").uncheck()
@@ -72,7 +74,7 @@ def _log(out: Path, uav: int) -> dict[int, dict[str, str]]:
         return {int(r["step"]): r for r in csv.DictReader(f)}
 
 
-def _colour_at(shot: Path, screen: dict[str, float], x: float, y: float) -> tuple[int, ...]:
+def _colour_at(shot: Path, screen: dict, x: float, y: float) -> tuple[int, ...]:
     """The screenshot's colour where the map draws the world point (x, y)."""
     with Image.open(shot) as img:
         return img.convert("RGB").getpixel(
@@ -113,8 +115,8 @@ def _keep(shots: list[Path]) -> None:
 
 
 def test_live_map_of_a_flying_swarm_and_its_replay(
-    make_mission, procs: Procs, browser, tmp_path: Path
-) -> None:  # type: ignore[no-untyped-def]
+    make_mission: Callable[..., MissionFile], procs: Procs, browser: BrowserContext, tmp_path: Path
+) -> None:
     mission = make_mission(n=4, kinematics="grid")
     m = mission.mission
     base = key_base(m)

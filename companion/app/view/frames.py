@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -25,7 +25,7 @@ class UavPose:
     heading: float
     task: int = -1
     silent: bool = False
-    plan: tuple[tuple[float, float], ...] = field(default=())
+    plan: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(frozen=True)
