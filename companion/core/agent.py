@@ -258,7 +258,9 @@ class Agent:
 
     # -- mission planning ----------------------------------------------------------------------
     def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> tuple[float, ...]:
-        """Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21): complete or too costly."""
+        """Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21: complete or too costly)
+        and, when it holds a task, for tasks not worth more than the task it holds (Algorithm 2's
+        greedy bidder would not take them: lines 10-11)."""
         w, tess = self.world, self.world.tessellation
         assert tess is not None
         a = w.mission.algorithm
@@ -267,24 +269,35 @@ class Agent:
             return ()
         cost = total_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs)
         reward = rewards(self.eta * w.prior, cost, tess)
-        return tuple(np.where(done | (cost > a.c_max), 0.0, reward).tolist())
+        worthless = done | (cost > a.c_max)
+        if self.task >= 0:
+            worthless |= reward <= reward[self.task]
+        return tuple(np.where(worthless, 0.0, reward).tolist())
 
     def _plan_task(self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict) -> bool:
-        """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step."""
+        """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step.
+
+        Every UAV is a greedy bidder (Algorithm 2): it announces its rewards at step k (`BidsMsg`),
+        and at k+1 runs the local auction over the bids it heard, the tasks held by the UAVs it knows
+        of removed; a task it wins replaces the one it holds (its bids already exclude tasks worth
+        less). The held task is then reevaluated (eqs. 20-21) and dropped on a conflicting claim of
+        a higher priority."""
         w, tess = self.world, self.world.tessellation
         assert tess is not None
         a = w.mission.algorithm
-        if self.task < 0 and self.bids is not None and self.bid_stamp == k - 1:
+        if self.bids is not None and self.bid_stamp == k - 1:
             bidders = [self.uav, *sorted(bids)]
             table = np.array([self.bids, *(bids[u] for u in sorted(bids))])
             available = np.ones(tess.n_tasks, dtype=bool)
-            for u, s in self.peers.items():
-                if s.task >= 0 and u not in bids:
+            for s in self.peers.values():
+                if s.task >= 0:
                     available[s.task] = False
+            if self.task >= 0:
+                available[self.task] = False
             won = local_auction(bidders, table, available).get(self.uav)
             if won is not None:
                 self.task, self.task_reward = won
-        elif self.task >= 0:
+        if self.task >= 0:
             mine = claim_priority(self.task_reward, self.uav)
             lost = any(
                 s.task == self.task and claim_priority(s.task_reward, u) > mine for u, s in self.peers.items()
@@ -297,10 +310,9 @@ class Agent:
             if lost or not keep_task(completion, cost, a.v_max, a.c_max):
                 self.task, self.task_reward = -1, 0.0
         self.bids = None
-        if self.task < 0:
-            bids = self._my_bids(position, mst_nbrs)
-            if max(bids, default=0.0) > 0:  # nothing left to win: no auction
-                self.bids, self.bid_stamp = bids, k
+        bids = self._my_bids(position, mst_nbrs)
+        if max(bids, default=0.0) > 0:  # nothing left to win: no auction
+            self.bids, self.bid_stamp = bids, k
         return self.bids is not None
 
     # -- step ----------------------------------------------------------------------------------
