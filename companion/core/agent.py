@@ -39,7 +39,7 @@ from companion.core.messages import (
     StateMsg,
     UavState,
 )
-from companion.core.rhc import choose_grid_path, choose_path
+from companion.core.rhc import rank_candidates, rank_grid_candidates
 from companion.core.tasks import keep_task, rewards, task_completion, total_cost
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.uncertainty import apply_looks, mark_seen
@@ -362,7 +362,8 @@ class Agent:
         announce = self._plan_task(k, nxt, mst_now, bids) if self.algorithm == "proposed" else False
         safety.update_parents(k, np.array([obs.x, obs.y]))
 
-        # RHC: eq. 24 over every path of eq. 23 that the safety layer allows, eq. 22 picks the best
+        # RHC: eq. 24 over every path of eq. 23, best first (eq. 22); the safety layer takes the first
+        # it allows
         if self.algorithm == "no-ta":
             self._values[:-1] = self.eta * w.prior
         elif self.phi is not None:
@@ -372,13 +373,11 @@ class Agent:
             region = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
         else:
             region = (-1, nxt, 1.0)
-        sides = safety.candidate_sides(k, (x1, y1, h1))
         c = m.comms
-        limits = (
+        rest = (
             a.delta,
             a.chi,
             nbr_tracks,
-            sides,
             (c.range, c.attraction, c.safety, c.repulsion),
             grid.region.normals,
             grid.region.offsets,
@@ -386,21 +385,22 @@ class Agent:
         )
         if w.kinematics.mode == "grid":
             offsets = w.paths.offsets_from(h1)
-            best, path = choose_grid_path(
+            order, pts = rank_grid_candidates(
                 x1, y1, offsets, grid.x0, grid.y0, grid.lattice, grid.fov_table, self._values,
-                self._labels, *region, *limits,
+                self._labels, *region, *rest,
             )  # fmt: skip
         else:
             pts = w.paths.expand(x1, y1, h1)
             cells, fov, prefix = self._continuous_path_cells(pts)
             labels = self._labels[cells] if region[0] >= 0 else cells  # cell -1 reads the trailing -1
-            best = choose_path(pts, fov, prefix, self._values, labels, *region, *limits)
-            path = pts[max(best, 0)]
+            order = rank_candidates(pts, fov, prefix, self._values, labels, *region, *rest)
+        best, side = safety.first_allowed(k, (x1, y1, h1), order)
+        path = pts[max(best, 0)]
 
         horizon, turn = self._horizon, float(inforce.turns[0])
         if best >= 0:
             turns = tuple(w.paths.sequences[best].tolist())
-            proposal = Trajectory(k + 1, x1, y1, h1, turns, int(sides[best]))
+            proposal = Trajectory(k + 1, x1, y1, h1, turns, side)
             plan = ((x1, y1), *map(tuple, path[: horizon - 1].tolist()))
             plan_headings = (h1, *w.paths.headings_along(h1, best)[: horizon - 1])
         else:
