@@ -12,23 +12,25 @@ from companion.mission import MissionError, load_mission
 
 
 def _mc(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import compare
 
     mission = load_mission(args.mission)
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
     seed = mission.seed if args.seed is None else args.seed
     steps = args.steps or mission.steps
-    summary = compare(
-        mission,
-        algorithms,
-        args.runs,
-        steps,
-        seed,
-        Path(args.out),
-        args.workers,
-        args.save_trajectories,
-        not args.quiet,
-    )
+    with open_executor(args.scheduler, args.workers) as executor:
+        summary = compare(
+            mission,
+            algorithms,
+            args.runs,
+            steps,
+            seed,
+            Path(args.out),
+            executor,
+            args.save_trajectories,
+            not args.quiet,
+        )
     _print_summary(summary)
     print(f"wrote {args.out}/summary.json, runs.csv, curves.csv and plots")
     return 0
@@ -67,21 +69,24 @@ def _print_summary(summary: dict) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import sweep, sweep_values
 
     mission = load_mission(args.mission)
     seed = mission.seed if args.seed is None else args.seed
-    points = sweep(
-        mission,
-        args.param,
-        sweep_values(args.values),
-        args.runs,
-        args.steps or mission.steps,
-        seed,
-        Path(args.out),
-        args.workers,
-        not args.quiet,
-    )
+    values = sweep_values(args.values)
+    with open_executor(args.scheduler, args.workers) as executor:
+        points = sweep(
+            mission,
+            args.param,
+            values,
+            args.runs,
+            args.steps or mission.steps,
+            seed,
+            Path(args.out),
+            executor,
+            not args.quiet,
+        )
     for p in points:
         print(
             f"{args.param}={p[args.param]}: mean target time {p['mean_target_time']:.1f}, "
@@ -92,10 +97,12 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import bench, format_bench
 
     missions = [load_mission(m) for m in args.missions]
-    result = bench(missions, args.runs, args.steps, args.seed, args.workers, args.study_runs)
+    with open_executor(args.scheduler, args.workers) as executor:
+        result = bench(missions, args.runs, args.steps, args.seed, executor, args.study_runs)
     print(format_bench(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
@@ -152,6 +159,17 @@ def _companion_bench(args: argparse.Namespace) -> int:
     return bench_main(args.args)
 
 
+def _add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="tcp://HOST:PORT",
+        help="run on the workers of this Dask scheduler instead of local processes (README: cluster)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uavsearch", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -163,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--steps", type=int, default=None, help="sampling moments per run (default: mission)")
     mc.add_argument("--seed", type=int, default=None, help="default: the mission's seed")
     mc.add_argument("--out", default="out/mc")
-    mc.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    _add_executor_arguments(mc)
     mc.add_argument("--save-trajectories", action="store_true")
     mc.add_argument("--quiet", action="store_true", help="no progress bar")
     mc.set_defaults(func=_mc)
@@ -176,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--steps", type=int, default=None)
     sw.add_argument("--seed", type=int, default=None)
     sw.add_argument("--out", default="out/sweep")
-    sw.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(sw)
     sw.add_argument("--quiet", action="store_true")
     sw.set_defaults(func=_sweep)
 
@@ -185,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--runs", type=int, default=3)
     be.add_argument("--steps", type=int, default=1000)
     be.add_argument("--seed", type=int, default=1)
-    be.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(be)
     be.add_argument(
         "--study-runs", type=int, default=8, help="runs per mission and algorithm in the throughput"
     )
