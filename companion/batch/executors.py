@@ -36,6 +36,10 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
+class ClusterError(RuntimeError):
+    """The cluster could not finish a map: its scheduler was lost, or a run kept killing workers."""
+
+
 class RunExecutor(Protocol):
     """Maps a function over items on some set of processes."""
 
@@ -184,6 +188,9 @@ class DaskCluster:
             raise ValueError(f"cannot reach the Dask scheduler at {address}: {exc}") from exc
         try:
             self._check_workers(worker_timeout)
+        except OSError as exc:
+            self.client.close()
+            raise ClusterError(f"lost the Dask scheduler at {address}: {exc}") from exc
         except BaseException:
             self.client.close()
             raise
@@ -215,7 +222,7 @@ class DaskCluster:
             )
 
     def imap_unordered(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
-        from distributed import as_completed
+        from distributed import KilledWorker, as_completed
 
         size = _chunk_size(len(items), self.workers)
         indexed = list(enumerate(items))
@@ -236,13 +243,15 @@ class DaskCluster:
         try:
             with _sigterm_interrupts():
                 for future, pairs in done:
-                    if future.status != "finished":  # cancelled: the scheduler lost it
-                        raise RuntimeError(f"Dask task {future.key} came back {future.status}")
+                    if future.status != "finished":  # cancelled: the connection to the scheduler is lost
+                        raise ClusterError(f"lost the Dask scheduler at {self.address} mid-study")
                     in_flight.pop(future.key).release()  # its result leaves the cluster's memory
                     following = next(numbered, None)
                     if following is not None:
                         done.add(submit(*following))
                     yield from pairs
+        except KilledWorker as exc:  # a task outlived `allowed-failures` workers
+            raise ClusterError(f"Dask gave up on a task: {exc}") from exc
         finally:
             if in_flight:
                 self.client.cancel(list(in_flight.values()))
