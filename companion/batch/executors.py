@@ -22,7 +22,7 @@ import threading
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from functools import partial
+from functools import cache, partial
 from importlib.metadata import version
 from itertools import islice
 from pathlib import Path
@@ -88,10 +88,6 @@ def _chunk_size(n: int, workers: int) -> int:
     return max(1, min(8, n // (4 * workers)))
 
 
-def _run_chunk(fn: Callable[[T], R], chunk: list[tuple[int, T]]) -> list[tuple[int, R]]:
-    return [(i, fn(item)) for i, item in chunk]
-
-
 def _indexed(fn: Callable[[T], R], pair: tuple[int, T]) -> tuple[int, R]:
     return pair[0], fn(pair[1])
 
@@ -150,6 +146,7 @@ class LocalPool:
 RUN_LIBRARIES = ("numpy", "scipy", "numba", "msgspec")  # what a run computes with, besides `companion`
 
 
+@cache
 def code_fingerprint() -> str:
     """SHA-256 of the `companion` package's sources and the versions of `RUN_LIBRARIES`: equal on
     two machines when they compute the same runs."""
@@ -162,11 +159,29 @@ def code_fingerprint() -> str:
     return digest.hexdigest()
 
 
+def _run_chunk(fn: Callable[[T], R], fingerprint: str, chunk: list[tuple[int, T]]) -> list[tuple[int, R]]:
+    """A Dask task: a few consecutive items, on a worker that runs the study's code."""
+    if code_fingerprint() != fingerprint:  # a worker that joined after `DaskCluster` checked them
+        from distributed import get_worker
+
+        raise _other_code([get_worker().address])
+    return [(i, fn(item)) for i, item in chunk]
+
+
+def _other_code(workers: list[str]) -> ValueError:
+    return ValueError(
+        f"Dask workers {', '.join(workers)} run other uavsearch code or other versions of "
+        f"{', '.join(RUN_LIBRARIES)} than this machine (install the same everywhere, or the "
+        "results would differ)"
+    )
+
+
 class DaskCluster:
     """The workers of a running Dask scheduler (`dask scheduler`, `dask worker ADDRESS --nthreads 1`).
 
     Connecting waits up to `worker_timeout` s for a first worker and checks that every worker runs
-    this machine's `companion` code (`code_fingerprint`). A map keeps a bounded window of tasks
+    this machine's `companion` code (`code_fingerprint`); every task checks it again on its worker
+    (workers may join later). A map keeps a bounded window of tasks
     (chunks of consecutive items) on the cluster and submits the next as each one comes back, so a
     study of any size costs the scheduler and this process little memory.
     """
@@ -212,14 +227,9 @@ class DaskCluster:
                 f"a Dask worker of {self.address} cannot run uavsearch ({type(exc).__name__}: {exc}); "
                 "install the project on every worker machine"
             ) from exc
-        ours = code_fingerprint()
-        other = sorted(w for w, fingerprint in found.items() if fingerprint != ours)
+        other = sorted(w for w, fingerprint in found.items() if fingerprint != code_fingerprint())
         if other:
-            raise ValueError(
-                f"Dask workers {', '.join(other)} run other uavsearch code or other versions of "
-                f"{', '.join(RUN_LIBRARIES)} than this machine (install the same everywhere, or the "
-                "results would differ)"
-            )
+            raise _other_code(other)
 
     def imap_unordered(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
         from distributed import KilledWorker, as_completed
@@ -227,7 +237,7 @@ class DaskCluster:
         size = _chunk_size(len(items), self.workers)
         indexed = list(enumerate(items))
         numbered = enumerate(indexed[s : s + size] for s in range(0, len(indexed), size))
-        task = partial(_run_chunk, fn)
+        task = partial(_run_chunk, fn, code_fingerprint())
         batch = f"{fn.__name__}-{uuid.uuid4().hex}"
         in_flight: dict[str, Future] = {}
 

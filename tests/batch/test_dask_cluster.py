@@ -191,13 +191,26 @@ def test_a_worker_killed_mid_study_loses_no_run_and_counts_none_twice(cluster: C
 
 
 def test_a_worker_with_other_code_is_refused(cluster: Cluster, tmp_path: Path) -> None:
-    """A worker that would compute other results (here: a changed source file) stops the study."""
+    """A worker that would compute other results (here: a changed source file) stops the study,
+    whether it joins after the study started or was there before."""
     other = tmp_path / "other"
     shutil.copytree(ROOT / "companion", other / "companion", ignore=shutil.ignore_patterns("__pycache__"))
     with (other / "companion/core/rhc.py").open("a") as f:
         f.write("# changed\n")
-    stranger = cluster.start_worker("stranger", env=os.environ | {"PYTHONPATH": str(other)})
-    with pytest.raises(ValueError, match=f"Dask workers {stranger} run other uavsearch code"):
+    specs = specs_for(
+        load_mission(ROOT / "mission_files/scenario1.toml"), ["proposed"], 2, 5, 1, lambda r: False
+    )
+    executor = DaskCluster(cluster.address)
+    try:
+        for proc in cluster.workers.values():  # the late stranger gets every task
+            _stop(proc)
+        stranger = cluster.start_worker("stranger", env=os.environ | {"PYTHONPATH": str(other)})
+        refused = f"Dask workers {stranger} run other uavsearch code"
+        with pytest.raises(ValueError, match=refused):
+            list(executor.imap_unordered(execute, specs))
+    finally:
+        executor.close()
+    with pytest.raises(ValueError, match=refused):
         DaskCluster(cluster.address)
 
 
