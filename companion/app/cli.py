@@ -110,6 +110,20 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cluster_bench(args: argparse.Namespace) -> int:
+    from companion.bench.cluster_bench import cluster_bench, format_cluster_bench
+
+    missions = [load_mission(m) for m in args.missions]
+    workers = [int(w) for w in args.workers.split(",") if w.strip()]
+    if not workers or min(workers) < 1:
+        raise ValueError(f"--workers {args.workers!r}: give worker counts of at least 1, e.g. 1,2")
+    rows = cluster_bench(missions, workers, args.study_runs, args.steps, args.seed)
+    print(format_cluster_bench(rows))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
 def _companion(args: argparse.Namespace) -> int:
     from companion.node.main import run_companion
 
@@ -210,6 +224,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
     be.set_defaults(func=_bench)
+
+    cl = sub.add_parser(
+        "cluster-bench", help="Monte Carlo throughput: local pool against a Dask cluster on loopback"
+    )
+    cl.add_argument("--missions", nargs="+", default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)])
+    cl.add_argument("--workers", default="1,2", help="worker counts, e.g. 1,2")
+    cl.add_argument("--study-runs", type=int, default=20, help="runs per mission and algorithm")
+    cl.add_argument("--steps", type=int, default=1000)
+    cl.add_argument("--seed", type=int, default=1)
+    cl.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    cl.set_defaults(func=_cluster_bench)
 
     from companion.node.process import COMMAND_MODES
 

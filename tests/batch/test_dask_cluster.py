@@ -11,15 +11,14 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from distributed import Client
 
 from companion.batch.engine import RunResult
 from companion.batch.executors import DaskCluster
 from companion.batch.montecarlo import execute, run_specs, specs_for, summarize
+from companion.bench.loopback_cluster import LoopbackCluster, stop
 from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -27,86 +26,13 @@ ALGORITHMS = ("proposed", "no-ta", "pheromone")
 TIMING = {"seconds_per_1000_steps", "seconds"}  # compute times: the only fields allowed to differ
 
 
-@dataclass
-class Cluster:
-    tmp: Path
-    scheduler_file: Path
-    client: Client  # the test's own view of the cluster
-    procs: list[subprocess.Popen]  # everything started, stopped by the fixture
-    workers: dict[str, subprocess.Popen]  # by worker address
-
-    @property
-    def address(self) -> str:
-        return self.client.scheduler.address
-
-    def start_worker(self, name: str, env: dict[str, str] | None = None) -> str:
-        """One single-threaded worker without a nanny (killed, it stays dead); its address."""
-        known = set(self.client.nthreads())
-        proc = _dask(
-            self.tmp,
-            name,
-            "worker",
-            "--scheduler-file",
-            str(self.scheduler_file),
-            "--nthreads",
-            "1",
-            "--no-nanny",
-            "--name",
-            name,
-            "--local-directory",
-            str(self.tmp / name),
-            env=env,
-        )
-        self.procs.append(proc)
-        self.client.wait_for_workers(len(known) + 1, timeout=120)
-        (address,) = set(self.client.nthreads()) - known
-        self.workers[address] = proc
-        return address
-
-
-def _dask(tmp: Path, name: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
-    log = (tmp / f"{name}.log").open("w")
-    return subprocess.Popen(
-        [sys.executable, "-m", "dask", *args, "--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0"],
-        cwd=tmp,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        env=env,
-    )
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 @pytest.fixture
-def cluster(tmp_path: Path) -> Iterator[Cluster]:
-    """A scheduler on loopback and two workers."""
-    scheduler_file = tmp_path / "scheduler.json"
-    procs = [
-        _dask(tmp_path, "scheduler", "scheduler", "--port", "0", "--scheduler-file", str(scheduler_file))
-    ]
-    client: Client | None = None
-    try:
-        deadline = time.monotonic() + 120
-        while not scheduler_file.exists() and time.monotonic() < deadline:
-            time.sleep(0.2)
-        client = Client(scheduler_file=str(scheduler_file), timeout=120, set_as_default=False)
-        cluster = Cluster(tmp_path, scheduler_file, client, procs, {})
+def cluster(tmp_path: Path) -> Iterator[LoopbackCluster]:
+    """A scheduler on loopback and two workers (one thread each, no nanny: killed, a worker stays dead)."""
+    with LoopbackCluster(tmp_path) as cluster:
         for i in range(2):
             cluster.start_worker(f"worker{i}")
         yield cluster
-    finally:
-        if client is not None:
-            client.close()
-        for proc in reversed(procs):
-            _stop(proc)
 
 
 def _uavsearch(*args: str) -> subprocess.CompletedProcess[str]:
@@ -132,7 +58,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return [{k: v for k, v in row.items() if k not in TIMING} for row in csv.DictReader(f)]
 
 
-def test_mc_and_sweep_on_the_cluster_equal_the_local_pool(cluster: Cluster, tmp_path: Path) -> None:
+def test_mc_and_sweep_on_the_cluster_equal_the_local_pool(cluster: LoopbackCluster, tmp_path: Path) -> None:
     study = ["--mission", "mission_files/scenario1.toml", "--runs", "3", "--steps", "40", "--seed", "3"]
     _ok(_uavsearch("mc", *study, "--out", str(tmp_path / "local"), "--workers", "2"))
     _ok(_uavsearch("mc", *study, "--out", str(tmp_path / "dask"), "--scheduler", cluster.address))
@@ -158,7 +84,7 @@ def _summaries(results: list[RunResult], runs: int) -> dict:
     )
 
 
-def test_a_worker_killed_mid_study_loses_no_run_and_counts_none_twice(cluster: Cluster) -> None:
+def test_a_worker_killed_mid_study_loses_no_run_and_counts_none_twice(cluster: LoopbackCluster) -> None:
     mission = load_mission(ROOT / "mission_files/scenario1.toml")
     runs = 16
     specs = specs_for(mission, ALGORITHMS, runs, 200, 11, lambda r: False)
@@ -190,7 +116,7 @@ def test_a_worker_killed_mid_study_loses_no_run_and_counts_none_twice(cluster: C
     assert all(_summaries(remote, runs)[a]["runs"] == runs for a in ALGORITHMS)
 
 
-def test_a_worker_with_other_code_is_refused(cluster: Cluster, tmp_path: Path) -> None:
+def test_a_worker_with_other_code_is_refused(cluster: LoopbackCluster, tmp_path: Path) -> None:
     """A worker that would compute other results (here: a changed source file) stops the study,
     whether it joins after the study started or was there before."""
     other = tmp_path / "other"
@@ -203,7 +129,7 @@ def test_a_worker_with_other_code_is_refused(cluster: Cluster, tmp_path: Path) -
     executor = DaskCluster(cluster.address)
     try:
         for proc in cluster.workers.values():  # the late stranger gets every task
-            _stop(proc)
+            stop(proc)
         stranger = cluster.start_worker("stranger", env=os.environ | {"PYTHONPATH": str(other)})
         refused = f"Dask workers {stranger} run other uavsearch code"
         with pytest.raises(ValueError, match=refused):
