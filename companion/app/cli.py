@@ -114,7 +114,10 @@ def _cluster_bench(args: argparse.Namespace) -> int:
     from companion.bench.cluster_bench import cluster_bench, format_cluster_bench
 
     missions = [load_mission(m) for m in args.missions]
-    workers = [int(w) for w in args.workers.split(",") if w.strip()]
+    try:
+        workers = [int(w) for w in args.workers.split(",") if w.strip()]
+    except ValueError:
+        workers = []
     if not workers or min(workers) < 1:
         raise ValueError(f"--workers {args.workers!r}: give worker counts of at least 1, e.g. 1,2")
     rows = cluster_bench(missions, workers, args.study_runs, args.steps, args.seed)
