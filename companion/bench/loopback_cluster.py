@@ -61,8 +61,12 @@ class LoopbackCluster:
             str(self.directory / name),
             env=env,
         )
-        self.client.wait_for_workers(len(known) + 1, timeout=STARTUP_S)
-        (address,) = set(self.client.nthreads()) - known
+        deadline = time.monotonic() + STARTUP_S
+        while not (new := set(self.client.nthreads()) - known):
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"dask worker {name} did not join (see {self.directory / name}.log)")
+            time.sleep(0.1)
+        (address,) = new
         self.workers[address] = proc
         return address
 
