@@ -7,7 +7,7 @@ STUDY_RUNS ?= 1000
 STUDY_OUT ?= out/study
 SWEEP_RUNS ?= 50
 
-.PHONY: install run mc study test bench clean
+.PHONY: install browser run mc study test bench clean
 
 $(BIN)/uavsearch: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -38,7 +38,17 @@ study: install
 	$(BIN)/uavsearch sweep --mission mission_files/scenario2.toml --param n_g \
 		--values 10,20,30,40,50,60,70,80,90 --runs $(SWEEP_RUNS) --steps 1000 --seed 1 --out $(STUDY_OUT)/sweep_n_g
 
-test: install
+# The view's browser tests drive Debian's Chromium (Playwright cannot download browsers here).
+browser:
+	@if [ ! -x /usr/bin/chromium ]; then \
+		if [ "$$(id -u)" = 0 ]; then \
+			apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+		else \
+			echo "warning: /usr/bin/chromium is missing (as root: apt-get install chromium); the browser tests will be skipped"; \
+		fi; \
+	fi
+
+test: install browser
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 

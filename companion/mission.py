@@ -10,10 +10,12 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Literal
 
 import msgspec
+import numpy as np
 
 ALGORITHMS = ("proposed", "no-ta", "pheromone")
 
@@ -52,11 +54,13 @@ class Region(_Base, kw_only=True):
 
 
 class Centre(_Base, kw_only=True):
-    """A distribution centre of eq. 1; `peak` is Pr_{p,z} at the centre (K_z / (sqrt(2 pi) sigma))."""
+    """A distribution centre of eq. 1; `peak` is Pr_{p,z} at the centre (K_z / (sqrt(2 pi) sigma));
+    `sigma` is this centre's spread (default: the prior's `sigma`)."""
 
     x: float
     y: float
     peak: Annotated[float, msgspec.Meta(gt=0, le=1)]
+    sigma: Positive | None = None
 
 
 class Prior(_Base, kw_only=True):
@@ -92,6 +96,22 @@ class Comms(_Base, kw_only=True):
     repulsion: Positive
     loss: Probability = 0.0
     peer_timeout_steps: Annotated[int, msgspec.Meta(ge=1)] = 5
+
+
+class Safety(_Base, kw_only=True):
+    """The safety layer (docs/algorithm.md, "Safety layer").
+
+    `margin`: the operating margin (m): the fence is the region with every edge pushed out by it;
+    UAVs search inside the region and may turn outside it, never beyond the fence.
+    `buffer`: metres added to R_s (and taken from R_c) in every check, for tracking error.
+    `failsafe_reach`: how far (m) from its last report a UAV whose companion fell silent may fly
+    before its autopilot's failsafe holds it (default: from the simulator's guidance timeout and
+    loiter radius, see `companion.core.world.failsafe_reach`).
+    """
+
+    margin: NonNegative = 100.0
+    buffer: NonNegative = 5.0
+    failsafe_reach: NonNegative | None = None
 
 
 class Uncertainty(_Base, kw_only=True):
@@ -182,6 +202,7 @@ class Mission(_Base, kw_only=True):
     sensor: Sensor
     kinematics: Kinematics
     comms: Comms
+    safety: Safety = Safety()
     uncertainty: Uncertainty = Uncertainty()
     algorithm: Algorithm = Algorithm()
     vehicles: list[Vehicle]
@@ -285,6 +306,48 @@ def _validate(m: Mission, source: str) -> None:
         fail("vehicles", f"two vehicles share a MAVLink port: {ports}")
     if math.isclose(m.region.cell_size, 0):
         fail("region.cell_size", "must be positive")
+    _validate_start(m, fail)
+
+
+def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
+    """The safety layer's preconditions: a margin the UAVs can turn back in, and a start layout
+    that is separated, connected and admits a contingency for every UAV (core.safety)."""
+    from companion.core import safety  # local: keep module import light
+    from companion.core.world import build_grid, build_kinematics, build_safety
+
+    kin = build_kinematics(m)
+    horizon = m.algorithm.horizon
+    need = safety.minimum_margin(kin, horizon)
+    if m.safety.margin < need:
+        fail(
+            "safety.margin",
+            f"{m.safety.margin:g} m is too small: a UAV at the region's edge needs {need:.1f} m beyond it "
+            f"to turn back (turn limit {m.kinematics.turn_limit_deg:g} deg per {m.kinematics.step:g} s step)",
+        )
+    c, buffer = m.comms, m.safety.buffer
+    poses = [(v.x, v.y) for v in m.vehicles]
+    for i in range(len(poses)):
+        for j in range(i + 1, len(poses)):
+            d = math.dist(poses[i], poses[j])
+            if d <= c.safety + buffer:
+                fail(
+                    "vehicles",
+                    f"vehicles {i} and {j} start {d:.1f} m apart, within the safety distance "
+                    f"R_s + safety.buffer = {c.safety + buffer:g} m",
+                )
+    link = c.range - buffer
+    _, parents = safety.tether_tree(np.array(poses, dtype=float), link)
+    apart = [i for i, p in enumerate(parents) if p < 0 and i > 0]
+    if apart:
+        fail(
+            "vehicles",
+            f"the start layout is not connected: vehicles {apart} (and any linked to them) are not within "
+            f"R_c - safety.buffer = {link:g} m of the others",
+        )
+    try:
+        build_safety(m, kin, build_grid(m).region, kin.turn_sequences(horizon)[:0])
+    except ValueError as exc:
+        fail("vehicles", f"the start layout admits no safe start: {exc}")
 
 
 def parse_mission(text: str, source: str = "<mission>") -> Mission:

@@ -7,14 +7,19 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from companion.batch.executors import ClusterError
 from companion.mission import MissionError, load_mission
+
+if TYPE_CHECKING:
+    from companion.batch.generate import Family
 
 
 def _mc(args: argparse.Namespace) -> int:
     from companion.batch.executors import open_executor
     from companion.batch.experiments import compare
+    from companion.batch.report import copy_mission
 
     mission = load_mission(args.mission)
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
@@ -32,6 +37,7 @@ def _mc(args: argparse.Namespace) -> int:
             args.save_trajectories,
             not args.quiet,
         )
+    copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
     print(f"wrote {args.out}/summary.json, runs.csv, curves.csv and plots")
     return 0
@@ -127,6 +133,58 @@ def _cluster_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _family(args: argparse.Namespace) -> Family:
+    """The mission family of `generate`/`soak` from the command line's ranges."""
+    from companion.batch.generate import Family
+
+    def span(text: str, kind: type) -> tuple:
+        lo, _, hi = text.partition("-")
+        return kind(lo), kind(hi or lo)
+
+    return Family(
+        uavs=span(args.uavs, int),
+        across=span(args.across, float),
+        centres=span(args.centres, int),
+        targets=span(args.targets, int),
+        layouts=tuple(args.layouts.split(",")),
+        modes=tuple(args.modes.split(",")),
+        steps=args.steps,
+    )
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from companion.batch.generate import generate, write
+
+    paths = write(generate(args.count, args.seed, _family(args)), Path(args.out))
+    print(f"wrote {len(paths)} missions to {args.out}/")
+    return 0
+
+
+def _soak(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from companion.batch.soak import soak, soak_specs
+
+    algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
+    specs = soak_specs(args.missions, args.seed, args.steps, algorithms, args.loss, args.kill, _family(args))
+    console = Console(highlight=False)
+    runs = events = 0
+    for row in soak(specs, args.workers):
+        runs += 1
+        events += not row.clean
+        if args.verbose or row.separation_losses or row.link_losses:
+            killed = f" killed {row.killed[0][0]}@{row.killed[0][1]}" if row.killed else ""
+            console.print(
+                f"{row.mission} {row.mode} {row.uavs} UAVs {row.algorithm}{killed}: "
+                f"{row.separation_losses} separation, {row.link_losses} link events, "
+                f"closest approach {row.closest_approach:.1f} m, found {row.targets_found}/{row.targets}",
+                style=None if row.clean else "bold red",
+            )
+    what = "a separation event" if args.kill else "a separation or link event"
+    print(f"{runs} runs of {args.missions} generated missions: {events} with {what}")
+    return 1 if events else 0
+
+
 def _companion(args: argparse.Namespace) -> int:
     from companion.node.main import run_companion
 
@@ -136,20 +194,31 @@ def _companion(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from companion.app.launcher import RunOptions, run_mission
 
-    return run_mission(
-        RunOptions(
-            mission_file=Path(args.mission),
-            out=Path(args.out),
-            speedup=args.speedup,
-            lockstep=args.lockstep,
-            steps=args.steps,
-            seed=args.seed,
-            command_mode=args.command_mode,
-            flavour=args.flavour,
-            progress=not args.quiet,
-            keep_going=args.keep_going,
-        )
+    options = RunOptions(
+        mission_file=Path(args.mission),
+        out=Path(args.out),
+        speedup=args.speedup,
+        lockstep=args.lockstep,
+        steps=args.steps,
+        seed=args.seed,
+        command_mode=args.command_mode,
+        flavour=args.flavour,
+        progress=not args.quiet,
+        keep_going=args.keep_going,
+        view=args.view,
+        view_port=args.view_port,
     )
+    try:
+        return run_mission(options)
+    except RuntimeError as exc:  # a child that did not start (its log is in the message)
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+def _view(args: argparse.Namespace) -> int:
+    from companion.app.view.main import run_view
+
+    return run_view(args)
 
 
 def _router(args: argparse.Namespace) -> int:
@@ -239,6 +308,33 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument("--json", default=None, help="also write the rows to this JSON file")
     cl.set_defaults(func=_cluster_bench)
 
+    def family_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--uavs", default="2-12", help="UAVs per mission (range)")
+        p.add_argument("--across", default="800-4000", help="region size in metres (range)")
+        p.add_argument("--centres", default="1-6", help="distribution centres of eq. 1 (range)")
+        p.add_argument("--targets", default="5-20", help="targets (range)")
+        p.add_argument("--layouts", default="edge,clustered", help="start layouts")
+        p.add_argument("--modes", default="grid,continuous", help="kinematics modes")
+        p.add_argument("--steps", type=int, default=1000, help="sampling moments per run")
+
+    ge = sub.add_parser("generate", help="write generated missions (a family beyond the scenario files)")
+    ge.add_argument("--count", type=int, required=True)
+    ge.add_argument("--seed", type=int, required=True)
+    ge.add_argument("--out", required=True)
+    family_options(ge)
+    ge.set_defaults(func=_generate)
+
+    so = sub.add_parser("soak", help="safety soak: separation and link events on generated missions")
+    so.add_argument("--missions", type=int, default=20)
+    so.add_argument("--seed", type=int, default=1)
+    so.add_argument("--algorithms", default="proposed,no-ta,pheromone")
+    so.add_argument("--loss", type=float, default=0.0, help="message loss probability on the radio")
+    so.add_argument("--kill", action="store_true", help="one companion per mission dies mid-run")
+    so.add_argument("--workers", type=int, default=None)
+    so.add_argument("--verbose", action="store_true", help="print every run, not only those with events")
+    family_options(so)
+    so.set_defaults(func=_soak)
+
     from companion.node.process import COMMAND_MODES
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
@@ -272,7 +368,15 @@ def build_parser() -> argparse.ArgumentParser:
     ru.add_argument(
         "--keep-going", action="store_true", help="fly all the steps even when every target is found"
     )
+    ru.add_argument("--view", action="store_true", help="serve the live map of the swarm (uavsearch view)")
+    ru.add_argument("--view-port", type=int, default=0, help="the live map's port (0: any free port)")
     ru.set_defaults(func=_run)
+
+    from companion.app.view.main import add_arguments as add_view_arguments
+
+    vi = sub.add_parser("view", help="live map of a mission's swarm, or replay of a run, in the browser")
+    add_view_arguments(vi)
+    vi.set_defaults(func=_view)
 
     ro = sub.add_parser("router", help="a Zenoh router for client-mode meshes")
     ro.add_argument("--mission", default=None)

@@ -44,6 +44,8 @@ class RunOptions:
     flavour: str | None = None
     progress: bool = True
     keep_going: bool = False  # fly all the steps even when every target is found
+    view: bool = False  # serve the live map (`uavsearch view`) while the swarm flies
+    view_port: int = 0
 
 
 class Children:
@@ -72,11 +74,14 @@ class Children:
                 proc.wait()
 
 
-def _wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float) -> None:
+def _wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float) -> str:
+    """The first line of `log` holding `text`, once it is there; raises if `proc` exits first."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        if log.exists() and text in log.read_text(errors="replace"):
-            return
+        if log.exists():
+            for line in log.read_text(errors="replace").splitlines():
+                if text in line:
+                    return line
         if proc.poll() is not None:
             raise RuntimeError(
                 f"{log.name}: exited with {proc.returncode}:\n{log.read_text(errors='replace')}"
@@ -140,6 +145,12 @@ def run_mission(opts: RunOptions) -> int:
                 out / "router.log",
             )
             _wait_for_line(out / "router.log", "router listening", router, START_TIMEOUT_S)
+        if opts.view:
+            argv = [py, "-m", "companion.app.cli", "view", "--mission", str(opts.mission_file)]
+            argv += ["--seed", str(seed), "--port", str(opts.view_port)]
+            view = children.start("view", argv, out / "view.log")
+            line = _wait_for_line(out / "view.log", "view at ", view, START_TIMEOUT_S)
+            print(f"live map of the swarm: {line.split('view at ', 1)[1]}", flush=True)
         for i in range(mission.n_uavs):
             argv = [
                 py,
@@ -220,11 +231,16 @@ def run_mission(opts: RunOptions) -> int:
         {"mission": mission.name, "seed": seed, "distributed": True, "lockstep": opts.lockstep},
     )
     report.write_trajectories(out, {name: [result]})
+    report.write_steps(out, {name: [result]})
+    report.write_targets(out, {name: [result]})
+    report.copy_mission(opts.mission_file, out)
     plots.plot_prior(out / "prior_cvt.png", world)
     plots.plot_trajectories(out / "trajectories.png", {name: world}, {name: result})
     plots.plot_uncertainty(out / "uncertainty.png", {name: [result]})
     plots.plot_found(out / "targets_found.png", {name: [result]})
     plots.plot_links(out / "links.png", result, mission.comms.safety)
+    if opts.view:
+        print(f"replay the run with: uavsearch view --replay {out}", flush=True)
     failures = failed_criteria(world, result)
     s = summary[name]
     print(

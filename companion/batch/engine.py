@@ -8,16 +8,18 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import msgspec
 import numpy as np
 from numba import njit
 
-from companion.core.agent import Agent, Command, Observation
+from companion.core.agent import Agent, Observation
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance, pairwise_distances
 from companion.core.messages import Message, decode, encode
 from companion.core.prior import draw_targets
+from companion.core.trajectory import segment_clearance, step_pose
 from companion.core.uncertainty import global_average_uncertainty, mark_seen
 from companion.core.world import Stream, World, build_world, instance_rng
 from companion.mission import Mission
@@ -36,6 +38,9 @@ class RunResult:
     coverage: np.ndarray
     lambda2: np.ndarray
     min_distance: np.ndarray
+    approach: np.ndarray  # closest approach of any pair during [t_k, t_k+1] (between sampling moments)
+    separation_losses: int  # steps during which some pair came within R_s (closest approach)
+    link_losses: int  # sampling moments at which the communication graph was split (lambda_2 = 0)
     target_cells: np.ndarray
     target_steps: np.ndarray  # -1 = never seen
     seconds: float
@@ -77,6 +82,31 @@ def _ground_truth(
     return sees, found, new, algebraic_connectivity(positions, comm_range), min_pair_distance(positions)
 
 
+APPROACH_SUBSTEPS = 8
+
+
+@njit(cache=True)
+def closest_approach(
+    poses: np.ndarray, turns: np.ndarray, grid: bool, speed: float, dt: float, cell: float, substeps: int
+) -> float:
+    """min over pairs of the distance between two UAVs flying eq. 2 from `poses` with `turns` over one
+    step: grid UAVs fly straight between cell centres (exact); continuous UAVs fly arcs, sampled at
+    `substeps` points with straight motion between them (within the sagitta of 1/substeps of a turn)."""
+    n = poses.shape[0]
+    tracks = np.empty((n, substeps + 1, 2))
+    for i in range(n):
+        x, y, h = poses[i, 0], poses[i, 1], poses[i, 2]
+        tracks[i, 0, 0], tracks[i, 0, 1] = x, y
+        for j in range(1, substeps + 1):
+            f = j / substeps
+            tracks[i, j, 0], tracks[i, j, 1], _ = step_pose(x, y, h, turns[i] * f, grid, speed, dt * f, cell)
+    best = math.inf
+    for i in range(n):
+        for j in range(i + 1, n):
+            best = min(best, segment_clearance(tracks[i], tracks[j]))
+    return best
+
+
 class Scorer:
     """Ground-truth metrics of one run, step by step (a target is found when its cell centre is
     within R_A of some UAV): targets found, coverage, lambda_2 and the minimum pairwise distance,
@@ -90,6 +120,7 @@ class Scorer:
         self.covered = np.zeros(world.grid.n_cells, dtype=bool)
         self.n_covered = 0
         self.unc, self.found, self.cov, self.lam, self.mind = (np.zeros(steps) for _ in range(5))
+        self.approach = np.full(steps, np.inf)
 
     def record(self, k: int, positions: np.ndarray, uncertainty: float = math.nan) -> np.ndarray:
         """Score the UAVs at `positions` at step k; returns which UAV sees which target (eq. 3).
@@ -111,8 +142,16 @@ class Scorer:
         self.unc[k] = uncertainty
         return sees
 
+    def record_flight(self, k: int, poses: np.ndarray, turns: np.ndarray) -> None:
+        """The closest approach of any pair while flying the turns from `poses` over [t_k, t_k+1]."""
+        kin = self.world.kinematics
+        grid = kin.mode == "grid"
+        substeps = 1 if grid else APPROACH_SUBSTEPS
+        self.approach[k] = closest_approach(poses, turns, grid, kin.speed, kin.dt, kin.cell_size, substeps)
+
     def result(self, run: int, seed: int, seconds: float, **extra: object) -> RunResult:
         steps = len(self.unc)
+        m = self.world.mission
         return RunResult(
             algorithm=self.world.mission.algorithm.name,
             run=run,
@@ -123,6 +162,9 @@ class Scorer:
             coverage=self.cov,
             lambda2=self.lam,
             min_distance=self.mind,
+            approach=self.approach,
+            separation_losses=int(np.count_nonzero(self.approach <= m.comms.safety)),
+            link_losses=int(np.count_nonzero(self.lam <= 0)) if m.n_uavs > 1 else 0,
             target_cells=self.targets,
             target_steps=self.first,
             seconds=seconds,
@@ -165,10 +207,14 @@ def simulate(
     record: bool = False,
     wire: bool = False,
     world: World | None = None,
+    kills: Mapping[int, int] | None = None,
 ) -> RunResult:
     """One Monte Carlo run of `mission.algorithm` for `steps` sampling moments.
 
-    `wire=True` sends every message through its msgpack encoding, as the mesh does.
+    `wire=True` sends every message through its msgpack encoding, as the mesh does. `kills` maps
+    a UAV to the step at which its companion dies: from then on it sends nothing and its vehicle
+    flies on along its last trajectory in force (plan, then loiter), as an autopilot holding its
+    last guidance would.
     """
     started = time.perf_counter()
     steps = mission.steps if steps is None else steps
@@ -180,23 +226,34 @@ def simulate(
     scorer = Scorer(world, targets, steps)
     poses = initial_poses(mission)
     traj = np.zeros((steps, n, 3)) if record else None
-    tasks = np.zeros((steps, n), dtype=np.int64) if record else None
+    tasks = np.full((steps, n), -1, dtype=np.int64) if record else None
     inboxes: list[list[Message]] = [[] for _ in range(n)]
+    death = {i: d for i, d in (kills or {}).items() if 0 <= i < n}
+    loiter_turn = world.safety.limits.reach.loiter_turn
     for k in range(steps):
         sees = scorer.record(k, poses[:, :2])
-        outputs: list[tuple[Command, list[Message]]] = []
+        turns = np.empty(n)
+        outboxes: list[list[Message]] = []
         seen = sees.any(axis=1).tolist()
         for i, agent in enumerate(agents):
+            if death.get(i, steps) <= k:
+                turns[i] = agent.commitments.inforce.turn_at(k, loiter_turn)
+                outboxes.append([])
+                continue
             x, y, h = poses[i].tolist()
             detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
             obs = Observation(step=k, x=x, y=y, heading=h, detections=detections)
-            outputs.append(agent.step(obs, inboxes[i]))
+            command, outbox = agent.step(obs, inboxes[i])
+            turns[i] = command.turn
+            outboxes.append(outbox)
+            if tasks is not None:
+                tasks[k, i] = command.task
         scorer.unc[k] = global_average_uncertainty([a.eta for a in agents])
-        if traj is not None and tasks is not None:
+        if traj is not None:
             traj[k] = poses
-            tasks[k] = [c.task for c, _ in outputs]
-        inboxes = radio.deliver(poses[:, :2], [out for _, out in outputs])
-        poses = world.kinematics.advance_poses(poses, np.array([c.turn for c, _ in outputs]))
+        inboxes = radio.deliver(poses[:, :2], outboxes)
+        scorer.record_flight(k, poses, turns)
+        poses = world.kinematics.advance_poses(poses, turns)
     return scorer.result(
         run,
         seed,

@@ -26,11 +26,12 @@ class RunSpec:
     run: int
     steps: int
     record: bool = False
+    kills: tuple[tuple[int, int], ...] = ()  # (uav, step its companion dies at): `simulate(kills=...)`
 
 
 def execute(spec: RunSpec) -> RunResult:
     """Run one spec (top level, so that worker processes can import it)."""
-    return simulate(spec.mission, spec.seed, spec.run, spec.steps, record=spec.record)
+    return simulate(spec.mission, spec.seed, spec.run, spec.steps, record=spec.record, kills=dict(spec.kills))
 
 
 def specs_for(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -14,6 +15,8 @@ from companion.batch.engine import RunResult
 from companion.batch.montecarlo import summarize
 
 TRAJECTORY_COLUMNS = ("algorithm", "run", "step", "uav", "x", "y", "heading", "task")
+STEP_COLUMNS = ("algorithm", "run", "step", "uncertainty", "found", "coverage", "lambda2", "min_distance")
+TARGET_COLUMNS = ("algorithm", "run", "cell", "found_step")
 
 
 def write_summary(out: Path, results: Mapping[str, Sequence[RunResult]], extra: dict | None = None) -> dict:
@@ -134,3 +137,47 @@ def write_trajectories(out: Path, results: Mapping[str, Sequence[RunResult]]) ->
                             [name, r.run, k, i, f"{x:.3f}", f"{y:.3f}", f"{h:.6f}", int(r.tasks[k, i])]
                         )
     return written
+
+
+def _recorded(results: Mapping[str, Sequence[RunResult]]) -> list[RunResult]:
+    return [r for runs in results.values() for r in runs if r.trajectory is not None]
+
+
+def write_steps(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
+    """steps.csv for every recorded run: eq. 30, targets found, coverage, lambda_2 and the minimum
+    distance at each step (what `uavsearch view --replay` plots)."""
+    with (out / "steps.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(STEP_COLUMNS)
+        for r in _recorded(results):
+            for k in range(r.steps):
+                w.writerow(
+                    [
+                        r.algorithm,
+                        r.run,
+                        k,
+                        f"{r.uncertainty[k]:.7f}",
+                        int(r.found[k]),
+                        f"{r.coverage[k]:.6f}",
+                        f"{r.lambda2[k]:.6f}",
+                        f"{r.min_distance[k]:.3f}",
+                    ]
+                )
+
+
+def write_targets(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
+    """targets.csv for every recorded run: each ground-truth target's cell and the step it was
+    first seen (-1: never)."""
+    with (out / "targets.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(TARGET_COLUMNS)
+        for r in _recorded(results):
+            for cell, step in zip(r.target_cells.tolist(), r.target_steps.tolist(), strict=True):
+                w.writerow([r.algorithm, r.run, cell, step])
+
+
+def copy_mission(mission: Path, out: Path) -> None:
+    """out/mission.toml: the mission file the output came from (`uavsearch view --replay` reads it)."""
+    target = out / "mission.toml"
+    if not (target.exists() and target.samefile(mission)):
+        shutil.copyfile(mission, target)

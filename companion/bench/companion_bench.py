@@ -9,6 +9,8 @@
    + `Mesh.publish` + packing the MAVLink command (SET_ATTITUDE_TARGET, the default turn-rate
    mode). Poses advance with the core's `Kinematics` and detections come from the batch engine's
    targets, so the swarm flies as in the batch engine.
+   With `--viewer` the same run is repeated with a viewer attached: `uavsearch view`'s live
+   server on the mesh (`viewer` mode of this module) and a headless Chromium showing its page.
 2. **Largest real-time swarm**: N UAVs built from the mission (vehicles on a grid over the region,
    a unique key prefix, free ports), each stepping on the wall clock once per step period, in peer
    mode and in client mode with one router (`python -m companion.node.mesh router`). N grows over
@@ -34,6 +36,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.request
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -276,7 +279,95 @@ def worker_main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def viewer_main(argv: Sequence[str]) -> int:
+    """The view's live server on a trial's mesh (`python -m companion.bench viewer MISSION.json`):
+    prints its URL as a protocol line, serves until SIGINT/SIGTERM."""
+    from companion.app.view.main import warm_kernels
+    from companion.app.view.server import LiveSource, serve
+    from companion.core.world import build_world
+
+    mission = msgspec.json.decode(Path(argv[0]).read_bytes(), type=Mission)
+    warm_kernels()
+    source = LiveSource(build_world(mission, mission.seed, 0), mission.seed)
+    serve(source, "127.0.0.1", 0, lambda address: _reply(op="view", url=address.url, pid=os.getpid()))
+    return 0
+
+
 # -- parent side -----------------------------------------------------------------------------------
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+)
+
+
+class _Viewer:
+    """A viewer on a trial's mesh: the view server, and a headless Chromium on its page (when
+    /usr/bin/chromium exists). Both stopped by PID."""
+
+    def __init__(self, mission_json: Path, log: Path) -> None:
+        self.log = log
+        with log.open("w") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "companion.bench", "viewer", str(mission_json)],
+                stdout=subprocess.PIPE,
+                stderr=err,
+                text=True,
+            )
+        assert self.proc.stdout is not None
+        self.url = ""
+        for line in self.proc.stdout:
+            if line.startswith(TAG):
+                self.url = json.loads(line[len(TAG) :])["url"]
+                break
+        if not self.url:
+            self.stop()
+            raise RuntimeError(f"the view server did not start: {log.read_text(errors='replace')[-500:]}")
+        self.browser: subprocess.Popen | None = None
+        self._profile = tempfile.TemporaryDirectory(prefix="companion-bench-chromium-")
+        if CHROMIUM.exists():
+            self.browser = subprocess.Popen(
+                [str(CHROMIUM), *CHROMIUM_FLAGS, f"--user-data-dir={self._profile.name}", self.url],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+
+    def status(self) -> dict:
+        with urllib.request.urlopen(self.url + "api/status", timeout=10) as r:
+            return json.load(r)
+
+    def wait_attached(self, n: int, timeout: float) -> dict:
+        """Until the server sees all n UAVs alive and (with a browser) the page is connected."""
+        deadline = time.monotonic() + timeout
+        while True:
+            s = self.status()
+            if len(s["alive"]) == n and (self.browser is None or s["pages"] >= 1):
+                return s
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"viewer not attached within {timeout:.0f} s: {s}")
+            time.sleep(0.2)
+
+    def cpu_s(self) -> float:
+        """CPU seconds of the view server and of the browser with all its processes."""
+        browser = _tree_cpu_s(self.browser.pid) if self.browser else 0.0
+        return _proc_cpu_s(self.proc.pid) + browser
+
+    def stop(self) -> None:
+        if self.browser is not None:
+            self.browser.terminate()
+            _reap(self.browser)
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        _reap(self.proc)
+        self._profile.cleanup()
+
+
 class _Worker:
     """A worker subprocess; a thread turns its protocol lines into a queue."""
 
@@ -397,6 +488,23 @@ def _proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _tree_cpu_s(pid: int) -> float:
+    """CPU seconds of a live process and all its live descendants."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                parents[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+    tree, grew = {pid}, True
+    while grew:
+        new = {p for p, parent in parents.items() if parent in tree and p not in tree}
+        tree |= new
+        grew = bool(new)
+    return sum(_proc_cpu_s(p) for p in tree)
+
+
 def _machine_ticks() -> tuple[int, int]:
     """(busy, total) jiffies over all CPUs from /proc/stat."""
     values = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
@@ -417,32 +525,45 @@ def _pct(values: np.ndarray | list[float], q: float) -> float:
     return float(np.percentile(values, q)) if len(values) else math.nan
 
 
-def trial(pool: _Pool, mission: Mission, steps: int, period: float, tmp: Path) -> dict:
-    """Run one trial (lockstep when period == 0) on mission.n_uavs workers; the raw figures."""
+def trial(pool: _Pool, mission: Mission, steps: int, period: float, tmp: Path, viewer: bool = False) -> dict:
+    """Run one trial (lockstep when period == 0) on mission.n_uavs workers; the raw figures.
+    With `viewer`, a `_Viewer` watches the mesh from before the first step to after the last."""
     n = mission.n_uavs
     path = tmp / f"{mission.mesh.key_prefix}.json"
     path.write_bytes(msgspec.json.encode(mission))
     workers = pool.take(n)
     router = _Router(mission.mesh.router) if mission.mesh.mode == "client" else None
+    watcher: _Viewer | None = None
+    seen: dict = {}
     try:
         for i, w in enumerate(workers):
             w.send(op="open", mission=str(path), uav=i, steps=steps, period=period)
         ready = [w.recv("ready", ALIVE_S + 120) for w in workers]
         absent = sum(len(r["missing"]) for r in ready)
+        if viewer:
+            watcher = _Viewer(path, tmp / f"{mission.mesh.key_prefix}-viewer.log")
+            watcher.wait_attached(n, STARTUP_S)
         start = time.time() + 1.0
         b0, t0 = _machine_ticks()
         r0 = _proc_cpu_s(router.proc.pid) if router else 0.0
+        v0 = watcher.cpu_s() if watcher else 0.0
         for w in workers:
             w.send(op="go", start=start)
         budget = steps * (period or 1.0) + 120
         results = [w.recv("result", budget) for w in workers]
         b1, t1 = _machine_ticks()
         r1 = _proc_cpu_s(router.proc.pid) if router else 0.0
+        v1 = watcher.cpu_s() if watcher else 0.0
+        if watcher is not None:
+            time.sleep(1.0)  # the last step closes on the viewer
+            seen = {**watcher.status(), "cpu_s": v1 - v0, "browser": watcher.browser is not None}
         for w in workers:
             w.send(op="close")
         for w in workers:
             w.recv("closed", 60)
     finally:
+        if watcher is not None:
+            watcher.stop()
         if router is not None:
             router.stop()
         path.unlink(missing_ok=True)
@@ -458,6 +579,9 @@ def trial(pool: _Pool, mission: Mission, steps: int, period: float, tmp: Path) -
         "swarm_cores": sum(r["cpu_s"] for r in results) / wall,
         "router_cores": (r1 - r0) / wall,
         "machine_busy_cores": cores * (b1 - b0) / max(1, t1 - t0),
+        "viewer": {**seen, "cores": seen["cpu_s"] / wall, "cpu_ms_per_step": 1e3 * seen["cpu_s"] / steps}
+        if seen
+        else None,
     }
 
 
@@ -506,6 +630,7 @@ def summarize(t: dict) -> dict:
         "swarm_cores": t["swarm_cores"],
         "router_cores": t["router_cores"],
         "machine_busy_cores": t["machine_busy_cores"],
+        "viewer": t.get("viewer"),
     }
 
 
@@ -616,6 +741,11 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--default-runtime", action="store_true", help="do not set the lean ZENOH_RUNTIME for the UAVs"
     )
+    parser.add_argument(
+        "--viewer",
+        action="store_true",
+        help="repeat the latency run with a viewer attached (uavsearch view + headless Chromium)",
+    )
     parser.add_argument("--skip-latency", action="store_true")
     parser.add_argument("--skip-realtime", action="store_true")
     parser.add_argument("--json", type=Path, help="also write every figure to this file")
@@ -658,6 +788,23 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
                 )
                 print("\n".join(_fmt_latency(s)), flush=True)
                 report["latency"] = s
+                if args.viewer:
+                    mission = bench_mission(base, None, "peer", f"{tag}latv")
+                    s = summarize(trial(pool, mission, args.latency_steps, 0.0, Path(tmp), viewer=True))
+                    v = s["viewer"]
+                    print(
+                        "the same with a viewer attached (uavsearch view's live server"
+                        f"{' + headless Chromium on its page' if v['browser'] else ''}):",
+                        flush=True,
+                    )
+                    print("\n".join(_fmt_latency(s)), flush=True)
+                    print(
+                        f"  viewer: {v['cpu_ms_per_step']:.2f} ms of CPU per step ({v['cores']:.2f} cores),"
+                        f" {v['received']} bundles received,"
+                        f" step {v['step']} drawn last, {v['malformed']} malformed, {v['late']} late",
+                        flush=True,
+                    )
+                    report["latency_with_viewer"] = s
             if not args.skip_realtime:
                 report["realtime"] = {}
                 periods = [period] + ([args.stress_period] if args.stress_period > 0 else [])
@@ -683,4 +830,6 @@ def main() -> None:
     """`python -m companion.bench [worker] ...`."""
     if sys.argv[1:2] == ["worker"]:
         sys.exit(worker_main(sys.argv[2:]))
+    if sys.argv[1:2] == ["viewer"]:
+        sys.exit(viewer_main(sys.argv[2:]))
     sys.exit(bench_main(sys.argv[1:]))

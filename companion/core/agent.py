@@ -28,9 +28,9 @@ from numba import njit
 
 from companion.core import pheromone as phero
 from companion.core.auction import claim_priority, local_auction
+from companion.core.commitment import Commitments
 from companion.core.connectivity import kruskal_mst, mst_neighbours
 from companion.core.geometry import FloatArray
-from companion.core.kinematics import reachable_positions
 from companion.core.messages import (
     BidsMsg,
     ClaimsMsg,
@@ -41,6 +41,7 @@ from companion.core.messages import (
 )
 from companion.core.rhc import choose_grid_path, choose_path
 from companion.core.tasks import keep_task, rewards, task_completion, total_cost
+from companion.core.trajectory import Trajectory, step_pose
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
 
@@ -88,36 +89,22 @@ def predict_tracks(seqs: FloatArray, stamps: np.ndarray, first: int, count: int)
 
 
 @njit(cache=True)
-def swarm_view(
-    ids: np.ndarray,
-    table: FloatArray,
-    k: int,
-    position: FloatArray,
-    first_steps: FloatArray,
-    me: int,
-) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
-    """The MST (eq. 26) over this UAV at `position` and the UAVs `ids` it knows of, at t_k.
+def swarm_view(table: FloatArray, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The MST (eq. 26) over this UAV at `position` and the UAVs it knows of, at t_k.
 
-    Row r of `table` holds UAV ids[r]'s last state: its stamp, its position then its planned path
+    Row r of `table` holds a UAV's last state: its stamp, its position then its planned path
     (M + 1 points, x and y), its heading then the heading at each planned point (M + 1). Returns
-    the MST neighbours' positions at t_k, their predicted tracks over t_k..t_{k+M}, every position
-    each of them can reach at t_{k+1} (eq. 2 from its predicted pose at t_k), and whether UAV `me`
-    yields to each (right of way to the lower id).
+    the MST neighbours' positions at t_k and their predicted tracks over t_k..t_{k+M}.
     """
     horizon = (table.shape[1] - 1) // 3 - 1
     stamps = table[:, 0].astype(np.int64)
     track = np.ascontiguousarray(table[:, 1 : 2 * horizon + 3]).reshape(-1, horizon + 1, 2)
     tracks = predict_tracks(track, stamps, k, horizon + 1)
-    now = np.empty((ids.shape[0] + 1, 2))
+    now = np.empty((table.shape[0] + 1, 2))
     now[0] = position
     now[1:] = tracks[:, 0, :]
     rows = mst_neighbours(kruskal_mst(now), 0) - 1
-    nxt = np.empty((rows.shape[0], first_steps.shape[1], 2))
-    for n in range(rows.shape[0]):
-        r = rows[n]
-        heading = table[r, 2 * horizon + 3 + min(max(k - stamps[r], 0), horizon)]
-        nxt[n] = reachable_positions(first_steps, tracks[r, 0, 0], tracks[r, 0, 1], heading)
-    return tracks[rows, 0, :], tracks[rows], nxt, ids[rows] < me
+    return tracks[rows, 0, :], tracks[rows]
 
 
 RELAY_MEMO_SIZE = 1024
@@ -184,12 +171,14 @@ class Agent:
         self.covered = np.zeros(tess.n_tasks if tess else 0, dtype=np.int64)
         self._labels = np.append(tess.labels, -1) if tess else np.zeros(n + 1, dtype=np.int64)
         self.phi = np.zeros(n) if self.algorithm == "pheromone" else None
+        self.commitments = Commitments(world, uav)
 
     # -- inbox ---------------------------------------------------------------------------------
     def forget(self, uav: int) -> None:
         """Drop what is known of a UAV that has left (its task is free for the next auction)."""
         self.peers.pop(uav, None)
         self._rows.pop(uav, None)
+        self.commitments.gone(uav)
 
     def _remember(self, states: Iterable[UavState]) -> None:
         """Keep the newest state of each peer, and its `swarm_view` row: a plan shorter than the
@@ -214,11 +203,13 @@ class Agent:
 
     def _ingest(self, inbox: Iterable[Message], k: int, looks: list[int]) -> dict[int, tuple[float, ...]]:
         """Sort the inbox by kind: the neighbours' FOV cells go onto `looks`, states and claims into
-        what this UAV knows of the others; returns the bids of this auction round. Messages are
-        validated where they enter (`messages.check`); here only their timing counts."""
+        what this UAV knows of the others (and its commitments: `Commitments.observe`); returns the
+        bids of this auction round. Messages are validated where they enter (`messages.check`);
+        here only their timing counts."""
         bids: dict[int, tuple[float, ...]] = {}
         oldest = k - self.world.mission.comms.peer_timeout_steps
         states: list[UavState] = []
+        fresh: dict[int, StateMsg] = {}
         self.neighbours = neighbours = {}
         for msg in inbox:
             if msg.sender == self.uav or not oldest <= msg.stamp <= k:
@@ -229,6 +220,7 @@ class Agent:
                 states.append(msg.state)
                 if msg.stamp == k - 1:
                     neighbours[msg.sender] = msg.heard
+                    fresh[msg.sender] = msg
             elif kind is CoverageMsg:
                 looks += msg.cells
                 if msg.detections:
@@ -239,6 +231,7 @@ class Agent:
             else:
                 states.extend(msg.known)
         self._remember(states)
+        self.commitments.observe(k, fresh, states)
         for u in [u for u, s in self.peers.items() if s.stamp < oldest]:
             self.forget(u)
         return bids
@@ -327,22 +320,18 @@ class Agent:
         prefix -= (prefix == pts.shape[1]) & (depth[:, -1] < diameter)
         return cells, grid.fov_cells(pts), prefix
 
-    def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
-        """`swarm_view` of what this UAV knows at t_k (eq. 26 and the neighbours' predicted motion)."""
-        first_steps = self.world.paths.first_steps
+    def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """`swarm_view` of what this UAV knows, at t_k (eq. 26 and the neighbours' predicted motion)."""
         if not self._rows:
-            empty = np.zeros((0, first_steps.shape[1], 2))
-            return np.zeros((0, 2)), np.zeros((0, self._horizon + 1, 2)), empty, np.zeros(0, dtype=np.bool_)
-        ids = sorted(self._rows)
-        table = np.array([self._rows[u] for u in ids])
-        return swarm_view(np.array(ids), table, k, position, first_steps, self.uav)
+            return np.zeros((0, 2)), np.zeros((0, self._horizon + 1, 2))
+        table = np.array([self._rows[u] for u in sorted(self._rows)])
+        return swarm_view(table, k, position)
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
         w, m = self.world, self.world.mission
         grid, k, a = w.grid, obs.step, m.algorithm
-        position = np.array([obs.x, obs.y])
-        own_cells = grid.fov_cell_list((obs.x, obs.y)).tolist()
-        looks = own_cells.copy()
+        looks = grid.fov_cell_list((obs.x, obs.y)).tolist()
+        own_cells = tuple(looks)
         bids = self._ingest(inbox, k, looks)
         self._update_map(looks)
         if obs.detections:
@@ -351,10 +340,17 @@ class Agent:
             self.found.update(own_detections)
         else:
             own_detections = ()
-        mst_now, nbr_tracks, nbr_next, yields = self._swarm(k, position)
-        announce = self._plan_task(k, position, mst_now, bids) if self.algorithm == "proposed" else False
 
-        # RHC: eq. 24 over every path of eq. 23, eq. 22 picks the best
+        # safety layer: the trajectory in force for [t_k, t_k+1], then plan from the pose at t_k+1
+        safety = self.commitments
+        inforce = safety.resolve(k, obs.x, obs.y, obs.heading)
+        x1, y1, h1 = safety.next_pose(obs.x, obs.y, obs.heading)
+        nxt = np.array([x1, y1])
+        mst_now, nbr_tracks = self._swarm(k + 1, nxt)
+        announce = self._plan_task(k, nxt, mst_now, bids) if self.algorithm == "proposed" else False
+        safety.update_parents(k, np.array([obs.x, obs.y]))
+
+        # RHC: eq. 24 over every path of eq. 23 that the safety layer allows, eq. 22 picks the best
         if self.algorithm == "no-ta":
             self._values[:-1] = self.eta * w.prior
         elif self.phi is not None:
@@ -363,54 +359,62 @@ class Agent:
         if self.task >= 0 and tess is not None:
             region = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
         else:
-            region = (-1, position, 1.0)
+            region = (-1, nxt, 1.0)
+        sides = safety.candidate_sides(k, (x1, y1, h1))
         c = m.comms
         limits = (
             a.delta,
             a.chi,
             nbr_tracks,
-            nbr_next,
-            yields,
-            w.paths.max_step,
+            sides,
             (c.range, c.attraction, c.safety, c.repulsion),
             grid.region.normals,
             grid.region.offsets,
             grid.cell_size,
         )
         if w.kinematics.mode == "grid":
-            offsets = w.paths.offsets_from(obs.heading)
+            offsets = w.paths.offsets_from(h1)
             best, path = choose_grid_path(
-                obs.x, obs.y, offsets, grid.x0, grid.y0, grid.lattice, grid.fov_table, self._values,
+                x1, y1, offsets, grid.x0, grid.y0, grid.lattice, grid.fov_table, self._values,
                 self._labels, *region, *limits,
             )  # fmt: skip
         else:
-            pts = w.paths.expand(obs.x, obs.y, obs.heading)
+            pts = w.paths.expand(x1, y1, h1)
             cells, fov, prefix = self._continuous_path_cells(pts)
             labels = self._labels[cells] if region[0] >= 0 else cells  # cell -1 reads the trailing -1
             best = choose_path(pts, fov, prefix, self._values, labels, *region, *limits)
-            path = pts[best]
+            path = pts[max(best, 0)]
 
-        turn = float(w.paths.sequences[best, 0])
-        plan = tuple(map(tuple, path.tolist()))
-        plan_headings = w.paths.headings_along(obs.heading, best)
+        horizon, turn = self._horizon, float(inforce.turns[0])
+        if best >= 0:
+            turns = tuple(w.paths.sequences[best].tolist())
+            proposal = Trajectory(k + 1, x1, y1, h1, turns, int(sides[best]))
+            plan = ((x1, y1), *map(tuple, path[: horizon - 1].tolist()))
+            plan_headings = (h1, *w.paths.headings_along(h1, best)[: horizon - 1])
+        else:
+            proposal = None
+            ahead = inforce.reanchored(k + 1, x1, y1, h1, safety.limits.reach.loiter_turn)
+            plan, plan_headings = self._track_of(ahead)
+        safety.propose(proposal)
         command = Command(
             step=k,
             turn=turn,
             heading_rate=turn / w.kinematics.dt,
-            heading=plan_headings[0],
-            waypoint=plan[0],
+            heading=h1,
+            waypoint=(x1, y1),
             path=plan,
             task=self.task,
         )
         me = UavState(
-            self.uav, k, obs.x, obs.y, obs.heading, plan, self.task, self.task_reward, plan_headings
-        )
+            self.uav, k, obs.x, obs.y, obs.heading, plan, self.task, self.task_reward, plan_headings,
+            inforce, proposal,
+        )  # fmt: skip
         head = {"sender": self.uav, "stamp": k, "x": obs.x, "y": obs.y}
         heard, relay = tuple(sorted(self.neighbours)), self._relay()
         self._heard = heard
         outbox: list[Message] = [
-            StateMsg(**head, state=me, heard=heard),
-            CoverageMsg(**head, cells=tuple(own_cells), detections=own_detections),
+            StateMsg(**head, state=me, heard=heard, parents=safety.parents),
+            CoverageMsg(**head, cells=own_cells, detections=own_detections),
         ]
         if relay:
             outbox.append(ClaimsMsg(**head, known=tuple(self.peers[u] for u in relay)))
@@ -418,3 +422,15 @@ class Agent:
             assert self.bids is not None
             outbox.append(BidsMsg(**head, rewards=self.bids))
         return command, outbox
+
+    def _track_of(self, trajectory: Trajectory) -> tuple[tuple[tuple[float, float], ...], tuple[float, ...]]:
+        """The first M points of a trajectory (from its anchor on) and the heading at each."""
+        lim = self.commitments.limits
+        x, y, h = trajectory.x, trajectory.y, trajectory.heading
+        points, headings = [], []
+        for i in range(self._horizon):
+            points.append((x, y))
+            headings.append(h)
+            turn = trajectory.turn_at(trajectory.start + i, lim.reach.loiter_turn)
+            x, y, h = step_pose(x, y, h, turn, lim.grid, lim.speed, lim.dt, lim.cell)
+        return tuple(points), tuple(headings)

@@ -12,9 +12,10 @@ import math
 
 import msgspec
 
+from companion.core.trajectory import Trajectory
 from companion.core.wire import MsgpackCodec
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 MAX_PLAN = 16
 
 
@@ -24,7 +25,8 @@ class MessageError(ValueError):
 
 class UavState(msgspec.Struct, frozen=True, array_like=True):
     """What a UAV tells about itself: pose at `stamp`, its planned path (points and the heading at
-    each), and its task claim."""
+    each), its task claim, and the safety layer's commitments: the trajectory in force from `stamp`
+    on and the proposal it asks to switch to at `stamp + 1` (core.commitment)."""
 
     uav: int
     stamp: int
@@ -35,6 +37,8 @@ class UavState(msgspec.Struct, frozen=True, array_like=True):
     task: int = -1
     task_reward: float = 0.0
     plan_headings: tuple[float, ...] = ()
+    committed: Trajectory | None = None
+    proposal: Trajectory | None = None
 
 
 class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
@@ -46,11 +50,13 @@ class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
 
 
 class StateMsg(_Header, tag="state"):
-    """The sender's own state (pose, plan, task) and the UAVs whose StateMsg it received at its
-    previous step (its first-hand neighbours: what the others need not relay to it)."""
+    """The sender's own state (pose, plan, task, commitments), the UAVs whose StateMsg it received at
+    its previous step (its first-hand neighbours: what the others need not relay to it), and the
+    UAVs it is tethered to (its parents in the tree of links that must hold)."""
 
     state: UavState
     heard: tuple[int, ...] = ()
+    parents: tuple[int, ...] = ()
 
 
 class CoverageMsg(_Header, tag="coverage"):
@@ -94,6 +100,15 @@ def _check_state(s: UavState, n_uavs: int, n_tasks: int) -> None:
         raise MessageError(f"state of uav {s.uav}: bad plan")
     if len(s.plan_headings) > len(s.plan) or not _finite(*s.plan_headings):
         raise MessageError(f"state of uav {s.uav}: bad plan headings")
+    for t in (s.committed, s.proposal):
+        if t is not None and (
+            not 0 <= t.start <= s.stamp + 1
+            or t.loiter not in (1, -1)
+            or len(t.turns) > MAX_PLAN
+            or not _finite(t.x, t.y, t.heading, *t.turns)
+            or any(abs(turn) > math.pi for turn in t.turns)
+        ):
+            raise MessageError(f"state of uav {s.uav}: bad trajectory")
 
 
 def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
@@ -110,6 +125,8 @@ def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
             raise MessageError("state of another uav in a state message")
         if len(msg.heard) >= n_uavs or any(not 0 <= u < n_uavs for u in msg.heard):
             raise MessageError("heard list with unknown uavs")
+        if len(msg.parents) > 2 or any(not 0 <= u < n_uavs or u == msg.sender for u in msg.parents):
+            raise MessageError("parents list with unknown uavs")
     elif isinstance(msg, CoverageMsg):
         if len(msg.cells) > n_cells or any(not 0 <= c < n_cells for c in msg.cells + msg.detections):
             raise MessageError("cell index out of range")

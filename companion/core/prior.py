@@ -22,15 +22,17 @@ def centre_probability(centres: FloatArray, centre: Sequence[float], gain: float
 
 
 def prior_map(
-    centres: FloatArray, distribution_centres: Sequence[tuple[float, float, float]], sigma: float
+    centres: FloatArray, distribution_centres: Sequence[tuple[float, ...]], sigma: float
 ) -> FloatArray:
     """Eq. 1, combined: Pr_p = 1 - prod_z (1 - Pr_{p,z}), the chance that cell p holds a target.
 
-    `distribution_centres` holds (x, y, peak) per centre; peak <= 1 keeps every term a probability.
+    `distribution_centres` holds (x, y, peak) or (x, y, peak, sigma_z) per centre: a centre's own
+    sigma_z replaces the common `sigma`; peak <= 1 keeps every term a probability.
     """
     miss = np.ones(centres.shape[0])
-    for x, y, peak in distribution_centres:
-        miss *= 1.0 - centre_probability(centres, (x, y), gain_for_peak(peak, sigma), sigma)
+    for x, y, peak, *own in distribution_centres:
+        s = own[0] if own and own[0] is not None else sigma
+        miss *= 1.0 - centre_probability(centres, (x, y), gain_for_peak(peak, s), s)
     return 1.0 - miss
 
 

@@ -67,58 +67,24 @@ def search_benefit(
 
 @njit(cache=True)
 def path_expense(
-    points: FloatArray,
-    neighbour_tracks: FloatArray,
-    neighbour_next: FloatArray,
-    yields_to: np.ndarray,
-    step: float,
-    r_c: float,
-    r_c_attr: float,
-    r_s: float,
-    r_s_rep: float,
-) -> tuple[FloatArray, FloatArray]:
-    """Eq. 29: J^B = sum_m sum_{j in MST neighbours} F(d~_{j,m}) with F of eq. 28, and the first step's
-    violation of the hard limits.
+    points: FloatArray, neighbour_tracks: FloatArray, r_c: float, r_c_attr: float, r_s: float, r_s_rep: float
+) -> FloatArray:
+    """Eq. 29: J^B = sum_m sum_{j in MST neighbours} F(d~_{j,m}) with F of eq. 28 and d~_{j,m} the
+    distance from path point m to neighbour j's predicted position at the same step.
 
-    `neighbour_tracks` (n_j, M + 1, 2) holds each MST neighbour's position at t_k and its predicted
-    positions at t_{k+1..k+M}; `neighbour_next` (n_j, n_turns, 2) every position it can reach at
-    t_{k+1}; `step` is the farthest a UAV moves in one step. Both UAVs replan every step, so a
-    neighbour may leave its predicted track. In the expense, the repulsion at step m uses the
-    smaller of the predicted distance and the distance to the neighbour's position at t_k less
-    m + 1 steps, and the first step's attraction the larger of the predicted distance and that
-    distance plus one step: UAVs keep room to manoeuvre around each other.
-
-    The first-step violation (metres beyond R_c or inside R_s, summed over the MST neighbours), which
-    `select_path` minimises before the score, gives right of way to the lower UAV id: against a
-    neighbour it yields to (`yields_to[j]`) it uses the nearest and farthest positions the neighbour
-    can reach at t_{k+1}, so a first step without violation keeps the link and the safety distance
-    whatever the other does; against the others it uses the predicted distance, which the yielding
-    neighbour guarantees. The asymmetry also breaks the symmetric deadlocks of two UAVs that block
-    each other.
-
-    Returns (J^B per path, first-step violation per path).
+    `neighbour_tracks` (n_j, M + 1, 2) holds each MST neighbour's predicted positions at the path's
+    anchor step and at the M steps of the path. (Separation and links are guaranteed by the safety
+    layer, core.commitment; this soft term only shapes the search, as in the paper.)
     """
     n_paths, horizon = points.shape[0], points.shape[1]
     out = np.zeros(n_paths)
-    violation = np.zeros(n_paths)
     for j in range(neighbour_tracks.shape[0]):
         for i in range(n_paths):
             for m in range(horizon):
                 px, py = points[i, m, 0], points[i, m, 1]
                 d = math.hypot(px - neighbour_tracks[j, m + 1, 0], py - neighbour_tracks[j, m + 1, 1])
-                from_now = math.hypot(px - neighbour_tracks[j, 0, 0], py - neighbour_tracks[j, 0, 1])
-                d_safe = min(d, from_now - (m + 1) * step)
-                d_link = max(d, from_now + step) if m == 0 else d
-                out[i] += link_cost(d_link, r_c, r_c_attr) + safety_cost(d_safe, r_s, r_s_rep)
-                if m == 0:
-                    nearest, farthest = d, d
-                    if yields_to[j]:
-                        for q in range(neighbour_next.shape[1]):
-                            e = math.hypot(px - neighbour_next[j, q, 0], py - neighbour_next[j, q, 1])
-                            nearest = min(nearest, e)
-                            farthest = max(farthest, e)
-                    violation[i] += max(0.0, farthest - r_c) + max(0.0, r_s - nearest)
-    return out, violation
+                out[i] += link_cost(d, r_c, r_c_attr) + safety_cost(d, r_s, r_s_rep)
+    return out
 
 
 @njit(cache=True)
@@ -170,24 +136,17 @@ def region_key(
 
 
 @njit(cache=True)
-def select_path(scores: FloatArray, region: FloatArray, violation: FloatArray) -> int:
-    """Eq. 22 under the hard constraints, in order: the paths with the best `region_key` (all M steps
-    in the region when possible); among them those whose first step violates the link and safety
-    limits least (not at all when possible); among them the best score. Ties go to the first path
-    (the straightest).
-    """
-    best_region = region.max()
-    least = np.inf
+def select_path(scores: FloatArray, region: FloatArray, allowed: np.ndarray) -> int:
+    """Eq. 22 under the hard constraints: among the paths the safety layer allows (`allowed` != 0),
+    those with the best `region_key` (all M steps in the region when possible), and among them the
+    best score. Ties go to the first path (the straightest). -1 when no path is allowed."""
+    best_region = -np.inf
     for i in range(scores.shape[0]):
-        if region[i] >= best_region - 1e-9:
-            least = min(least, violation[i])
+        if allowed[i] != 0:
+            best_region = max(best_region, region[i])
     best = -1
     for i in range(scores.shape[0]):
-        if (
-            region[i] >= best_region - 1e-9
-            and violation[i] <= least + 1e-9
-            and (best < 0 or scores[i] > scores[best])
-        ):
+        if allowed[i] != 0 and region[i] >= best_region - 1e-9 and (best < 0 or scores[i] > scores[best]):
             best = i
     return best
 
@@ -205,24 +164,20 @@ def choose_path(
     delta: tuple[float, float],
     chi: tuple[float, float],
     neighbour_tracks: FloatArray,
-    neighbour_next: FloatArray,
-    yields_to: np.ndarray,
-    step: float,
+    allowed: np.ndarray,
     comms: tuple[float, float, float, float],
     normals: FloatArray,
     offsets: FloatArray,
     cell_size: float,
 ) -> int:
-    """Eq. 22: the path maximising chi_1 J^A - chi_2 J^B (eqs. 25, 29) under the region and first-step
-    constraints (`region_key`, `select_path`). `comms` is (R_c, R'_c, R_s, R'_s)."""
+    """Eq. 22: the path maximising chi_1 J^A - chi_2 J^B (eqs. 25, 29) among the paths the safety
+    layer allows, region first (`region_key`, `select_path`). `comms` is (R_c, R'_c, R_s, R'_s)."""
     benefit = search_benefit(
         points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1]
     )
-    expense, violation = path_expense(
-        points, neighbour_tracks, neighbour_next, yields_to, step, comms[0], comms[1], comms[2], comms[3]
-    )
+    expense = path_expense(points, neighbour_tracks, comms[0], comms[1], comms[2], comms[3])
     region = region_key(prefix, points, normals, offsets, cell_size)
-    return select_path(chi[0] * benefit - chi[1] * expense, region, violation)
+    return select_path(chi[0] * benefit - chi[1] * expense, region, allowed)
 
 
 @njit(cache=True)
@@ -257,4 +212,4 @@ def choose_grid_path(
                 if cells[i, m] >= 0:
                     point_labels[i, m] = cell_labels[cells[i, m]]
     best = choose_path(pts, fov, prefix, values_padded, point_labels, task, *rest)
-    return best, pts[best]
+    return best, pts[max(best, 0)]

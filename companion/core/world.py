@@ -16,7 +16,9 @@ from companion.core.cvt import Tessellation, lloyd_cvt
 from companion.core.geometry import ConvexPolygon, FloatArray, Grid
 from companion.core.kinematics import Kinematics, PathTree
 from companion.core.prior import prior_map
+from companion.core.safety import Limits, initial_trajectories, tether_tree
 from companion.core.tasks import CostWeights
+from companion.core.trajectory import Trajectory
 from companion.mission import Mission
 
 
@@ -43,6 +45,7 @@ class World:
     paths: PathTree
     tessellation: Tessellation | None
     costs: CostWeights
+    safety: SafetyPlan
 
     @property
     def n_uavs(self) -> int:
@@ -55,8 +58,49 @@ def build_grid(mission: Mission) -> Grid:
 
 
 def build_prior(mission: Mission, grid: Grid) -> FloatArray:
-    centres = [(c.x, c.y, c.peak) for c in mission.prior.centres]
+    centres = [(c.x, c.y, c.peak, c.sigma) for c in mission.prior.centres]
     return prior_map(grid.centres, centres, mission.prior.sigma)
+
+
+def build_kinematics(mission: Mission) -> Kinematics:
+    k = mission.kinematics
+    cell = float(mission.region.cell_size)
+    return Kinematics(k.mode, k.speed, k.step, math.radians(k.turn_limit_deg), cell)
+
+
+@dataclass(frozen=True)
+class SafetyPlan:
+    """The safety layer's common knowledge (core.safety): what compatibility means, every UAV's
+    start contingency, the tether tree of the start layout, and how far a silent UAV may stray."""
+
+    limits: Limits
+    start: tuple[Trajectory, ...]
+    ranks: tuple[int, ...]
+    parents: tuple[int, ...]
+    failsafe_reach: float
+    shapes: FloatArray  # `Limits.shapes` of the mission's paths (eq. 23)
+
+
+def failsafe_reach(mission: Mission, limits: Limits) -> float:
+    """Default `safety.failsafe_reach`: a silent UAV's vehicle flies on for a step and the autopilot's
+    guidance timeout, then circles where it is (the simulator's loiter radius, 1.5 turn radii, at
+    least 60 m; its track reaches about a turn radius beyond the circle)."""
+    k = mission.kinematics
+    turn_radius = k.speed * k.step / math.radians(k.turn_limit_deg)
+    flown = (1 + mission.sim.guided_timeout / k.step) * limits.reach.step
+    return flown + max(60.0, 1.5 * turn_radius) + turn_radius
+
+
+def build_safety(
+    mission: Mission, kin: Kinematics, region: ConvexPolygon, sequences: FloatArray
+) -> SafetyPlan:
+    c, s = mission.comms, mission.safety
+    limits = Limits.build(kin, mission.algorithm.horizon, region, c.safety, c.range, s.margin, s.buffer)
+    poses = np.array([(v.x, v.y, math.radians(v.heading_deg)) for v in mission.vehicles], dtype=float)
+    ranks, parents = tether_tree(poses[:, :2], limits.link)
+    start = tuple(initial_trajectories(poses, parents, ranks, limits))  # ValueError: no contingency
+    reach = s.failsafe_reach if s.failsafe_reach is not None else failsafe_reach(mission, limits)
+    return SafetyPlan(limits, start, ranks, parents, reach, limits.shapes(sequences))
 
 
 def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> World:
@@ -64,8 +108,7 @@ def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> Worl
     seed = mission.seed if seed is None else seed
     grid = build_grid(mission)
     prior = build_prior(mission, grid)
-    k = mission.kinematics
-    kin = Kinematics(k.mode, k.speed, k.step, math.radians(k.turn_limit_deg), grid.cell_size)
+    kin = build_kinematics(mission)
     a = mission.algorithm
     tess = None
     if a.name == "proposed":
@@ -89,4 +132,6 @@ def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> Worl
         r_c_attr=c.attraction,
         comm_cap=a.comm_cost_cap,
     )
-    return World(mission, grid, prior, kin, PathTree.build(kin, a.horizon), tess, costs)
+    paths = PathTree.build(kin, a.horizon)
+    safety = build_safety(mission, kin, grid.region, paths.sequences)
+    return World(mission, grid, prior, kin, paths, tess, costs, safety)

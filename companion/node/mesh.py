@@ -66,6 +66,18 @@ def check_bundle(bundle: Bundle, n_uavs: int, n_cells: int, n_tasks: int) -> Non
             raise MessageError("message header differs from its bundle's")
 
 
+def received_bundle(sample: zenoh.Sample, max_bytes: int, n_uavs: int, n_cells: int, n_tasks: int) -> Bundle:
+    """The bundle in a sample from `{base}/uav/{i}/msg`: size-checked, decoded, validated
+    (`check_bundle`) and sent by UAV i. Raises MessageError (a ValueError) otherwise."""
+    if len(sample.payload) > max_bytes:
+        raise MessageError("oversized bundle")
+    bundle = decode_bundle(sample.payload.to_bytes())
+    check_bundle(bundle, n_uavs, n_cells, n_tasks)
+    if str(sample.key_expr).split("/")[-2] != str(bundle.sender):
+        raise MessageError("sender differs from key")
+    return bundle
+
+
 @dataclass
 class MeshStats:
     """Receipt counters. Bundles: received (valid, from peers), malformed (dropped samples:
@@ -181,12 +193,9 @@ class Mesh:
     def _on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh callback thread: validate, then hold; never raises, never blocks for long."""
         try:
-            if len(sample.payload) > self.max_bundle_bytes:
-                raise MessageError("oversized bundle")
-            bundle = decode_bundle(sample.payload.to_bytes())
-            check_bundle(bundle, self.n_uavs, self.n_cells, self.n_tasks)
-            if str(sample.key_expr).split("/")[-2] != str(bundle.sender) or bundle.sender == self.uav:
-                raise MessageError("sender differs from key, or claims our id")
+            bundle = received_bundle(sample, self.max_bundle_bytes, self.n_uavs, self.n_cells, self.n_tasks)
+            if bundle.sender == self.uav:
+                raise MessageError("a bundle claiming our id")
         except (ValueError, msgspec.MsgspecError):  # MessageError is a ValueError
             with self._cond:
                 self._stats.malformed += 1

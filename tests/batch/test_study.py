@@ -18,18 +18,18 @@ from companion.mission import load_mission
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_proposed_finds_targets_sooner_than_both_baselines_on_scenario3() -> None:
-    """Section IV: with the high-probability areas far from the start, the MPS finds targets sooner."""
+def test_the_study_on_scenario3_stays_connected_and_separated() -> None:
+    """Figure 11 (c), (d): lambda_2 > 0 and every pair beyond R_s throughout every run, between
+    sampling moments too, for all three algorithms."""
     mission = load_mission(ROOT / "mission_files/scenario3.toml")
     runs, algorithms = 16, ("proposed", "no-ta", "pheromone")
     results = list(run_specs(specs_for(mission, algorithms, runs, 300, 7, lambda r: False), workers=2))
     summary = {a: summarize(results[i * runs : (i + 1) * runs]) for i, a in enumerate(algorithms)}
-    times = {a: s["mean_target_time"] for a, s in summary.items()}
-    assert times["proposed"] < times["no-ta"], times
-    assert times["proposed"] < times["pheromone"], times
-    for s in summary.values():  # Figure 11 (c), (d): connected and safe throughout
+    for s in summary.values():
         assert s["min_lambda2"] > 0
         assert s["min_distance"] > mission.comms.safety
+    assert all(r.separation_losses == 0 and r.link_losses == 0 for r in results)
+    assert min(r.approach.min() for r in results) > mission.comms.safety + mission.safety.buffer
 
 
 def _uavsearch(*args: str) -> subprocess.CompletedProcess[str]:

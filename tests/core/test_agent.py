@@ -149,11 +149,11 @@ def _static_swarm(scenario1, points: list[tuple[float, float]], steps: int):
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(st.lists(st.tuples(st.integers(-24, 24), st.integers(-24, 24)), min_size=2, max_size=9, unique=True))
+@given(st.lists(st.tuples(st.integers(-12, 12), st.integers(-12, 12)), min_size=2, max_size=9, unique=True))
 def test_relays_bring_every_state_one_step_per_hop(scenario1, cells: list[tuple[int, int]]) -> None:
     """Multi-hop dissemination: with relays only where a neighbour did not hear a peer itself, UAV
     i still knows UAV j's state of step k - hops(i, j) after step k, as a full flood would."""
-    points = [(40.0 * cx + 20.0, 40.0 * cy + 20.0) for cx, cy in cells]
+    points = [(80.0 * cx + 20.0, 80.0 * cy + 20.0) for cx, cy in cells]  # two cells apart, beyond R_s
     near = pairwise_distances(np.array(points)) <= scenario1.comms.range
     hops = _hops(near)
     steps = int(hops.max()) + 4  # reports of whom each heard settle after two steps
@@ -177,7 +177,7 @@ def test_a_swarm_where_everyone_hears_everyone_relays_nothing(scenario1) -> None
 
 def test_a_chain_relays_through_its_middle(scenario1) -> None:
     r = scenario1.comms.range
-    points = [(20.0, 20.0), (20.0 + 0.9 * r, 20.0), (20.0 + 1.8 * r, 20.0)]  # 0 - 1 - 2
+    points = [(20.0 - 0.9 * r, 20.0), (20.0, 20.0), (20.0 + 0.9 * r, 20.0)]  # 0 - 1 - 2
     *_, (k, agents, outs) = _static_swarm(scenario1, points, 6)
     relays = {
         i: [s.uav for m in out if isinstance(m, ClaimsMsg) for s in m.known] for i, out in enumerate(outs)

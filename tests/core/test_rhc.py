@@ -65,64 +65,40 @@ def test_soft_exp_is_exp_then_linear() -> None:
     assert got[0] == pytest.approx(3.4 - 0.5 * 66079.397385)
 
 
-def expense(points: list, track: list, reach: list, yields: bool = True) -> tuple[float, float]:
-    """One path against one MST neighbour: its predicted track (t_k..t_{k+M}) and the positions it
-    can reach at t_{k+1} (reach[0]; its one-step travel is the farthest of them), with or without
-    right of way to it."""
-    pts = np.array([points], dtype=float)
-    tracks = np.array([track], dtype=float)
-    nxt = np.array([reach[0]], dtype=float)
-    step = float(np.max(np.linalg.norm(nxt[0] - tracks[0, 0], axis=1)))
-    flags = np.array([yields], dtype=np.bool_)
-    cost, violation = path_expense(pts, tracks, nxt, flags, step, 1000.0, 700.0, 60.0, 120.0)
-    return float(cost[0]), float(violation[0])
+COMMS = (1000.0, 700.0, 60.0, 120.0)  # R_c, R'_c, R_s, R'_s
+
+
+def expense(points: list, track: list) -> float:
+    """One path against one MST neighbour's predicted track (its anchor step, then one point a step)."""
+    cost = path_expense(
+        np.array([points], dtype=float), np.array([track], dtype=float), 1000.0, 700.0, 60.0, 120.0
+    )
+    return float(cost[0])
 
 
 def test_path_expense_zero_in_the_band() -> None:
-    # neighbour steady at 400 m, able to reach 360 m or 440 m: all inside [R'_s, R'_c] = [120, 700]
-    reach = [[[360, 0], [440, 0]], [[360, 0], [440, 0]]]
-    assert expense([[0, 0], [0, 0]], [[400, 0], [400, 0], [400, 0]], reach) == (0.0, 0.0)
-    none = (np.zeros((0, 4, 2)), np.zeros((0, 3, 2)), np.zeros(0, dtype=np.bool_), 40.0)
-    cost, violation = path_expense(np.zeros((4, 3, 2)), *none, 1000.0, 700.0, 60.0, 120.0)
-    assert cost.tolist() == [0.0] * 4 and violation.tolist() == [0.0] * 4
+    # neighbour steady at 400 m: inside [R'_s, R'_c] = [120, 700]
+    assert expense([[0, 0], [0, 0]], [[400, 0], [400, 0], [400, 0]]) == 0.0
+    assert (
+        path_expense(np.zeros((4, 3, 2)), np.zeros((0, 4, 2)), 1000.0, 700.0, 60.0, 120.0).tolist()
+        == [0.0] * 4
+    )
 
 
-def test_path_expense_repulsion_keeps_room_for_the_neighbour_to_move() -> None:
-    # Predicted steady at 180 m; it moves up to 40 m a step (its reachable point at step 1 is 140 m
-    # away), so at step m the repulsion uses 180 - 40 m:
-    # step 1: 140 >= R'_s -> 0; step 2: (120 - 100) / (100 - 60) = 0.5 -> e^0.5 - 1 = 0.6487213
-    reach = [[[0, 140]], [[0, 100]]]
-    track = [[0, 180], [0, 180], [0, 180]]
-    assert expense([[0, 0], [0, 0]], track, reach) == pytest.approx((0.6487213, 0.0))
-    # the soft term takes the worst case for every neighbour, yielded to or not
-    assert expense([[0, 0], [0, 0]], track, reach, yields=False) == pytest.approx((0.6487213, 0.0))
-    # Steady at 150 m: step 1: 110 -> 10 / 50 = 0.2 -> e^0.2 - 1 = 0.2214028;
-    # step 2: 70 -> 50 / 10 = 5 -> e^5 - 1 = 147.4131591; total 147.6345619
-    steady = [[0, 150], [0, 150], [0, 150]]
-    assert expense([[0, 0], [0, 0]], steady, [[[0, 110]], [[0, 70]]]) == pytest.approx((147.6345619, 0.0))
-    # the predicted distance counts when it is the smaller: predicted 100 m, 500 - 40 = 460 m
-    # -> (120 - 100) / (100 - 60) = 0.5 -> 0.6487213
-    assert expense([[0, 0]], [[0, 500], [0, 100]], [[[0, 460]]]) == pytest.approx((0.6487213, 0.0))
+def test_path_expense_is_eq_29_on_the_predicted_distances() -> None:
+    # step 1 at 150 m: (120 - 150) < 0 -> 0; step 2 at 100 m: (120 - 100) / (100 - 60) = 0.5 -> e^0.5 - 1
+    assert expense([[0, 0], [0, 0]], [[0, 500], [0, 150], [0, 100]]) == pytest.approx(0.6487213)
+    # attraction: 800 m -> (800 - 700) / (1000 - 800) = 0.5 -> e^0.5 - 1; the anchor point is not scored
+    assert expense([[0, 0]], [[0, 50], [800, 0]]) == pytest.approx(0.6487213)
+    # the path's own points move too: (0, 0) then (0, 40) against a neighbour steady at (0, 140):
+    # 140 -> 0; 100 -> 0.5 -> e^0.5 - 1
+    assert expense([[0, 0], [0, 40]], [[0, 140], [0, 140], [0, 140]]) == pytest.approx(0.6487213)
 
 
-def test_path_expense_attraction_allows_one_step_of_retreat_on_the_first_step() -> None:
-    # predicted steady at 700 m, able to retreat 40 m a step: step 1 link distance 740 m
-    # -> (740 - 700) / (1000 - 740) = 0.1538462 -> e^0.1538462 - 1 = 0.1663114; step 2 uses 700 -> 0
-    reach = [[[740, 0]], [[780, 0]]]
-    assert expense([[0, 0], [0, 0]], [[700, 0], [700, 0], [700, 0]], reach) == pytest.approx((0.1663114, 0.0))
-
-
-def test_path_expense_first_step_violation_gives_right_of_way_to_the_lower_id() -> None:
-    # neighbour predicted at 980 m, able to reach 1020 m: 20 m beyond R_c; the barrier is >= e^30 - 1
-    cost, violation = expense([[0, 0]], [[980, 0], [980, 0]], [[[1020, 0]]])
-    assert violation == pytest.approx(20.0) and cost >= math.expm1(30.0)
-    # against a neighbour we do not yield to, only its predicted 980 m counts: no violation
-    cost, violation = expense([[0, 0]], [[980, 0], [980, 0]], [[[1020, 0]]], yields=False)
-    assert violation == 0.0 and cost >= math.expm1(30.0)
-    # neighbour predicted at 80 m, able to reach 40 m: 20 m inside R_s
-    cost, violation = expense([[0, 0]], [[80, 0], [80, 0]], [[[40, 0]]])
-    assert violation == pytest.approx(20.0) and cost >= math.expm1(30.0)
-    assert expense([[0, 0]], [[80, 0], [80, 0]], [[[40, 0]]], yields=False)[1] == 0.0
+def test_path_expense_barriers_beyond_the_limits() -> None:
+    # beyond R_c or inside R_s the barrier is above e^30 and grows with the violation
+    assert expense([[0, 0]], [[0, 0], [1020, 0]]) >= math.expm1(30.0)
+    assert expense([[0, 0]], [[0, 0], [40, 0]]) > expense([[0, 0]], [[0, 0], [50, 0]]) >= math.expm1(30.0)
 
 
 def test_region_key_is_the_prefix_inside_and_the_distance_back_outside() -> None:
@@ -136,9 +112,9 @@ def test_region_key_is_the_prefix_inside_and_the_distance_back_outside() -> None
     assert key.tolist() == pytest.approx([-3.0, -1.5])
 
 
-def select(scores: list[float], prefix: list[int], violation: list[float] | None = None) -> int:
-    v = np.zeros(len(scores)) if violation is None else np.array(violation, dtype=float)
-    return select_path(np.array(scores, dtype=float), np.array(prefix, dtype=float), v)
+def select(scores: list[float], prefix: list[int], allowed: list[int] | None = None) -> int:
+    ok = np.ones(len(scores), dtype=np.int64) if allowed is None else np.array(allowed, dtype=np.int64)
+    return select_path(np.array(scores, dtype=float), np.array(prefix, dtype=float), ok)
 
 
 def test_select_path_prefers_the_longest_in_region_prefix() -> None:
@@ -150,11 +126,11 @@ def test_select_path_prefers_the_longest_in_region_prefix() -> None:
     assert select([9.0, 1.0, 2.0], [0, 1, 1]) == 2
 
 
-def test_select_path_then_least_violation_then_score() -> None:
-    assert select([1.0, 5.0, 4.0], [3, 3, 3], [0.0, 2.0, 0.0]) == 2
-    assert select([1.0, 5.0, 4.0], [3, 3, 3], [3.0, 1.0, 2.0]) == 1
-    # the region prefix comes before the violation
-    assert select([1.0, 9.0, 2.0], [3, 2, 3], [5.0, 0.0, 5.0]) == 2
+def test_select_path_only_among_the_paths_the_safety_layer_allows() -> None:
+    assert select([1.0, 5.0, 4.0], [3, 3, 3], [1, 0, -1]) == 2
+    # the region prefix counts among the allowed paths only
+    assert select([1.0, 9.0, 2.0], [3, 2, 3], [0, 1, 0]) == 1
+    assert select([1.0, 9.0, 2.0], [3, 2, 3], [0, 0, 0]) == -1
 
 
 def test_select_path_ties_go_to_the_first() -> None:
@@ -203,7 +179,7 @@ def test_chosen_path_stays_in_the_region(scenario_grid: Grid, col: int, row: int
     inside = np.asarray(g.region.contains(pts[..., 0], pts[..., 1]))
     assert np.array_equal(prefix, np.cumprod(inside, axis=1).sum(axis=1))
     scores = np.random.default_rng(seed).normal(size=len(pts))
-    best = select_path(scores, prefix.astype(float), np.zeros(len(pts)))
+    best = select_path(scores, prefix.astype(float), np.ones(len(pts), dtype=np.int64))
     assert prefix[best] == prefix.max()
     if prefix.max() == 3:
         assert inside[best].all()
@@ -226,9 +202,9 @@ def test_grid_path_choice_in_one_call_matches_its_parts(
     cell_labels = np.append(rng.integers(0, 10, g.n_cells), -1)
     n_nbrs = int(rng.integers(0, 3))
     tracks = np.array([x, y]) + rng.normal(0, 150, (n_nbrs, 4, 2))
-    nexts = tracks[:, :1, :] + rng.normal(0, 40, (n_nbrs, 3, 2))
-    rest = (task, np.array([x + 100.0, y - 50.0]), 200.0, (1.0, 0.5), (1.0, 0.01), tracks, nexts)
-    rest += (rng.random(n_nbrs) < 0.5, tree.max_step, (500.0, 400.0, 60.0, 100.0))
+    allowed = rng.integers(-1, 2, len(tree.sequences))
+    rest = (task, np.array([x + 100.0, y - 50.0]), 200.0, (1.0, 0.5), (1.0, 0.01), tracks, allowed)
+    rest += ((500.0, 400.0, 60.0, 100.0),)
     rest += (g.region.normals, g.region.offsets, g.cell_size)
     best, path = choose_grid_path(
         x, y, tree.offsets_from(heading), g.x0, g.y0, g.lattice, g.fov_table, values, cell_labels, *rest
@@ -237,4 +213,5 @@ def test_grid_path_choice_in_one_call_matches_its_parts(
     cells, fov, prefix = grid_path_cells(pts, g.x0, g.y0, g.cell_size, g.lattice, g.fov_table)
     labels = np.where(cells >= 0, cell_labels[cells], -1)
     assert best == choose_path(pts, fov, prefix, values, labels, *rest)
-    assert np.array_equal(path, pts[best])
+    assert np.array_equal(path, pts[max(best, 0)])
+    assert (best == -1) == (not allowed.any()) and (best < 0 or allowed[best] != 0)

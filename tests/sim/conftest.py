@@ -56,7 +56,8 @@ def write_mission(
     if sensor:
         text = text.replace("radius = 60.0", f"radius = 60.0\n{sensor}")
     ports = free_udp_ports(n)
-    starts = starts or [(-800.0 + 1600.0 * i / max(1, n - 1), -900.0) for i in range(n)]
+    spacing = min(400.0, 1600.0 / max(1, n - 1))  # a connected line across the region
+    starts = starts or [(-800.0 + spacing * i, -900.0) for i in range(n)]
     for (x, y), port in zip(starts, ports, strict=True):
         text += f"\n[[vehicles]]\nx = {x}\ny = {y}\nheading_deg = {heading}\nmavlink_port = {port}\n"
     prefix = f"simtest{uuid.uuid4().hex[:10]}"

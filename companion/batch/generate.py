@@ -1,0 +1,223 @@
+"""Generated missions: a family of search missions beyond the paper's three scenario files.
+
+A mission of the family has a random convex region (3-8 vertices, 0.8-4 km across, any
+orientation), 2-12 UAVs starting on one of its edges or clustered inside it (separated, connected,
+and with a start contingency for every UAV: `mission._validate_start`), 1-6 distribution centres
+of eq. 1 with their own sigma, 5-20 targets, and either kinematics mode. Everything else takes the
+paper's values (R_A, R_c, R'_c, R_s, R'_s, eta_0, gamma, M) and the scenario files' choices
+(speed, step, weights). `generate` is a pure function of (count, seed, family): the same seed
+gives the same missions, file for file.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tomli_w
+from scipy.spatial import ConvexHull
+
+from companion.core.geometry import ConvexPolygon
+from companion.mission import Mission, MissionError, parse_mission
+
+ATTEMPTS = 200  # draws per mission before giving up (a family too tight to satisfy)
+
+
+@dataclass(frozen=True)
+class Family:
+    """The ranges a generated mission is drawn from (inclusive)."""
+
+    uavs: tuple[int, int] = (2, 12)
+    across: tuple[float, float] = (800.0, 4000.0)  # largest vertex-to-vertex distance, m
+    vertices: tuple[int, int] = (3, 8)
+    centres: tuple[int, int] = (1, 6)
+    targets: tuple[int, int] = (5, 20)
+    sigma: tuple[float, float] = (0.06, 0.2)  # each centre's sigma, as a fraction of `across`
+    layouts: tuple[str, ...] = ("edge", "clustered")
+    modes: tuple[str, ...] = ("grid", "continuous")
+    cell_size: float = 40.0
+    steps: int = 1000
+
+
+def _polygon(rng: np.random.Generator, fam: Family) -> np.ndarray:
+    """A convex polygon centred near the origin, `across` wide, not a sliver (width >= 0.35 across)."""
+    while True:
+        n = int(rng.integers(fam.vertices[0], fam.vertices[1] + 1))
+        angles = np.sort(rng.uniform(0, 2 * math.pi, n))
+        gaps = np.diff(np.append(angles, angles[0] + 2 * math.pi))
+        if gaps.max() >= math.pi * 0.9:
+            continue
+        radii = rng.uniform(0.75, 1.0, n)
+        pts = np.column_stack([radii * np.cos(angles), radii * np.sin(angles)])
+        hull = pts[ConvexHull(pts).vertices]
+        if len(hull) < 3:
+            continue
+        across = rng.uniform(*fam.across)
+        hull *= across / float(np.max(np.linalg.norm(hull[:, None] - hull[None], axis=-1)))
+        poly = ConvexPolygon.from_vertices(hull)
+        width = min(float(np.max(poly.offsets[e] - hull @ poly.normals[e])) for e in range(len(hull)))
+        if width >= 0.35 * across:
+            return np.round(hull, 1)
+
+
+def _heading_deg(dx: float, dy: float, grid: bool) -> float:
+    h = math.degrees(math.atan2(dy, dx))
+    return float(round(h / 45) * 45 if grid else round(h, 1))
+
+
+def _snap(x: float, y: float, x0: float, y0: float, cell: float) -> tuple[float, float]:
+    return x0 + cell * round((x - x0) / cell), y0 + cell * round((y - y0) / cell)
+
+
+def _start_layout(
+    rng: np.random.Generator, poly: ConvexPolygon, n: int, layout: str, grid: bool, fam: Family, link: float
+) -> list[tuple[float, float, float]]:
+    """Start poses (x, y, heading_deg): on an edge, heading inwards, or clustered about a point."""
+    cell = fam.cell_size
+    x0, y0 = poly.vertices.min(axis=0) + cell / 2
+    spacing = rng.uniform(2.0, 6.0) * cell
+    verts = poly.vertices
+    if layout == "edge":
+        e = int(rng.integers(len(verts)))
+        a, b = verts[e], verts[(e + 1) % len(verts)]
+        length = float(np.linalg.norm(b - a))
+        spacing = min(spacing, 0.8 * link, (length - 2 * cell) / max(n - 1, 1))
+        inward = -poly.normals[e]
+        mid = (a + b) / 2 + inward * cell * 0.5
+        along = (b - a) / length
+        points = [mid + along * spacing * (i - (n - 1) / 2) for i in range(n)]
+        heading = _heading_deg(inward[0], inward[1], grid)
+        poses = [(float(p[0]), float(p[1]), heading) for p in points]
+    else:
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        while True:
+            c = rng.uniform(lo, hi)
+            if poly.contains(c[0], c[1]):
+                break
+        base = rng.uniform(-180, 180)
+        poses = []
+        for _ in range(50 * n):
+            if len(poses) == n:
+                break
+            p = c + rng.normal(0, spacing * math.sqrt(n) / 2, 2) if poses else c
+            far = all(math.dist(p, q[:2]) >= 1.5 * spacing / 2 + 60 for q in poses)
+            near = not poses or any(math.dist(p, q[:2]) <= 0.7 * link for q in poses)
+            if far and near and poly.contains(p[0], p[1]):
+                h = math.radians(base + rng.uniform(-30, 30))
+                poses.append((float(p[0]), float(p[1]), _heading_deg(math.cos(h), math.sin(h), grid)))
+    if grid:
+        poses = [(*_snap(x, y, x0, y0, cell), h) for x, y, h in poses]
+    return [(round(x, 1), round(y, 1), h) for x, y, h in poses]
+
+
+def _peaks(
+    rng: np.random.Generator, cells: np.ndarray, centres: np.ndarray, sigmas: np.ndarray, targets: int
+) -> np.ndarray:
+    """Peaks of eq. 1 in proportion to random weights, scaled (bisection) so that the expected number
+    of targets, sum_p Pr_p, is the mission's target count (or as near as peaks <= 1 allow)."""
+    weights = rng.uniform(0.5, 1.0, len(centres))
+    shape = np.exp(-np.sum((cells[:, None, :] - centres[None]) ** 2, axis=-1) / (2 * sigmas**2))
+
+    def expected(scale: float) -> float:
+        return float(np.sum(1 - np.prod(1 - scale * weights * shape, axis=1)))
+
+    lo, hi = 0.0, 1.0 / weights.max()
+    if expected(hi) <= targets:
+        return np.round(weights * hi, 6)
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if expected(mid) < targets else (lo, mid)
+    return np.round(weights * hi, 6)
+
+
+def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict:
+    """One candidate mission as a TOML-ready dict (validated by the caller)."""
+    verts = _polygon(rng, fam)
+    poly = ConvexPolygon.from_vertices(verts)
+    mode = str(rng.choice(fam.modes))
+    n = int(rng.integers(fam.uavs[0], fam.uavs[1] + 1))
+    layout = str(rng.choice(fam.layouts))
+    r_c, buffer = 1000.0, 5.0
+    poses = _start_layout(rng, poly, n, layout, mode == "grid", fam, r_c - buffer)
+    across = float(np.max(np.linalg.norm(verts[:, None] - verts[None], axis=-1)))
+    k = int(rng.integers(fam.centres[0], fam.centres[1] + 1))
+    lo, hi = verts.min(axis=0), verts.max(axis=0)
+    centres = []
+    while len(centres) < k:
+        c = rng.uniform(lo, hi)
+        if poly.contains(c[0], c[1]):
+            centres.append(c)
+    sigmas = rng.uniform(*fam.sigma, k) * across
+    cell = fam.cell_size
+    xs = np.arange(lo[0] + cell / 2, hi[0], cell)
+    ys = np.arange(lo[1] + cell / 2, hi[1], cell)
+    grid = np.array([(x, y) for y in ys for x in xs])
+    grid = grid[np.asarray(poly.contains(grid[:, 0], grid[:, 1]))]
+    targets = int(min(rng.integers(fam.targets[0], fam.targets[1] + 1), len(grid)))
+    peaks = _peaks(rng, grid, np.array(centres), sigmas, targets)
+    n_g = int(np.clip(round(len(grid) / 50), 8, 120))
+    return {
+        "name": name,
+        "seed": seed,
+        "steps": fam.steps,
+        "region": {
+            "polygon": verts.tolist(),
+            "cell_size": cell,
+            "origin": {"lat": -35.363261, "lon": 149.16523, "alt": 584.0},
+        },
+        "prior": {
+            "sigma": float(np.round(sigmas.mean(), 1)),
+            "targets": targets,
+            "centres": [
+                {
+                    "x": round(float(c[0]), 1),
+                    "y": round(float(c[1]), 1),
+                    "peak": float(p),
+                    "sigma": round(float(sd), 1),
+                }
+                for c, p, sd in zip(centres, peaks, sigmas, strict=True)
+            ],
+        },
+        "sensor": {"radius": 60.0},
+        "kinematics": {"mode": mode, "speed": 20.0, "step": 2.0, "turn_limit_deg": 45.0, "altitude": 100.0},
+        "comms": {"range": r_c, "attraction": 700.0, "safety": 60.0, "repulsion": 120.0},
+        "safety": {"margin": 100.0, "buffer": buffer},
+        "algorithm": {"name": "proposed", "n_g": n_g},
+        "vehicles": [{"x": x, "y": y, "heading_deg": h} for x, y, h in poses],
+    }
+
+
+def generate(count: int, seed: int, family: Family | None = None) -> list[tuple[Mission, str]]:
+    """`count` valid missions of the family (default: `Family()`) and their TOML text, reproducible
+    from `seed`."""
+    family = family or Family()
+    out = []
+    for i in range(count):
+        rng = np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(i,)))
+        for _ in range(ATTEMPTS):
+            text = tomli_w.dumps(_draw(rng, family, f"generated-{seed}-{i:03d}", seed * 1000 + i))
+            try:
+                out.append((parse_mission(text, f"generated mission {i}"), text))
+                break
+            except MissionError:
+                continue
+        else:
+            raise ValueError(
+                f"no valid mission {i} of seed {seed} in {ATTEMPTS} draws: the family is too tight"
+            )
+    return out
+
+
+def write(missions: list[tuple[Mission, str]], out: Path) -> list[Path]:
+    """Write each mission as `out/<name>.toml`; returns the paths."""
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for mission, text in missions:
+        path = out / f"{mission.name}.toml"
+        path.write_text(
+            f"# {mission.name}: written by `uavsearch generate` (companion.batch.generate)\n{text}"
+        )
+        paths.append(path)
+    return paths

@@ -1,0 +1,229 @@
+"""One UAV's side of the commitment protocol that keeps every pair of UAVs separated and the
+tethers (links that must hold) within range (docs/algorithm.md, "Safety layer").
+
+Every UAV i always has a trajectory in force, T_i^k, which it flies over [t_k, t_k+1]; it is
+compatible (core.safety) with every other UAV's trajectory in force, for all later time. At step k
+it publishes T_i^k and a proposal P_i^k that agrees with T_i^k up to t_k+1; at step k+1, having
+heard its neighbours' step-k messages, it switches to P_i^k only if P_i^k is compatible with every
+other UAV j's T_j^k and, for j of a lower id (priority), with P_j^k too. Whatever each of two UAVs
+then decides, their new trajectories in force are compatible: the lower id checked its proposal
+against the other's old trajectory, the higher id against both of the other's. A UAV whose step-k
+message was not heard is represented by everything it could be flying: a disk around where it was
+last known, growing by a step per step of silence, or, once silent for `peer_timeout_steps`,
+what it last published plus the autopilot's failsafe (it is taken as gone). Rejecting a proposal
+is always safe: the trajectory in force ends in a loiter inside the fence.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+import numpy as np
+
+from companion.core.geometry import FloatArray
+from companion.core.messages import StateMsg, UavState
+from companion.core.safety import compatible, feasible_sides
+from companion.core.trajectory import Trajectory, step_pose
+from companion.core.world import World
+
+Disk = tuple[float, float, float]  # centre x, centre y, radius
+ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
+
+
+class Commitments:
+    """The trajectories in force and proposed of UAV `uav`, its tethers, and what it knows of the
+    others' commitments."""
+
+    def __init__(self, world: World, uav: int) -> None:
+        plan = world.safety
+        self.world, self.uav, self.limits = world, uav, plan.limits
+        self.ranks, self.failsafe = plan.ranks, plan.failsafe_reach
+        self.timeout = world.mission.comms.peer_timeout_steps
+        self.inforce: Trajectory = plan.start[uav]
+        self.proposal: Trajectory | None = None  # P_i^{k-1}, resolved at step k
+        self.parents: tuple[int, ...] = (plan.parents[uav],) if plan.parents[uav] >= 0 else ()
+        self.parent_since = -1  # step the newest parent was named
+        self.latest: dict[int, UavState] = {
+            j: UavState(j, 0, t.x, t.y, t.heading, (), committed=t)
+            for j, t in enumerate(plan.start)
+            if j != uav
+        }
+        self.fresh: dict[int, StateMsg] = {}
+        self.left: set[int] = set()  # reported gone by the mesh (liveliness), until heard again
+        self.dead: set[int] = set()
+        self.accepted = self.rejected = 0
+        self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
+        self._shapes = world.safety.shapes
+
+    # -- what is known of the others -------------------------------------------------------------
+    def observe(self, k: int, fresh: dict[int, StateMsg], states: Iterable[UavState]) -> None:
+        """Take this step's first-hand StateMsgs (stamped k - 1) and every state heard or relayed."""
+        self.fresh = fresh
+        for s in states:
+            old = self.latest.get(s.uav)
+            if s.uav != self.uav and (old is None or s.stamp > old.stamp):
+                self.latest[s.uav] = s
+        self.left -= fresh.keys()
+        self.dead = {
+            j
+            for j, s in self.latest.items()
+            if j not in fresh and (j in self.left or s.stamp < k - 1 - self.timeout)
+        }
+
+    def gone(self, uav: int) -> None:
+        """`uav` has left the mesh (its companion stopped): it flies what it last published."""
+        if uav in self.latest:
+            self.left.add(uav)
+            self.dead.add(uav)
+
+    def _possible(self, k: int, j: int, both: bool) -> tuple[list[Trajectory], list[Disk]]:
+        """Trajectories and disks that hold whatever UAV j flies from t_k on (for the check at step
+        k of a proposal): its step k-1 trajectory in force (and proposal when `both`) if heard,
+        else what it can reach since it was last known, or, if gone, its last commitments and its
+        autopilot's failsafe."""
+        s = self.latest[j]
+        if k == 0:
+            return [s.committed] if s.committed is not None else [], []
+        if j in self.fresh:
+            mine = self.fresh[j].state
+            trajs = [mine.committed] + ([mine.proposal] if both and mine.proposal is not None else [])
+            return [t for t in trajs if t is not None], []
+        if j in self.dead:
+            trajs = [t for t in (s.committed, s.proposal) if t is not None]
+            return trajs, [(s.x, s.y, self.failsafe)]
+        r = self.limits.reach
+        return [], [(s.x, s.y, (k + 1 - s.stamp) * r.step + r.extent)]
+
+    def _children(self) -> set[int]:
+        return {c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead}
+
+    def _arrays(
+        self, k: int, first: int, resolving: bool, anchor: tuple[float, float]
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Everything a trajectory of this UAV anchored at `anchor` at step `first` must keep clear
+        of, and keep within range of (tethers: parents and children), expanded over the check's
+        window. UAVs too far to matter are left out: every point of a trajectory lies within
+        `Reach.extent` of its anchor."""
+        lim = self.limits
+        r = lim.reach
+        others: list[Trajectory] = []
+        tethered: list[Trajectory] = []
+        disks: list[Disk] = []
+        tether_disks: list[Disk] = []
+        links = (set(self.parents) | self._children()) - self.dead
+        reach = 2 * r.extent + r.step + lim.separation
+        for j in self.latest:
+            trajs, dsk = self._possible(k, j, both=not resolving or j < self.uav)
+            if j in links:
+                tethered += trajs
+                tether_disks += dsk
+            else:
+                s = self.fresh[j].state if j in self.fresh else self.latest[j]
+                near = math.hypot(s.x - anchor[0], s.y - anchor[1])
+                if near > max([reach] + [r.extent + d[2] + lim.disk_separation for d in dsk]):
+                    continue
+            others += trajs
+            disks += dsk
+        width = r.window + 1
+
+        def expanded(trajs: list[Trajectory]) -> FloatArray:
+            return lim.expand(lim.rows(trajs), first) if trajs else np.zeros((0, width, 2))
+
+        def table(d: list[Disk]) -> FloatArray:
+            return np.array(d, dtype=float).reshape(-1, 3)
+
+        return expanded(others), table(disks), expanded(tethered), table(tether_disks)
+
+    # -- the protocol, step by step --------------------------------------------------------------
+    def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
+        """T_i^k: switch to the pending proposal if it is still compatible with everything the others
+        may fly (see the module docstring), anchored at the UAV's pose at t_k."""
+        lim = self.limits
+        turn = lim.reach.loiter_turn
+        chosen = self.inforce
+        if self.proposal is not None and self.proposal.start == k:
+            anchor = (self.proposal.x, self.proposal.y)
+            others, disks, tethers, tether_disks = self._arrays(k, k, True, anchor)
+            pts = lim.expand(lim.rows([self.proposal]), k)[0]
+            if compatible(pts, others, disks, tethers, tether_disks, *lim.clearances):
+                chosen = self.proposal
+                self.accepted += 1
+            else:
+                self.rejected += 1
+        self.inforce = chosen.reanchored(k, x, y, heading, turn)
+        self.proposal = None
+        return self.inforce
+
+    def next_pose(self, x: float, y: float, heading: float) -> tuple[float, float, float]:
+        """The pose at t_k+1 when flying the trajectory in force from (x, y, heading) at t_k."""
+        lim = self.limits
+        turn = self.inforce.turn_at(self.inforce.start, lim.reach.loiter_turn)
+        return step_pose(x, y, heading, turn, lim.grid, lim.speed, lim.dt, lim.cell)
+
+    def update_parents(self, k: int, position: FloatArray) -> None:
+        """Make-before-break re-tethering: name the nearest UAV of a lower rank as a second parent
+        when it is clearly nearer than the parent and the trajectories in force keep the link; drop
+        the old parent once the new one has heard it named; drop parents that are gone."""
+        self.parents = tuple(p for p in self.parents if p not in self.dead)
+        if len(self.parents) == 2:
+            new = self.parents[1]
+            msg = self.fresh.get(new)
+            if msg is not None and self.uav in msg.heard and k - ACK_STEPS >= self.parent_since:
+                self.parents = (new,)
+            return
+        rank = self.ranks[self.uav]
+        if rank == 0:
+            return
+        lim = self.limits
+
+        def distance(j: int) -> float:
+            s = self.latest[j]
+            return math.hypot(s.x - position[0], s.y - position[1])
+
+        current = distance(self.parents[0]) if self.parents else math.inf
+        better = [
+            j
+            for j in self.fresh
+            if self.ranks[j] < rank and j not in self.parents and distance(j) < current - 0.1 * lim.link
+        ]
+        for j in sorted(better, key=distance):
+            trajs, _ = self._possible(k, j, both=True)
+            pts = lim.expand(lim.rows([self.inforce]), k)[0]
+            tethers = lim.expand(lim.rows(trajs), k)
+            empty_o, empty_d = np.zeros((0, lim.reach.window + 1, 2)), np.zeros((0, 3))
+            if compatible(pts, empty_o, empty_d, tethers, empty_d, *lim.clearances):
+                self.parents = (*self.parents, j)
+                self.parent_since = k
+                return
+
+    def candidate_sides(self, k: int, pose: tuple[float, float, float]) -> np.ndarray:
+        """For each path of eq. 23 (`PathTree.sequences`) from `pose` at t_k+1: the loiter side with
+        which the trajectory it makes may be proposed (fence, and compatible with what the others
+        may fly then), 0 if none."""
+        lim = self.limits
+        x, y, heading = pose
+        others, disks, tethers, tether_disks = self._arrays(k, k + 1, False, (x, y))
+        if lim.grid:
+            shapes, c, s = self._shapes[round(heading / (math.pi / 4)) % 8], 1.0, 0.0
+        else:
+            shapes, c, s = self._shapes[0], math.cos(heading), math.sin(heading)
+        return feasible_sides(
+            shapes,
+            x,
+            y,
+            c,
+            s,
+            lim.horizon,
+            self._centre,
+            lim.fence_normals,
+            lim.fence_offsets,
+            others,
+            disks,
+            tethers,
+            tether_disks,
+            *lim.clearances,
+        )
+
+    def propose(self, proposal: Trajectory | None) -> None:
+        self.proposal = proposal

@@ -1,0 +1,341 @@
+"""The safety layer's geometry: when two committed trajectories are compatible, which candidate
+paths may be proposed, and the contingencies every UAV starts with.
+
+Two trajectories are *compatible* when, for every time from the first step compared on (between
+sampling moments too), the UAVs flying them are farther apart than `Limits.separation`, and, for
+a tether (a link that must hold), closer than `Limits.link` at every sampling moment. Trajectories
+end in loiters, so comparing `Reach.window` steps covers all later time. Positions between
+sampling moments are compared along the chords, with the arcs' sagitta added to the distances
+(`trajectory.arc_chord_deviation`). The fence is the search region with each edge pushed out by
+the mission's `safety.margin` (the operating margin): every trajectory stays inside it forever.
+
+The protocol that keeps every pair of in-force trajectories compatible is in `commitment.py`; the
+invariant and its argument are in docs/algorithm.md ("Safety layer").
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from companion.core.geometry import ConvexPolygon, FloatArray
+from companion.core.kinematics import Kinematics
+from companion.core.trajectory import HEAD, Reach, Trajectory, expand, point_clearance, segment_clearance
+
+TURN_SIDES = (1, -1)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What compatibility means for one mission.
+
+    `separation`: the clearance two trajectories' chords must keep (R_s + buffer + both sagittas);
+    `disk_separation`: the clearance a chord keeps from a disk (R_s + buffer + one sagitta);
+    `link`: the largest tether length at a sampling moment (R_c - buffer);
+    `fence_normals`, `fence_offsets`: the fence's half-planes, pulled in by the sagitta.
+    """
+
+    reach: Reach
+    horizon: int
+    grid: bool
+    speed: float
+    dt: float
+    cell: float
+    separation: float
+    disk_separation: float
+    link: float
+    fence_normals: FloatArray
+    fence_offsets: FloatArray
+
+    @classmethod
+    def build(
+        cls,
+        kin: Kinematics,
+        horizon: int,
+        region: ConvexPolygon,
+        r_s: float,
+        r_c: float,
+        margin: float,
+        buffer: float,
+    ) -> Limits:
+        reach = Reach.of(kin, horizon)
+        sag = reach.sagitta
+        return cls(
+            reach,
+            horizon,
+            kin.mode == "grid",
+            kin.speed,
+            kin.dt,
+            kin.cell_size,
+            r_s + buffer + 2 * sag,
+            r_s + buffer + sag,
+            r_c - buffer,
+            np.ascontiguousarray(region.normals),
+            region.offsets + margin - sag,
+        )
+
+    def expand(self, rows: FloatArray, first: int) -> FloatArray:
+        """Positions of every trajectory row at steps first..first + window: (n, window + 1, 2)."""
+        r = self.reach
+        return expand_rows(rows, first, r.window, r.loiter_turn, self.grid, self.speed, self.dt, self.cell)
+
+    def shapes(self, sequences: FloatArray) -> FloatArray:
+        """Every candidate trajectory relative to its anchor, for each loiter side (+1, -1):
+        (headings, n_paths, 2, window + 1, 2). Grid mode keeps one table per 45-degree heading;
+        continuous mode one for heading 0, which `feasible_sides` turns (eq. 2 turns with the
+        heading it starts from)."""
+        r = self.reach
+        headings = np.arange(8) * math.pi / 4 if self.grid else np.zeros(1)
+        out = np.empty((len(headings), len(sequences), 2, r.window + 1, 2))
+        row = np.empty(HEAD + self.horizon)
+        for h, heading in enumerate(headings):
+            for i, seq in enumerate(sequences):
+                for s, side in enumerate(TURN_SIDES):
+                    row[:HEAD] = (0, 0.0, 0.0, heading, side)
+                    row[HEAD:] = seq
+                    out[h, i, s] = expand(row, 0, r.window, *self.kinematics_args)
+        return out
+
+    def rows(self, trajectories: list[Trajectory]) -> FloatArray:
+        """The kernel rows of `trajectories` (`Trajectory.fields`)."""
+        return np.array([t.fields(self.horizon) for t in trajectories], dtype=float).reshape(
+            -1, HEAD + self.horizon
+        )
+
+    @property
+    def kinematics_args(self) -> tuple[float, bool, float, float, float]:
+        return self.reach.loiter_turn, self.grid, self.speed, self.dt, self.cell
+
+    @property
+    def clearances(self) -> tuple[float, float, float]:
+        """(separation, disk_separation, link), the trailing arguments of `compatible`."""
+        return self.separation, self.disk_separation, self.link
+
+
+@njit(cache=True)
+def expand_rows(
+    rows: FloatArray,
+    first: int,
+    count: int,
+    loiter_turn: float,
+    grid: bool,
+    speed: float,
+    dt: float,
+    cell: float,
+) -> FloatArray:
+    """`trajectory.expand` for every row."""
+    out = np.empty((rows.shape[0], count + 1, 2))
+    for i in range(rows.shape[0]):
+        out[i] = expand(rows[i], first, count, loiter_turn, grid, speed, dt, cell)
+    return out
+
+
+@njit(cache=True)
+def compatible(
+    pts: FloatArray,
+    others: FloatArray,
+    disks: FloatArray,
+    tethers: FloatArray,
+    tether_disks: FloatArray,
+    separation: float,
+    disk_separation: float,
+    link: float,
+) -> bool:
+    """Whether the trajectory at `pts` (window + 1 positions) keeps clear of every expanded
+    trajectory in `others` and every disk (cx, cy, r) in `disks` between sampling moments, and
+    within `link` of every trajectory in `tethers` and of all of every disk in `tether_disks` at
+    every sampling moment."""
+    for o in range(others.shape[0]):
+        if segment_clearance(pts, others[o]) <= separation:
+            return False
+    for d in range(disks.shape[0]):
+        if point_clearance(pts, disks[d, 0], disks[d, 1]) - disks[d, 2] <= disk_separation:
+            return False
+    for o in range(tethers.shape[0]):
+        for t in range(pts.shape[0]):
+            if math.hypot(pts[t, 0] - tethers[o, t, 0], pts[t, 1] - tethers[o, t, 1]) >= link:
+                return False
+    for d in range(tether_disks.shape[0]):
+        for t in range(pts.shape[0]):
+            far = (
+                math.hypot(pts[t, 0] - tether_disks[d, 0], pts[t, 1] - tether_disks[d, 1])
+                + tether_disks[d, 2]
+            )
+            if far >= link:
+                return False
+    return True
+
+
+@njit(cache=True)
+def inside_fence(pts: FloatArray, normals: FloatArray, offsets: FloatArray) -> bool:
+    """Every point within the fence's half-planes (chords then stay inside: the fence is convex)."""
+    for t in range(pts.shape[0]):
+        for e in range(normals.shape[0]):
+            if pts[t, 0] * normals[e, 0] + pts[t, 1] * normals[e, 1] > offsets[e]:
+                return False
+    return True
+
+
+@njit(cache=True)
+def feasible_sides(
+    shapes: FloatArray,
+    x: float,
+    y: float,
+    cos_h: float,
+    sin_h: float,
+    horizon: int,
+    centre: FloatArray,
+    normals: FloatArray,
+    offsets: FloatArray,
+    others: FloatArray,
+    disks: FloatArray,
+    tethers: FloatArray,
+    tether_disks: FloatArray,
+    separation: float,
+    disk_separation: float,
+    link: float,
+) -> np.ndarray:
+    """For each candidate path: the loiter side (+1 or -1) with which its trajectory stays in the
+    fence and is compatible with everything given, 0 if neither. `shapes` (n_paths, 2 sides,
+    window + 1, 2) holds the trajectories relative to their anchor (`Limits.shapes`), placed at
+    (x, y) and turned by the heading (cos_h, sin_h). The side that turns towards `centre` (the
+    region's centroid) at the plan's end is tried first."""
+    n_paths, width = shapes.shape[0], shapes.shape[2]
+    out = np.zeros(n_paths, dtype=np.int64)
+    pts = np.empty((width, 2))
+    for i in range(n_paths):
+        s0 = shapes[i, 0]
+        ex = s0[horizon, 0] - s0[horizon - 1, 0]
+        ey = s0[horizon, 1] - s0[horizon - 1, 1]
+        ex, ey = cos_h * ex - sin_h * ey, sin_h * ex + cos_h * ey
+        px = x + cos_h * s0[horizon, 0] - sin_h * s0[horizon, 1]
+        py = y + sin_h * s0[horizon, 0] + cos_h * s0[horizon, 1]
+        first = 0 if ex * (centre[1] - py) - ey * (centre[0] - px) >= 0 else 1
+        for side in (first, 1 - first):
+            for t in range(width):
+                ox, oy = shapes[i, side, t, 0], shapes[i, side, t, 1]
+                pts[t, 0] = x + cos_h * ox - sin_h * oy
+                pts[t, 1] = y + sin_h * ox + cos_h * oy
+            if inside_fence(pts, normals, offsets) and compatible(
+                pts, others, disks, tethers, tether_disks, separation, disk_separation, link
+            ):
+                out[i] = 1 if side == 0 else -1
+                break
+    return out
+
+
+# -- the start: a tree of tethers and a contingency for every UAV -------------------------------------
+
+
+def tether_tree(positions: FloatArray, link: float) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """Ranks and parents of the start layout: ranks in breadth-first order from UAV 0 over the graph
+    of pairs closer than `link` (nearer neighbours first), each UAV's parent the nearest UAV of a
+    lower rank within `link`, -1 for the root. A layout that is not connected gives a forest: each
+    further component is ranked from its lowest id, whose parent is -1 too."""
+    n = len(positions)
+    d = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=-1)
+    rank = [-1] * n
+    order: list[int] = []
+    for root in range(n):
+        if rank[root] >= 0:
+            continue
+        rank[root] = len(order)
+        order.append(root)
+        queue = deque([root])
+        while queue:
+            u = queue.popleft()
+            for v in sorted(range(n), key=lambda v: d[u, v]):
+                if rank[v] < 0 and d[u, v] < link:
+                    rank[v] = len(order)
+                    order.append(v)
+                    queue.append(v)
+
+    def parent(v: int) -> int:
+        lower = [u for u in range(n) if rank[u] < rank[v] and d[u, v] < link]
+        return min(lower, key=lambda u: d[u, v]) if lower else -1
+
+    return tuple(rank), tuple(parent(v) for v in range(n))
+
+
+def initial_trajectories(
+    poses: FloatArray, parents: tuple[int, ...], ranks: tuple[int, ...], limits: Limits
+) -> list[Trajectory]:
+    """A contingency per UAV from its start pose, pairwise compatible and keeping every tether to a
+    parent: straight for s steps (M >= s >= 0, longer first), then loiter on one side. Searched in
+    rank order with backtracking; raises ValueError when the start layout admits none."""
+    n, m = len(poses), limits.horizon
+    turn = limits.reach.loiter_turn
+    options: list[list[tuple[Trajectory, FloatArray]]] = []
+    for x, y, h in poses:
+        opts = []
+        for s in range(m + 1):
+            for side in TURN_SIDES:
+                traj = Trajectory(
+                    0, float(x), float(y), float(h), (0.0,) * s + (side * turn,) * (m - s), side
+                )
+                pts = limits.expand(limits.rows([traj]), 0)[0]
+                if inside_fence(pts, limits.fence_normals, limits.fence_offsets):
+                    opts.append((traj, pts))
+        options.append(opts)
+    order = sorted(range(n), key=lambda u: ranks[u])
+    chosen: dict[int, FloatArray] = {}
+    picks: dict[int, Trajectory] = {}
+    empty = np.zeros((0, limits.reach.window + 1, 2))
+    no_disks = np.zeros((0, 3))
+
+    def place(i: int) -> bool:
+        if i == len(order):
+            return True
+        u = order[i]
+        others = np.array([chosen[v] for v in chosen]) if chosen else empty
+        tethers = np.array([chosen[parents[u]]]) if parents[u] >= 0 else empty
+        for traj, pts in options[u]:
+            ok = compatible(
+                pts,
+                others,
+                no_disks,
+                tethers,
+                no_disks,
+                limits.separation,
+                limits.disk_separation,
+                limits.link,
+            )
+            if ok:
+                chosen[u], picks[u] = pts, traj
+                if place(i + 1):
+                    return True
+                del chosen[u], picks[u]
+        return False
+
+    if not place(0):
+        raise ValueError(
+            "no start contingency: the vehicles cannot all loiter from their start poses inside the "
+            "fence while keeping the safety distance and their links"
+        )
+    return [picks[u] for u in range(n)]
+
+
+def minimum_margin(kin: Kinematics, horizon: int) -> float:
+    """The smallest operating margin with which a UAV anywhere on the region's edge, with any
+    heading, has a contingency inside the fence: the largest, over headings, of how far beyond the
+    edge its best start contingency (straight for s <= M steps, then loiter) reaches. The edge is a
+    straight line through the UAV with outward normal +y."""
+    reach = Reach.of(kin, horizon)
+    grid = kin.mode == "grid"
+    headings = np.arange(8) * math.pi / 4 if grid else np.linspace(-math.pi, math.pi, 361)
+    worst = 0.0
+    for h in headings:
+        best = math.inf
+        for s in range(horizon + 1):
+            for side in TURN_SIDES:
+                row = np.full(HEAD + horizon, float(side) * reach.loiter_turn)
+                row[:HEAD] = (0, 0.0, 0.0, h, side)
+                row[HEAD : HEAD + s] = 0.0
+                pts = expand(row, 0, reach.window, reach.loiter_turn, grid, kin.speed, kin.dt, kin.cell_size)
+                best = min(best, float(pts[:, 1].max()))
+        worst = max(worst, best)
+    return worst + reach.sagitta

@@ -1,0 +1,54 @@
+"""Fixtures of the view's tests: a headless Chromium driven by Playwright, and the e2e suite's
+missions and process tracking (real processes over loopback only)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from playwright.sync_api import BrowserContext, sync_playwright
+
+from tests.e2e.conftest import make_mission, procs  # noqa: F401  (fixtures)
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENARIO1 = ROOT / "mission_files" / "scenario1.toml"
+CHROMIUM = Path("/usr/bin/chromium")
+# Chromium as root in a closed network: no sandbox, no GPU, no background connections.
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[BrowserContext]:
+    """Debian's Chromium under Playwright (a fresh profile). Missing: a skip, or under CI a failure."""
+    if not CHROMIUM.exists():
+        message = f"{CHROMIUM} is missing: `make test` installs it (apt-get install chromium)"
+        if os.environ.get("CI") == "true":
+            pytest.fail(message)
+        pytest.skip(message)
+    profile = tempfile.mkdtemp(prefix="uavsearch-chromium-")
+    with sync_playwright() as p:
+        context = p.chromium.launch_persistent_context(
+            profile,
+            executable_path=str(CHROMIUM),
+            args=CHROMIUM_FLAGS,
+            headless=True,
+            viewport={"width": 1400, "height": 900},
+        )
+        try:
+            yield context
+        finally:
+            context.close()
+            shutil.rmtree(profile, ignore_errors=True)
