@@ -163,23 +163,26 @@ def _generate(args: argparse.Namespace) -> int:
 def _soak(args: argparse.Namespace) -> int:
     from rich.console import Console
 
+    from companion.batch.executors import open_executor
     from companion.batch.soak import soak, soak_specs
 
     algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
     specs = soak_specs(args.missions, args.seed, args.steps, algorithms, args.loss, args.kill, _family(args))
     console = Console(highlight=False)
     runs = events = 0
-    for row in soak(specs, args.workers):
-        runs += 1
-        events += not row.clean
-        if args.verbose or row.separation_losses or row.link_losses:
-            killed = f" killed {row.killed[0][0]}@{row.killed[0][1]}" if row.killed else ""
-            console.print(
-                f"{row.mission} {row.mode} {row.uavs} UAVs {row.algorithm}{killed}: "
-                f"{row.separation_losses} separation, {row.link_losses} link events, "
-                f"closest approach {row.closest_approach:.1f} m, found {row.targets_found}/{row.targets}",
-                style=None if row.clean else "bold red",
-            )
+    with open_executor(args.scheduler, args.workers) as executor:
+        for row in soak(specs, executor=executor):
+            runs += 1
+            events += not row.clean
+            if args.verbose or row.separation_losses or row.link_losses:
+                killed = f" killed {row.killed[0][0]}@{row.killed[0][1]}" if row.killed else ""
+                console.print(
+                    f"{row.mission} {row.mode} {row.uavs} UAVs {row.algorithm}{killed}: "
+                    f"{row.separation_losses} separation, {row.link_losses} link events, "
+                    f"closest approach {row.closest_approach:.1f} m, "
+                    f"found {row.targets_found}/{row.targets}",
+                    style=None if row.clean else "bold red",
+                )
     what = "a separation event" if args.kill else "a separation or link event"
     print(f"{runs} runs of {args.missions} generated missions: {events} with {what}")
     return 1 if events else 0
@@ -330,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("--algorithms", default="proposed,no-ta,pheromone")
     so.add_argument("--loss", type=float, default=0.0, help="message loss probability on the radio")
     so.add_argument("--kill", action="store_true", help="one companion per mission dies mid-run")
-    so.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(so)
     so.add_argument("--verbose", action="store_true", help="print every run, not only those with events")
     family_options(so)
     so.set_defaults(func=_soak)

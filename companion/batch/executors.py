@@ -2,7 +2,7 @@
 
 A study maps a top-level function (importable by name in every process, e.g. `montecarlo.execute`)
 over a list of items. An executor hands back `(index, result)` pairs as the items finish, each
-index exactly once; `collect` puts them back in item order. Two executors:
+index exactly once; `in_order` puts them back in item order. Two executors:
 
 - `LocalPool`: this machine's processes (a spawn pool), or this process when `workers == 1`;
 - `DaskCluster`: the workers of a Dask distributed scheduler, on any number of machines that have
@@ -27,7 +27,7 @@ from importlib.metadata import version
 from itertools import islice
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 if TYPE_CHECKING:
     from distributed import Future
@@ -65,22 +65,24 @@ def open_executor(scheduler: str | None = None, workers: int | None = None) -> I
         executor.close()
 
 
-def collect(pairs: Iterable[tuple[int, R]], n: int, on_result: Callable[[], object] | None = None) -> list[R]:
-    """The results of items 0..n-1 in item order; RuntimeError if one is missing or comes back twice."""
-    slots: list[Any] = [_MISSING] * n
+def in_order(
+    pairs: Iterable[tuple[int, R]], n: int, on_result: Callable[[], object] | None = None
+) -> Iterator[R]:
+    """The results of items 0..n-1 in item order, each as soon as every item before it is in
+    (`on_result` is called as each one arrives); RuntimeError if one is missing or comes twice."""
+    waiting: dict[int, R] = {}
+    following = 0
     for i, result in pairs:
-        if slots[i] is not _MISSING:
-            raise RuntimeError(f"item {i} came back twice")
-        slots[i] = result
+        if not following <= i < n or i in waiting:
+            raise RuntimeError(f"item {i} of {n} came back twice or does not exist")
+        waiting[i] = result
         if on_result is not None:
             on_result()
-    missing = [i for i, s in enumerate(slots) if s is _MISSING]
-    if missing:
-        raise RuntimeError(f"{len(missing)} of {n} items never came back (the first: {missing[0]})")
-    return slots
-
-
-_MISSING = object()
+        while following in waiting:
+            yield waiting.pop(following)
+            following += 1
+    if following < n:
+        raise RuntimeError(f"{n - following} of {n} items never came back (the first: {following})")
 
 
 def _chunk_size(n: int, workers: int) -> int:

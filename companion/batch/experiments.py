@@ -42,7 +42,7 @@ def run_all(specs: list[RunSpec], executor: RunExecutor, progress: bool, label: 
     """Run the specs on the executor with a progress bar fed as runs come back; results in spec order."""
     with _progress(progress) as bar:
         task = bar.add_task(f"{label} on {executor.description}", total=len(specs))
-        return run_specs(specs, executor=executor, on_result=lambda: bar.advance(task))
+        return list(run_specs(specs, executor=executor, on_result=lambda: bar.advance(task)))
 
 
 def compare(

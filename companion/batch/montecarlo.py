@@ -7,13 +7,13 @@ needs: the local process pool and a Dask cluster (`executors`) give the same res
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from companion.batch.engine import RunResult, simulate
-from companion.batch.executors import LocalPool, RunExecutor, collect
+from companion.batch.executors import LocalPool, RunExecutor, in_order
 from companion.mission import Mission
 
 
@@ -53,11 +53,12 @@ def run_specs(
     workers: int | None = None,
     executor: RunExecutor | None = None,
     on_result: Callable[[], object] | None = None,
-) -> list[RunResult]:
-    """The results of `specs`, in their order, computed on `executor` (default: a `LocalPool` of
-    `workers` processes); `on_result` is called as each run comes back."""
+) -> Iterator[RunResult]:
+    """The results of `specs` in their order, each as soon as those before it are in, computed on
+    `executor` (default: a `LocalPool` of `workers` processes); `on_result` is called as each run
+    comes back, in whatever order."""
     executor = executor or LocalPool(workers)
-    return collect(executor.imap_unordered(execute, specs), len(specs), on_result)
+    yield from in_order(executor.imap_unordered(execute, specs), len(specs), on_result)
 
 
 def ci95(values: np.ndarray) -> float:

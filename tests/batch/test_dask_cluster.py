@@ -37,7 +37,7 @@ def cluster(tmp_path: Path) -> Iterator[LoopbackCluster]:
 
 def _uavsearch(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", *args, "--quiet"],
+        [sys.executable, "-m", "companion.app.cli", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -58,8 +58,20 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return [{k: v for k, v in row.items() if k not in TIMING} for row in csv.DictReader(f)]
 
 
-def test_mc_and_sweep_on_the_cluster_equal_the_local_pool(cluster: LoopbackCluster, tmp_path: Path) -> None:
-    study = ["--mission", "mission_files/scenario1.toml", "--runs", "3", "--steps", "40", "--seed", "3"]
+def test_mc_sweep_and_soak_on_the_cluster_equal_the_local_pool(
+    cluster: LoopbackCluster, tmp_path: Path
+) -> None:
+    study = [
+        "--mission",
+        "mission_files/scenario1.toml",
+        "--runs",
+        "3",
+        "--steps",
+        "40",
+        "--seed",
+        "3",
+        "--quiet",
+    ]
     _ok(_uavsearch("mc", *study, "--out", str(tmp_path / "local"), "--workers", "2"))
     _ok(_uavsearch("mc", *study, "--out", str(tmp_path / "dask"), "--scheduler", cluster.address))
     local, dask = tmp_path / "local", tmp_path / "dask"
@@ -71,11 +83,30 @@ def test_mc_and_sweep_on_the_cluster_equal_the_local_pool(cluster: LoopbackClust
     executed = cluster.client.run(lambda dask_worker: dask_worker.state.executed_count)
     assert all(n > 0 for n in executed.values()), executed  # both workers computed runs
 
-    sweep = ["--mission", "mission_files/scenario2.toml", "--values", "10,40", "--runs", "2", "--steps", "30"]
+    sweep = [
+        "--mission",
+        "mission_files/scenario2.toml",
+        "--values",
+        "10,40",
+        "--runs",
+        "2",
+        "--steps",
+        "30",
+        "--quiet",
+    ]
     _ok(_uavsearch("sweep", *sweep, "--out", str(local), "--workers", "2"))
     _ok(_uavsearch("sweep", *sweep, "--out", str(dask), "--scheduler", cluster.address))
     local_points, dask_points = (json.loads((d / "sweep.json").read_text())["points"] for d in (local, dask))
     assert _without_timing(dict(enumerate(dask_points))) == _without_timing(dict(enumerate(local_points)))
+
+    soak = ["soak", "--missions", "3", "--seed", "4", "--steps", "30", "--kill", "--verbose"]
+    local_soak, dask_soak = (
+        _uavsearch(*soak, "--workers", "2"),
+        _uavsearch(*soak, "--scheduler", cluster.address),
+    )
+    assert local_soak.returncode in (0, 1), local_soak.stderr  # 1: a separation event (printed)
+    assert (dask_soak.returncode, dask_soak.stdout) == (local_soak.returncode, local_soak.stdout)
+    assert local_soak.stdout.count(" UAVs ") == 3 * 3  # every generated mission x algorithm, in order
 
 
 def _summaries(results: list[RunResult], runs: int) -> dict:
@@ -88,7 +119,7 @@ def test_a_worker_killed_mid_study_loses_no_run_and_counts_none_twice(cluster: L
     mission = load_mission(ROOT / "mission_files/scenario1.toml")
     runs = 16
     specs = specs_for(mission, ALGORITHMS, runs, 200, 11, lambda r: False)
-    local = run_specs(specs, workers=2)
+    local = list(run_specs(specs, workers=2))
 
     victim, survivor = sorted(cluster.workers)
     arrived: list[tuple[int, RunResult]] = []
