@@ -33,9 +33,9 @@ def _mc(args: argparse.Namespace) -> int:
             steps,
             seed,
             Path(args.out),
-            executor,
-            args.save_trajectories,
-            not args.quiet,
+            save_trajectories=args.save_trajectories,
+            progress=not args.quiet,
+            executor=executor,
         )
     copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
@@ -91,8 +91,8 @@ def _sweep(args: argparse.Namespace) -> int:
             args.steps or mission.steps,
             seed,
             Path(args.out),
-            executor,
-            not args.quiet,
+            progress=not args.quiet,
+            executor=executor,
         )
     for p in points:
         print(
@@ -109,7 +109,9 @@ def _bench(args: argparse.Namespace) -> int:
 
     missions = [load_mission(m) for m in args.missions]
     with open_executor(args.scheduler, args.workers) as executor:
-        result = bench(missions, args.runs, args.steps, args.seed, executor, args.study_runs)
+        result = bench(
+            missions, args.runs, args.steps, args.seed, study_runs=args.study_runs, executor=executor
+        )
     print(format_bench(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")

@@ -52,19 +52,20 @@ def compare(
     steps: int,
     seed: int,
     out: Path,
-    executor: RunExecutor | None = None,
+    workers: int | None = None,
     save_trajectories: bool = False,
     progress: bool = True,
+    executor: RunExecutor | None = None,
 ) -> dict:
     """The paper's comparison (Figures 8-10): every algorithm on the same mission instances, computed
-    on `executor` (default: a local pool on every core)."""
+    on `executor` (default: a local pool of `workers` processes)."""
     for a in algorithms:
         if a not in ALGORITHMS:
             raise ValueError(f"unknown algorithm {a!r}; choose from {', '.join(ALGORITHMS)}")
     out.mkdir(parents=True, exist_ok=True)
     record: Callable[[int], bool] = lambda r: save_trajectories or runs == 1 or r == 0  # noqa: E731
     specs = specs_for(mission, algorithms, runs, steps, seed, record)
-    flat = run_all(specs, executor or LocalPool(), progress, f"{mission.name}: {len(specs)} runs")
+    flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: {len(specs)} runs")
     results = {a: flat[i * runs : (i + 1) * runs] for i, a in enumerate(algorithms)}
     meta = {
         "mission": mission.name,
@@ -106,14 +107,16 @@ def sweep(
     steps: int,
     seed: int,
     out: Path,
-    executor: RunExecutor | None = None,
+    workers: int | None = None,
     progress: bool = True,
+    executor: RunExecutor | None = None,
 ) -> list[dict]:
-    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default)."""
+    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default), computed
+    on `executor` (default: a local pool of `workers` processes)."""
     out.mkdir(parents=True, exist_ok=True)
     missions = [_set_param(mission.with_algorithm("proposed"), param, v) for v in values]
     specs = [RunSpec(m, seed, r, steps) for m in missions for r in range(runs)]
-    flat = run_all(specs, executor or LocalPool(), progress, f"{mission.name}: sweep {param}")
+    flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: sweep {param}")
     summaries = [
         summarize(flat[i * runs : (i + 1) * runs]) | {param: json.loads(v)} for i, v in enumerate(values)
     ]
@@ -129,13 +132,14 @@ def bench(
     runs: int = 3,
     steps: int = 1000,
     seed: int = 1,
-    executor: RunExecutor | None = None,
+    workers: int | None = None,
     study_runs: int = 8,
+    executor: RunExecutor | None = None,
 ) -> dict:
     """Compute time per 1,000 sampling moments (Table 2 setting) and Monte Carlo throughput.
 
     Throughput is timed on the study's own mix: every mission x algorithm, `study_runs` runs each,
-    on `executor` (default: a local pool on every core). The whole-study estimate (every mission x
+    on `executor` (default: a local pool of `workers` processes). The whole-study estimate (every mission x
     algorithm, 1,000 runs of 1,000 steps: the paper's study for its three scenarios) is the
     executor's start-up (until the first `executor.workers` results are in) plus the steady per-run
     time after it times the remaining runs.
@@ -153,7 +157,7 @@ def bench(
                     "seconds_per_1000_steps": 1000 * float(np.mean(secs)) / steps,
                 }
             )
-    executor = executor or LocalPool()
+    executor = executor or LocalPool(workers)
     workers = executor.workers
     specs = [
         RunSpec(mission.with_algorithm(a), seed, r, steps)
