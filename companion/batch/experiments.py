@@ -139,10 +139,10 @@ def bench(
     """Compute time per 1,000 sampling moments (Table 2 setting) and Monte Carlo throughput.
 
     Throughput is timed on the study's own mix: every mission x algorithm, `study_runs` runs each,
-    on `executor` (default: a local pool of `workers` processes). The whole-study estimate (every mission x
-    algorithm, 1,000 runs of 1,000 steps: the paper's study for its three scenarios) is the
-    executor's start-up (until the first `executor.workers` results are in) plus the steady per-run
-    time after it times the remaining runs.
+    on `executor` (default: a local pool of `workers` processes). The whole-study estimate (every
+    mission x algorithm, 1,000 runs of 1,000 steps: the paper's study for its three scenarios) is
+    the executor's start-up (until the first `executor.workers` results are in) plus the steady
+    per-run time after it times the remaining runs.
     """
     rows = []
     for mission in missions:
