@@ -12,7 +12,7 @@ SWEEP_RUNS ?= 50
 $(BIN)/uavsearch: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[test,cluster]'
 	touch $@
 
 install: $(BIN)/uavsearch

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.batch.executors import ClusterError
 from companion.mission import MissionError, load_mission
 
 if TYPE_CHECKING:
@@ -16,6 +17,7 @@ if TYPE_CHECKING:
 
 
 def _mc(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import compare
     from companion.batch.report import copy_mission
 
@@ -23,17 +25,18 @@ def _mc(args: argparse.Namespace) -> int:
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
     seed = mission.seed if args.seed is None else args.seed
     steps = args.steps or mission.steps
-    summary = compare(
-        mission,
-        algorithms,
-        args.runs,
-        steps,
-        seed,
-        Path(args.out),
-        args.workers,
-        args.save_trajectories,
-        not args.quiet,
-    )
+    with open_executor(args.scheduler, args.workers) as executor:
+        summary = compare(
+            mission,
+            algorithms,
+            args.runs,
+            steps,
+            seed,
+            Path(args.out),
+            save_trajectories=args.save_trajectories,
+            progress=not args.quiet,
+            executor=executor,
+        )
     copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
     print(f"wrote {args.out}/summary.json, runs.csv, curves.csv and plots")
@@ -73,21 +76,24 @@ def _print_summary(summary: dict) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import sweep, sweep_values
 
     mission = load_mission(args.mission)
     seed = mission.seed if args.seed is None else args.seed
-    points = sweep(
-        mission,
-        args.param,
-        sweep_values(args.values),
-        args.runs,
-        args.steps or mission.steps,
-        seed,
-        Path(args.out),
-        args.workers,
-        not args.quiet,
-    )
+    values = sweep_values(args.values)
+    with open_executor(args.scheduler, args.workers) as executor:
+        points = sweep(
+            mission,
+            args.param,
+            values,
+            args.runs,
+            args.steps or mission.steps,
+            seed,
+            Path(args.out),
+            progress=not args.quiet,
+            executor=executor,
+        )
     for p in points:
         print(
             f"{args.param}={p[args.param]}: mean target time {p['mean_target_time']:.1f}, "
@@ -98,13 +104,34 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import bench, format_bench
 
     missions = [load_mission(m) for m in args.missions]
-    result = bench(missions, args.runs, args.steps, args.seed, args.workers, args.study_runs)
+    with open_executor(args.scheduler, args.workers) as executor:
+        result = bench(
+            missions, args.runs, args.steps, args.seed, study_runs=args.study_runs, executor=executor
+        )
     print(format_bench(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+def _cluster_bench(args: argparse.Namespace) -> int:
+    from companion.bench.cluster_bench import cluster_bench, format_cluster_bench
+
+    missions = [load_mission(m) for m in args.missions]
+    try:
+        workers = [int(w) for w in args.workers.split(",") if w.strip()]
+    except ValueError:
+        workers = []
+    if not workers or min(workers) < 1:
+        raise ValueError(f"--workers {args.workers!r}: give worker counts of at least 1, e.g. 1,2")
+    rows = cluster_bench(missions, workers, args.study_runs, args.steps, args.seed)
+    print(format_cluster_bench(rows))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
     return 0
 
 
@@ -138,23 +165,26 @@ def _generate(args: argparse.Namespace) -> int:
 def _soak(args: argparse.Namespace) -> int:
     from rich.console import Console
 
+    from companion.batch.executors import open_executor
     from companion.batch.soak import soak, soak_specs
 
     algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
     specs = soak_specs(args.missions, args.seed, args.steps, algorithms, args.loss, args.kill, _family(args))
     console = Console(highlight=False)
     runs = events = 0
-    for row in soak(specs, args.workers):
-        runs += 1
-        events += not row.clean
-        if args.verbose or row.separation_losses or row.link_losses:
-            killed = f" killed {row.killed[0][0]}@{row.killed[0][1]}" if row.killed else ""
-            console.print(
-                f"{row.mission} {row.mode} {row.uavs} UAVs {row.algorithm}{killed}: "
-                f"{row.separation_losses} separation, {row.link_losses} link events, "
-                f"closest approach {row.closest_approach:.1f} m, found {row.targets_found}/{row.targets}",
-                style=None if row.clean else "bold red",
-            )
+    with open_executor(args.scheduler, args.workers) as executor:
+        for row in soak(specs, executor=executor):
+            runs += 1
+            events += not row.clean
+            if args.verbose or row.separation_losses or row.link_losses:
+                killed = f" killed {row.killed[0][0]}@{row.killed[0][1]}" if row.killed else ""
+                console.print(
+                    f"{row.mission} {row.mode} {row.uavs} UAVs {row.algorithm}{killed}: "
+                    f"{row.separation_losses} separation, {row.link_losses} link events, "
+                    f"closest approach {row.closest_approach:.1f} m, "
+                    f"found {row.targets_found}/{row.targets}",
+                    style=None if row.clean else "bold red",
+                )
     what = "a separation event" if args.kill else "a separation or link event"
     print(f"{runs} runs of {args.missions} generated missions: {events} with {what}")
     return 1 if events else 0
@@ -221,6 +251,17 @@ def _companion_bench(args: argparse.Namespace) -> int:
     return bench_main(args.args)
 
 
+def _add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="tcp://HOST:PORT",
+        help="run on the workers of this Dask scheduler instead of local processes (README: cluster)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uavsearch", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -232,7 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--steps", type=int, default=None, help="sampling moments per run (default: mission)")
     mc.add_argument("--seed", type=int, default=None, help="default: the mission's seed")
     mc.add_argument("--out", default="out/mc")
-    mc.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    _add_executor_arguments(mc)
     mc.add_argument("--save-trajectories", action="store_true")
     mc.add_argument("--quiet", action="store_true", help="no progress bar")
     mc.set_defaults(func=_mc)
@@ -245,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--steps", type=int, default=None)
     sw.add_argument("--seed", type=int, default=None)
     sw.add_argument("--out", default="out/sweep")
-    sw.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(sw)
     sw.add_argument("--quiet", action="store_true")
     sw.set_defaults(func=_sweep)
 
@@ -254,12 +295,23 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--runs", type=int, default=3)
     be.add_argument("--steps", type=int, default=1000)
     be.add_argument("--seed", type=int, default=1)
-    be.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(be)
     be.add_argument(
         "--study-runs", type=int, default=8, help="runs per mission and algorithm in the throughput"
     )
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
     be.set_defaults(func=_bench)
+
+    cl = sub.add_parser(
+        "cluster-bench", help="Monte Carlo throughput: local pool against a Dask cluster on loopback"
+    )
+    cl.add_argument("--missions", nargs="+", default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)])
+    cl.add_argument("--workers", default="1,2", help="worker counts, e.g. 1,2")
+    cl.add_argument("--study-runs", type=int, default=20, help="runs per mission and algorithm")
+    cl.add_argument("--steps", type=int, default=1000)
+    cl.add_argument("--seed", type=int, default=1)
+    cl.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    cl.set_defaults(func=_cluster_bench)
 
     def family_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("--uavs", default="2-12", help="UAVs per mission (range)")
@@ -283,7 +335,7 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("--algorithms", default="proposed,no-ta,pheromone")
     so.add_argument("--loss", type=float, default=0.0, help="message loss probability on the radio")
     so.add_argument("--kill", action="store_true", help="one companion per mission dies mid-run")
-    so.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(so)
     so.add_argument("--verbose", action="store_true", help="print every run, not only those with events")
     family_options(so)
     so.set_defaults(func=_soak)
@@ -370,6 +422,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except ClusterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 
