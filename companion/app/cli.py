@@ -192,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
     be.set_defaults(func=_bench)
 
-    from companion.node.process import COMMAND_MODES
+    from companion.node.guidance import COMMAND_MODES
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
     co.add_argument("--mission", required=True)
@@ -204,7 +204,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     co.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
     co.add_argument(
-        "--takeover", action="store_true", help="switch the vehicle to its guided mode and arm it"
+        "--takeover",
+        action="store_true",
+        help="take off if on the ground, switch the vehicle to its guided mode and arm it",
+    )
+    co.add_argument(
+        "--fence",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="upload the region plus its margin as the autopilot's fence (default: with --takeover)",
     )
     co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
     co.add_argument("--steps", type=int, default=None)

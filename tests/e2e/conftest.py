@@ -411,8 +411,12 @@ def following(
     return Following(n, closer, err_c / max(n, 1), err_s / max(n, 1))
 
 
-def assert_follows(rows: list[dict[str, float]], speed: float, dt: float, what: str, skip: int = 3) -> None:
-    """The companion steered on most steps and the vehicle flew its commands, not straight on."""
+def assert_follows(
+    rows: list[dict[str, float]], speed: float, dt: float, what: str, skip: int = 3, ratio: float = 0.6
+) -> None:
+    """The companion steered on most steps and the vehicle flew its commands, not straight on: it
+    ended most steps closer to the planned point than straight on would have, and on average
+    within `ratio` of straight on's distance to it."""
     later = [r for r in rows if r["step"] >= rows[0]["step"] + skip]
     assert later, f"{what}: no steps logged"
     steered = sum(r["steered"] for r in later) / len(later)
@@ -420,4 +424,4 @@ def assert_follows(rows: list[dict[str, float]], speed: float, dt: float, what: 
     f = following(rows, speed, dt, skip)
     assert f.informative >= 5, f"{what}: too few turning commands to judge ({f})"
     assert f.closer >= 0.7 * f.informative, f"{what}: the vehicle did not follow its commands ({f})"
-    assert f.err_command < 0.6 * f.err_straight, f"{what}: the vehicle did not follow its commands ({f})"
+    assert f.err_command < ratio * f.err_straight, f"{what}: the vehicle did not follow its commands ({f})"
