@@ -10,6 +10,7 @@ protocol's requests and acks) are kept for the code that waits for them (`await_
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import struct
@@ -91,7 +92,9 @@ class TlogWriter:
 class VehicleLink:
     """One autopilot over MAVLink."""
 
-    def __init__(self, url: str, frame: LocalFrame, tlog: Path | None = None) -> None:
+    def __init__(
+        self, url: str, frame: LocalFrame, tlog: Path | None = None, component: int = COMPANION_COMPONENT
+    ) -> None:
         self.url, self.frame = url, frame
         self.state = VehicleState()
         self.rejected = 0
@@ -100,7 +103,7 @@ class VehicleLink:
         self._conn = mavutil.mavlink_connection(
             url,
             source_system=255,
-            source_component=COMPANION_COMPONENT,
+            source_component=component,
             autoreconnect=True,
             dialect="ardupilotmega",
         )
@@ -137,11 +140,14 @@ class VehicleLink:
     def poll(self, timeout: float) -> int:
         """Read every pending message (waiting up to `timeout` for the first); returns how many."""
         count = 0
-        msg = self._conn.recv_match(blocking=True, timeout=timeout)
-        while msg is not None:
-            count += 1
-            self._handle(msg)
-            msg = self._conn.recv_match(blocking=False)
+        try:
+            msg = self._conn.recv_match(blocking=True, timeout=timeout)
+            while msg is not None:
+                count += 1
+                self._handle(msg)
+                msg = self._conn.recv_match(blocking=False)
+        except (OSError, ValueError):  # a TCP vehicle gone: pymavlink's reconnect was refused
+            time.sleep(timeout)
         return count
 
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
@@ -381,6 +387,7 @@ class VehicleLink:
         self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
     def close(self) -> None:
-        self._conn.close()
+        with contextlib.suppress(OSError, AttributeError):  # pymavlink's TCP link after a failed reconnect
+            self._conn.close()
         if self._tlog:
             self._tlog.close()
