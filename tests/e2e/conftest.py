@@ -250,6 +250,26 @@ class Procs:
             proc.stop()
 
 
+def companion_pid(run: Proc, uav: int) -> int:
+    """The PID of the launcher's companion process for `uav` (from /proc: its command line)."""
+    deadline = time.monotonic() + STARTUP_S
+    while True:
+        run.refresh()
+        for pid in run.descendants:
+            try:
+                argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if (
+                b"companion" in argv
+                and b"--uav" in argv
+                and argv[argv.index(b"--uav") + 1] == str(uav).encode()
+            ):
+                return pid
+        assert run.alive() and time.monotonic() < deadline, f"no companion {uav}:\n{run.text()}"
+        time.sleep(0.2)
+
+
 @pytest.fixture
 def procs(tmp_path: Path) -> Iterator[Procs]:
     group = Procs(tmp_path)

@@ -17,32 +17,12 @@ import time
 from pathlib import Path
 
 from companion.node.frames import LocalFrame
-from tests.e2e.conftest import GUIDED, PY, STARTUP_S, Proc, Procs, read_csv, wait_rows
+from tests.e2e.conftest import GUIDED, PY, STARTUP_S, Procs, companion_pid, read_csv, wait_rows
 from tests.sim.conftest import distance_m
 
 STEPS = 80
 KILL_AFTER = 15  # steps logged by the victim before it is killed
 VICTIM = 2
-
-
-def _companion_pid(run: Proc, uav: int) -> int:
-    """The PID of the launcher's companion process for `uav` (from /proc: its command line)."""
-    deadline = time.monotonic() + STARTUP_S
-    while True:
-        run.refresh()
-        for pid in run.descendants:
-            try:
-                argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if (
-                b"companion" in argv
-                and b"--uav" in argv
-                and argv[argv.index(b"--uav") + 1] == str(uav).encode()
-            ):
-                return pid
-        assert run.alive() and time.monotonic() < deadline, f"no companion {uav}:\n{run.text()}"
-        time.sleep(0.2)
 
 
 def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_path: Path) -> None:
@@ -67,7 +47,7 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
             "--keep-going",
         ],
     )
-    victim_pid = _companion_pid(run, VICTIM)
+    victim_pid = companion_pid(run, VICTIM)
     deadline = time.monotonic() + STARTUP_S
     while "vehicle 3 sysid" not in ((out / "sim.log").read_text() if (out / "sim.log").exists() else ""):
         assert run.alive() and time.monotonic() < deadline, run.text()
