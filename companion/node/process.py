@@ -112,7 +112,7 @@ class Companion:
         margin = fence_margin(m)
         self.fence = fence_polygon(m, margin)
         region = ConvexPolygon.from_vertices(m.region.polygon)
-        self.guard = RegionGuard(opts.uav, region, self.fence, depth=margin)
+        self.guard = RegionGuard(opts.uav, region, self.fence, depth=margin, step_length=k.speed * k.step)
         self.airframe_warnings: list[str] = []
         self.fence_uploaded = False
         self._seen_alive: set[int] = set()

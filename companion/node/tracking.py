@@ -9,8 +9,9 @@ warns when the position error stays beyond a bound for several steps.
 `RegionGuard`: when the vehicle is outside the region plus its safety margin (the fence) the
 companion stops flying the plan and repositions the vehicle back inside (the nearest point one
 margin inside the region, where the autopilot circles); when the vehicle is back inside the region
-it flies the plan again. If it is not back within `patience` steps the companion stops steering for
-good and leaves the vehicle to the autopilot (its fence and failsafes).
+it flies the plan again. If it is not back within the steps the way back takes at the mission's
+speed plus `patience` steps, the companion stops steering for good and leaves the vehicle to the
+autopilot (its fence and failsafes).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from companion.node.fence import nearest_inside
 log = logging.getLogger("companion")
 
 WARN_STEPS = 3  # consecutive steps beyond the bound before a warning
-PATIENCE_STEPS = 30  # steps a vehicle outside the fence gets to come back inside the region
+PATIENCE_STEPS = 30  # steps a vehicle outside the fence gets, beyond the way back, to come back inside
 
 
 @dataclass(frozen=True)
@@ -127,20 +128,23 @@ class RegionGuard:
         region: ConvexPolygon,
         fence: ConvexPolygon,
         depth: float,
+        step_length: float,
         patience: int = PATIENCE_STEPS,
     ) -> None:
         self.uav, self.region, self.fence = uav, region, fence
-        self.depth, self.patience = depth, patience
+        self.depth, self.step_length, self.patience = depth, step_length, patience
         self.state = Guard.INSIDE
         self.exits = 0
-        self._since = 0
+        self._deadline = 0
 
     def check(self, k: int, x: float, y: float) -> tuple[float, float] | None:
         """Update the state with the pose of step k; the point to reposition to when it just left."""
         if self.state is Guard.INSIDE and not self.fence.contains(x, y):
-            self.state, self._since = Guard.RETURNING, k
+            self.state = Guard.RETURNING
             self.exits += 1
             target = nearest_inside(self.region, x, y, self.depth)
+            way_back = math.hypot(target[0] - x, target[1] - y) / self.step_length
+            self._deadline = k + math.ceil(way_back) + self.patience
             log.warning(
                 "uav %d: step %d: the vehicle left the region plus its margin at (%.0f, %.0f): "
                 "not flying the plan, repositioning to (%.0f, %.0f)",
@@ -157,13 +161,12 @@ class RegionGuard:
                 log.warning(
                     "uav %d: step %d: the vehicle is back inside the region: flying the plan", self.uav, k
                 )
-            elif k - self._since >= self.patience:
+            elif k >= self._deadline:
                 self.state = Guard.RELEASED
                 log.warning(
-                    "uav %d: step %d: the vehicle did not come back inside within %d steps: "
+                    "uav %d: step %d: the vehicle did not come back inside the region: "
                     "not steering any more, the autopilot's fence and failsafes act",
                     self.uav,
                     k,
-                    self.patience,
                 )
         return None

@@ -57,16 +57,16 @@ def test_plan_versus_flight() -> None:
 
 
 def test_region_guard_repositions_then_releases() -> None:
-    guard = RegionGuard(0, SQUARE, fence_polygon(CONTINUOUS), depth=100.0, patience=30)
+    guard = RegionGuard(0, SQUARE, fence_polygon(CONTINUOUS), depth=100.0, step_length=40.0, patience=30)
     assert guard.check(0, 1050.0, 0.0) is None and guard.state is Guard.INSIDE  # within the margin
     assert guard.check(1, 1150.0, 0.0) == pytest.approx((900.0, 0.0))
     assert guard.state is Guard.RETURNING
     assert guard.check(2, 1050.0, 0.0) is None and guard.state is Guard.RETURNING  # not in the region yet
     assert guard.check(3, 990.0, 0.0) is None and guard.state is Guard.INSIDE
-    assert guard.check(4, 0.0, 1200.0) == pytest.approx((0.0, 900.0))
-    guard.check(33, 0.0, 1200.0)
+    assert guard.check(4, 0.0, 1200.0) == pytest.approx((0.0, 900.0))  # 300 m back: 8 steps
+    guard.check(4 + 8 + 29, 0.0, 1200.0)
     assert guard.state is Guard.RETURNING
-    guard.check(34, 0.0, 1200.0)
+    guard.check(4 + 8 + 30, 0.0, 1200.0)
     assert guard.state is Guard.RELEASED and guard.exits == 2
 
 
