@@ -212,6 +212,11 @@ def _run(args: argparse.Namespace) -> int:
         keep_going=args.keep_going,
         view=args.view,
         view_port=args.view_port,
+        autopilot=args.autopilot,
+        vehicles=_links(args.vehicles),
+        camera_links=_links(args.camera_links),
+        sitl_binary=args.sitl_binary,
+        sitl_defaults=args.sitl_defaults,
     )
     try:
         return run_mission(options)
@@ -226,6 +231,10 @@ def _view(args: argparse.Namespace) -> int:
     return run_view(args)
 
 
+def _links(text: str | None) -> tuple[str, ...]:
+    return tuple(u.strip() for u in (text or "").split(",") if u.strip())
+
+
 def _router(args: argparse.Namespace) -> int:
     from companion.node.mesh import router_main
 
@@ -235,6 +244,12 @@ def _router(args: argparse.Namespace) -> int:
 
 def _sim(args: argparse.Namespace) -> int:
     from sim_vehicles.cli import run
+
+    return run(args)
+
+
+def _camera(args: argparse.Namespace) -> int:
+    from sim_vehicles.camera_node import run
 
     return run(args)
 
@@ -340,7 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
     family_options(so)
     so.set_defaults(func=_soak)
 
-    from companion.node.process import COMMAND_MODES
+    from companion.node.guidance import COMMAND_MODES
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
     co.add_argument("--mission", required=True)
@@ -352,7 +367,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     co.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
     co.add_argument(
-        "--takeover", action="store_true", help="switch the vehicle to its guided mode and arm it"
+        "--takeover",
+        action="store_true",
+        help="take off if on the ground, switch the vehicle to its guided mode and arm it",
+    )
+    co.add_argument(
+        "--fence",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="upload the region plus its margin as the autopilot's fence (default: with --takeover)",
     )
     co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
     co.add_argument("--steps", type=int, default=None)
@@ -367,8 +390,29 @@ def build_parser() -> argparse.ArgumentParser:
     ru.add_argument("--steps", type=int, default=None)
     ru.add_argument("--seed", type=int, default=None)
     ru.add_argument("--out", default="out/run")
-    ru.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
+    ru.add_argument(
+        "--command-mode",
+        choices=COMMAND_MODES,
+        default=None,
+        help="default: turn-rate on the bundled simulator, heading on other vehicles",
+    )
     ru.add_argument("--flavour", choices=("ardupilot", "px4"), default=None)
+    ru.add_argument(
+        "--autopilot",
+        choices=("bundled", "ardupilot-sitl"),
+        default="bundled",
+        help="the bundled simulator, or one ArduPlane SITL per UAV at its start pose",
+    )
+    ru.add_argument(
+        "--vehicles", default=None, help="fly vehicles that exist: one pymavlink URL per UAV, comma-separated"
+    )
+    ru.add_argument(
+        "--camera-links", default=None, help="with --vehicles: links for the stand-alone simulated camera"
+    )
+    ru.add_argument("--sitl-binary", default=None, help="ArduPlane SITL binary (default: $ARDUPLANE_SITL)")
+    ru.add_argument(
+        "--sitl-defaults", default=None, help="SITL parameter defaults (default: plane.parm by it)"
+    )
     ru.add_argument("--quiet", action="store_true")
     ru.add_argument(
         "--keep-going", action="store_true", help="fly all the steps even when every target is found"
@@ -393,6 +437,13 @@ def build_parser() -> argparse.ArgumentParser:
     si = sub.add_parser("sim", help="the MAVLink fixed-wing simulator (all the mission's vehicles)")
     add_arguments(si)
     si.set_defaults(func=_sim)
+    from sim_vehicles import camera_node
+
+    ca = sub.add_parser(
+        "camera", help="a stand-alone simulated camera for external vehicles (e.g. ArduPlane SITL)"
+    )
+    camera_node.add_arguments(ca)
+    ca.set_defaults(func=_camera)
     sb = sub.add_parser(
         "sim-bench", help="simulator capacity: vehicles in real time, highest speedup", add_help=False
     )

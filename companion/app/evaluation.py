@@ -1,8 +1,10 @@
 """Scoring a distributed run from what the companions logged and the simulator's truth record.
 
 The companions log, per step, their pose, task and mean uncertainty (`uav{i}.csv`); the simulator
-writes the ground-truth targets (`truth.json`). From these the evaluator rebuilds a `RunResult`,
-so a flown mission is summarised, plotted and compared exactly like a batch-engine run.
+(or the stand-alone camera) writes the ground-truth targets (`truth.json`). From these the
+evaluator rebuilds a `RunResult`, so a flown mission is summarised, plotted and compared exactly
+like a batch-engine run. `flight_report` adds what only a real flight has: the companions'
+plan-versus-flight errors (`uav{i}_plan.csv`) and how the poses kept to the fence.
 """
 
 from __future__ import annotations
@@ -14,7 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from companion.batch.engine import RunResult, Scorer
+from companion.core.geometry import ConvexPolygon
 from companion.core.world import World
+from companion.mission import Mission
+from companion.node.fence import fence_margin, fence_polygon
+from companion.node.tracking import percentiles
 
 
 class CompanionLogs:
@@ -117,3 +123,41 @@ def failed_criteria(world: World, result: RunResult) -> list[str]:
     if result.steps == 0:
         failures.append("no step was flown")
     return failures
+
+
+def _plan_rows(path: Path) -> list[dict[str, float]]:
+    if not path.exists():
+        return []
+    with path.open(newline="") as f:
+        rows = []
+        for row in csv.DictReader(f):
+            try:
+                rows.append({k: float(v) for k, v in row.items()})
+            except (TypeError, ValueError):  # a line cut short by a kill
+                continue
+        return rows
+
+
+def flight_report(mission: Mission, out: Path, logs: dict[int, dict[int, dict[str, float]]]) -> dict:
+    """Plan versus flight over the swarm (median, p95, max of the per-step position and heading
+    errors, all UAVs and each) and the logged poses outside the fence (region plus margin)."""
+    per_uav, position, heading = {}, [], []
+    for i in range(mission.n_uavs):
+        rows = _plan_rows(out / f"uav{i}_plan.csv")
+        p, h = [r["error_m"] for r in rows], [r["error_deg"] for r in rows]
+        position += p
+        heading += h
+        per_uav[i] = {"steps": len(rows), "position_m": percentiles(p), "heading_deg": percentiles(h)}
+    region = ConvexPolygon.from_vertices(mission.region.polygon)
+    fence = fence_polygon(mission)
+    poses = np.array([(r["x"], r["y"]) for rows in logs.values() for r in rows.values()]).reshape(-1, 2)
+    beyond = (poses @ region.normals.T - region.offsets).max(axis=1) if len(poses) else np.zeros(0)
+    return {
+        "steps": len(position),
+        "position_m": percentiles(position),
+        "heading_deg": percentiles(heading),
+        "per_uav": per_uav,
+        "fence_margin_m": fence_margin(mission),
+        "outside_fence": int(np.count_nonzero(~np.asarray(fence.contains(poses[:, 0], poses[:, 1])))),
+        "max_beyond_region_m": float(max(beyond.max(), 0.0)) if len(beyond) else 0.0,
+    }
