@@ -21,6 +21,7 @@ from companion.core.kinematics import Kinematics
 from companion.mission import Mission
 from companion.node.frames import LocalFrame
 from sim_vehicles import camera as cam
+from sim_vehicles.approach import ApproachRecorder
 from sim_vehicles.clock import LockstepClock, RealTimeClock
 from sim_vehicles.dynamics.flight import BankedFlight, Demand, Flight, GridFlight, KinematicFlight
 from sim_vehicles.mavlink_endpoint import Address, InputStats, MavlinkEndpoint
@@ -57,6 +58,7 @@ class HostOptions:
     zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     zenoh_connect: tuple[str, ...] | None = None  # None: the mission's seed endpoint / router
     truth: Path | None = None
+    approach: Path | None = None  # the physics-rate closest approaches (sim_vehicles.approach)
     host: str | None = None  # None: the mission's sim.host
 
 
@@ -279,6 +281,11 @@ class Host:
         self.bus: cam.CameraBus | None = None
         self.stopping = False
         self.stats = RunStats()
+        self.approach = (
+            ApproachRecorder(options.approach, mission.n_uavs, k.step, 3 * mission.comms.safety)
+            if options.approach is not None
+            else None
+        )
         try:
             bind = options.host or mission.sim.host
             for i, v in enumerate(mission.vehicles):
@@ -405,6 +412,8 @@ class Host:
         fl.tick(self._demand)
         self.tick += 1
         t = self.t
+        if self.approach is not None:
+            self.approach.update(t, fl.x, fl.y)
         for hv in hosted:
             if t >= hv.streams.next_any:
                 for msgid in hv.streams.due(t):
@@ -436,6 +445,9 @@ class Host:
         if self.bus is not None:
             self.bus.close()
             self.bus = None
+        if self.approach is not None:
+            self.approach.close()
+            self.approach = None
         for hv in self.hosted:
             hv.endpoint.close()
         self.selector.close()

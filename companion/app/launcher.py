@@ -27,7 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from companion.app import sitl
-from companion.app.evaluation import CompanionLogs, evaluate, failed_criteria, flight_report, truth_cells
+from companion.app.evaluation import (
+    CompanionLogs,
+    evaluate,
+    failed_criteria,
+    flight_report,
+    read_approach,
+    truth_cells,
+)
 from companion.batch import plots, report
 from companion.batch.engine import warm_up
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance
@@ -239,6 +246,8 @@ def _start_bundled(children: Children, opts: RunOptions, mission: Mission, seed:
         str(seed),
         "--truth",
         str(opts.out / "truth.json"),
+        "--approach",
+        str(opts.out / "approach.csv"),
         "--speedup",
         str(opts.speedup),
     ]
@@ -346,7 +355,9 @@ def run_mission(opts: RunOptions) -> int:
         if not (out / "truth.json").exists():
             return 1
     logs.poll()
-    result = evaluate(world, logs.logs, truth_cells(out / "truth.json"), time.monotonic() - started, seed)
+    approach = read_approach(out / "approach.csv")
+    targets = truth_cells(out / "truth.json")
+    result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed, approach)
     if result.steps == 0:
         print(
             "error: no step was flown (see the companion and vehicle logs in the output directory)",
@@ -379,6 +390,12 @@ def run_mission(opts: RunOptions) -> int:
         f"{len(result.target_cells)}, mean target time {s['mean_target_time']:.1f}, "
         f"min lambda_2 {s['min_lambda2']:.4f}, min distance {s['min_distance']:.1f} m"
     )
+    if approach:
+        print(
+            "closest approach along the flown tracks (simulator, physics rate): "
+            f"{result.approach.min():.1f} m (R_s = {mission.comms.safety:g} m); "
+            f"{result.separation_losses} steps within R_s"
+        )
     p, h = flight["position_m"], flight["heading_deg"]
     if p["median"] is not None:
         print(
