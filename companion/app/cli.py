@@ -18,8 +18,10 @@ if TYPE_CHECKING:
 def _mc(args: argparse.Namespace) -> int:
     from companion.batch.experiments import compare
     from companion.batch.report import copy_mission
+    from companion.batch.starts import parse_layouts
 
     mission = load_mission(args.mission)
+    layouts = parse_layouts(args.random_starts) if args.random_starts else ()
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
     seed = mission.seed if args.seed is None else args.seed
     steps = args.steps or mission.steps
@@ -33,10 +35,12 @@ def _mc(args: argparse.Namespace) -> int:
         args.workers,
         args.save_trajectories,
         not args.quiet,
+        layouts,
     )
     copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
-    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv and plots")
+    starts = " and starts.csv" if layouts else ""
+    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv, plots{starts}")
     return 0
 
 
@@ -234,6 +238,14 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--out", default="out/mc")
     mc.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     mc.add_argument("--save-trajectories", action="store_true")
+    mc.add_argument(
+        "--random-starts",
+        nargs="?",
+        const="edge,clustered",
+        default=None,
+        metavar="LAYOUTS",
+        help="draw each run's start layout (edge,clustered by default), the same for every algorithm",
+    )
     mc.add_argument("--quiet", action="store_true", help="no progress bar")
     mc.set_defaults(func=_mc)
 
