@@ -1,0 +1,152 @@
+"""Paired runs over sets of missions, shared by `uavsearch evaluate` and `uavsearch tune`.
+
+Run r of mission m is the same mission instance for every algorithm and every weight candidate
+(common random numbers): the run seed is the mission's seed, so its CVT draw, targets and radio
+draws, and with random starts its start layout, depend on (mission, r) only. `measure` is the one
+place where this module's callers map runs (through `montecarlo.run_specs`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import os
+import signal
+import threading
+import tomllib
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor
+from contextlib import contextmanager
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from companion.batch.engine import RunResult
+from companion.batch.montecarlo import RunSpec, _interrupt, _worker_init, run_specs
+from companion.batch.starts import random_start
+from companion.mission import Mission, MissionError, _field_from_msgspec, load_mission, validate
+
+METRICS = ("target_time", "mean_uncertainty")
+
+
+def run_metrics(r: RunResult) -> tuple[float, float]:
+    """A run's figures of merit, both lower-is-better: the mean step at which its targets were first
+    seen (an unfound target counting as the run's length; 0 without targets) and the global average
+    uncertainty of eq. 30 averaged over the run's steps (the area under the coverage curve)."""
+    time = float(r.target_times().mean()) if len(r.target_steps) else 0.0
+    return time, float(r.uncertainty.mean())
+
+
+def specs_grid(
+    missions: Sequence[Mission],
+    algorithms: Sequence[str],
+    runs: int,
+    steps: int,
+    layouts: tuple[str, ...] = (),
+) -> list[RunSpec]:
+    """One spec per (mission, algorithm, run), in that order; run r of a mission has the mission's
+    seed and, with `layouts`, the start layout `random_start` draws for (mission, seed, r)."""
+    specs = []
+    for m in missions:
+        starts = [random_start(m, m.seed, r, layouts)[0] if layouts else m for r in range(runs)]
+        specs += [
+            RunSpec(starts[r].with_algorithm(a), m.seed, r, steps) for a in algorithms for r in range(runs)
+        ]
+    return specs
+
+
+def measure(
+    specs: Sequence[RunSpec],
+    workers: int | None = None,
+    executor: Executor | None = None,
+    advance: Callable[[], None] = lambda: None,
+) -> np.ndarray:
+    """`run_metrics` of every spec, shape (len(specs), len(METRICS)), in spec order."""
+    out = np.empty((len(specs), len(METRICS)))
+    for i, r in enumerate(run_specs(list(specs), workers, executor)):
+        out[i] = run_metrics(r)
+        advance()
+    return out
+
+
+@contextmanager
+def worker_pool(workers: int | None) -> Iterator[Executor | None]:
+    """One pool of worker processes for a study made of many small batches (a tune's trials): a
+    fresh pool costs about 2.5 s on this machine. None for one worker (runs in this process).
+    SIGTERM is turned into KeyboardInterrupt while it lives; on leaving, queued runs are cancelled
+    and the workers finish their current run and exit."""
+    workers = workers or os.cpu_count() or 1
+    if workers == 1:
+        yield None
+        return
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _interrupt) if main else None
+    pool = ProcessPoolExecutor(workers, multiprocessing.get_context("spawn"), initializer=_worker_init)
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def write_json(path: Path, content: object) -> None:
+    """Strict JSON: a NaN (an interval from one observation) is written as null."""
+
+    def clean(v: object) -> object:
+        if isinstance(v, float):
+            return v if math.isfinite(v) else None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [clean(x) for x in v]
+        return v
+
+    path.write_text(json.dumps(clean(content), indent=2, allow_nan=False) + "\n")
+
+
+def load_weights(path: str | Path) -> dict:
+    """The `[algorithm]` table of a TOML file (a tune's weights.toml, or a mission file)."""
+    p = Path(path)
+    try:
+        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise MissionError(str(p), "(file)", exc.strerror or str(exc)) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise MissionError(str(p), "(syntax)", str(exc)) from None
+    table = raw.get("algorithm")
+    if not isinstance(table, dict):
+        raise MissionError(str(p), "algorithm", "the file has no [algorithm] table")
+    if "name" in table:
+        raise MissionError(str(p), "algorithm.name", "the command chooses the algorithms, not the weights")
+    return table
+
+
+def apply_weights(mission: Mission, weights: Mapping[str, object], source: str) -> Mission:
+    """The mission with `[algorithm]` fields replaced by `weights` (nested tables merged), validated;
+    a bad field or value is a MissionError naming `source`."""
+
+    def merge(base: dict, new: Mapping[str, object]) -> dict:
+        out = dict(base)
+        for key, value in new.items():
+            old = out.get(key)
+            out[key] = merge(old, value) if isinstance(old, dict) and isinstance(value, Mapping) else value
+        return out
+
+    raw = msgspec.to_builtins(mission)
+    raw["algorithm"] = merge(raw["algorithm"], weights)
+    try:
+        changed = msgspec.convert(raw, Mission)
+    except msgspec.ValidationError as exc:
+        raise MissionError(source, *_field_from_msgspec(str(exc))) from None
+    return validate(changed, source)
+
+
+def load_missions(folder: str | Path) -> list[Mission]:
+    """Every `*.toml` mission file of a folder, by name."""
+    paths = sorted(Path(folder).glob("*.toml"))
+    if not paths:
+        raise ValueError(f"{folder}: no mission files (*.toml)")
+    return [load_mission(p) for p in paths]
