@@ -193,7 +193,7 @@ def _missions(
     from companion.batch.generate import generate, write
     from companion.batch.paired import apply_weights, load_missions, load_weights
 
-    weights = load_weights(args.weights) if args.weights is not None else None
+    weights = [(path, load_weights(path)) for path in args.weights or ()]
     origin: dict
     if args.mission_dir is not None:
         missions, origin = load_missions(args.mission_dir), {"mission_dir": str(args.mission_dir)}
@@ -213,9 +213,10 @@ def _missions(
         }
     else:
         raise ValueError("give --missions N and --seed S (generated missions), or --mission-dir DIR")
-    if weights is not None:
-        missions = [apply_weights(m, weights, args.weights) for m in missions]
-        origin["weights"] = {"file": str(args.weights), "algorithm": weights}
+    for path, table in weights:
+        missions = [apply_weights(m, table, path) for m in missions]
+    if weights:
+        origin["weights"] = [{"file": path, "algorithm": table} for path, table in weights]
     return missions, origin
 
 
@@ -443,8 +444,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--mission-dir", default=None, help="use the mission files of a folder instead")
         p.add_argument(
             "--weights",
+            nargs="+",
             default=None,
-            help="a TOML file whose [algorithm] table replaces the missions' weights",
+            metavar="FILE",
+            help="TOML files whose [algorithm] tables replace the missions' weights, in order",
         )
         p.add_argument("--out", default=out)
         p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
@@ -464,7 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     mission_set_options(tu, "out/tune")
     tu.add_argument("--budget", type=int, required=True, help="runs in all, the current weights' included")
-    tu.add_argument("--runs", type=int, default=2, help="runs per mission and candidate")
+    tu.add_argument("--runs", type=int, default=1, help="runs per mission and candidate")
     tu.add_argument("--algorithm", choices=("proposed", "no-ta", "pheromone"), default="proposed")
     tu.add_argument("--params", default=None, help="fields to tune (default: every row the algorithm reads)")
     tu.add_argument("--space", default=None, help="a TOML search space (default: companion.batch.tune.SPACE)")

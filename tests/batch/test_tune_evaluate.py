@@ -151,8 +151,23 @@ def test_evaluate_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
     """3 missions x 3 algorithms x 2 runs; evaluate.json's per-mission and overall figures
     recomputed from runs.csv."""
     out = tmp_path / "evaluate"
+    first, second = tmp_path / "a.toml", tmp_path / "b.toml"
+    first.write_text("[algorithm]\nkappa = 2.5\nbeta = [1.0, 0.5]\n")
+    second.write_text("[algorithm]\nkappa = 4.0\npheromone = { weight = 1.5 }\n")
+    weights = ("--weights", str(first), str(second))
     proc = _uavsearch(
-        "evaluate", "--missions", "3", "--seed", "4", "--runs", "2", *TINY, "--out", str(out), "--quiet"
+        "evaluate",
+        "--missions",
+        "3",
+        "--seed",
+        "4",
+        "--runs",
+        "2",
+        *TINY,
+        *weights,
+        "--out",
+        str(out),
+        "--quiet",
     )
     assert proc.returncode == 0, proc.stderr
     assert sorted(p.name for p in (out / "missions").iterdir()) == [
@@ -163,6 +178,10 @@ def test_evaluate_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
     value = {(r["mission"], r["algorithm"], int(r["run"])): r for r in runs}
     result = json.loads((out / "evaluate.json").read_text())
     assert result["meta"]["generated"]["seed"] == 4 and result["meta"]["runs"] == 2
+    assert [w["algorithm"] for w in result["meta"]["weights"]] == [
+        {"kappa": 2.5, "beta": [1.0, 0.5]},
+        {"kappa": 4.0, "pheromone": {"weight": 1.5}},
+    ]
     for metric in ("target_time", "mean_uncertainty"):
         for baseline in ("no-ta", "pheromone"):
             means = []
