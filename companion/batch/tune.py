@@ -53,7 +53,6 @@ class Weight:
     read_by: tuple[str, ...] = ("proposed",)
 
 
-ALL = tuple(ALGORITHMS)
 # The weights the paper does not give. Only ratios matter for beta (eq. 15's reward is income / cost,
 # so scaling C_ij changes no choice: beta_1 = 1 fixes the scale, with c_max the threshold on it), for
 # chi and delta (eq. 22 takes the best path, so chi_1 = delta_1 = 1 fix the scale of J), and for the
@@ -61,11 +60,11 @@ ALL = tuple(ALGORITHMS)
 SPACE: tuple[Weight, ...] = (
     Weight("kappa", 0.3, 30.0, log=True),  # eq. 16: search time of a task per unit area
     Weight("v_max", 0.5, 0.99),  # eq. 21: leave a task once this share of it is seen
-    Weight("c_max", 20.0, 2000.0, log=True),  # eq. 21: leave a task that costs more than this
+    Weight("c_max", 5.0, 2000.0, log=True),  # eq. 21: leave a task that costs more than this
     Weight("beta.1", 0.05, 20.0, log=True),  # eq. 18: communication cost / time cost
     Weight("comm_cost_cap", 0.5, 10.0, log=True),  # eq. 17: saturation exponent per neighbour
-    Weight("delta.1", 0.05, 20.0, log=True, read_by=ALL),  # eq. 25: pull towards the task region
-    Weight("chi.1", 0.05, 20.0, log=True, read_by=ALL),  # eq. 22: connectivity/safety barriers
+    Weight("delta.1", 0.05, 20.0, log=True),  # eq. 25: pull towards the task region (tasks only)
+    Weight("chi.1", 0.05, 20.0, log=True, read_by=ALGORITHMS),  # eq. 22: weight of eq. 29's barriers
     Weight("pheromone.weight", 0.05, 20.0, log=True, read_by=("pheromone",)),  # attraction
     Weight("pheromone.evaporation", 0.01, 0.5, read_by=("pheromone",)),
     Weight("pheromone.diffusion", 0.0, 0.5, read_by=("pheromone",)),
@@ -83,9 +82,12 @@ def load_space(path: str | Path) -> tuple[Weight, ...]:
     except tomllib.TOMLDecodeError as exc:
         raise MissionError(str(p), "(syntax)", str(exc)) from None
     space = []
+    keys = {"low", "high", "log", "read_by"}
     for name, row in raw.items():
         if not isinstance(row, dict):
             raise MissionError(str(p), name, "must be a table with low and high")
+        if set(row) - keys:
+            raise MissionError(str(p), name, f"unknown keys {sorted(set(row) - keys)}; known: {sorted(keys)}")
         try:
             space.append(msgspec.convert({"field": name, **row}, Weight))
         except msgspec.ValidationError as exc:
@@ -190,7 +192,14 @@ def score(candidate: np.ndarray, reference: np.ndarray, uncertainty_weight: floa
 
 
 def _rounded(value: float) -> float:
-    return float(f"{value:.{SIGNIFICANT}g}")
+    return value if isinstance(value, int) else float(f"{value:.{SIGNIFICANT}g}")
+
+
+def _distribution(w: Weight, current: object) -> optuna.distributions.BaseDistribution:
+    """Integers (n_g, horizon, ...) on an integer range, everything else on a float range."""
+    if isinstance(current, int):
+        return optuna.distributions.IntDistribution(int(w.low), int(w.high), log=w.log)
+    return optuna.distributions.FloatDistribution(w.low, w.high, log=w.log)
 
 
 def toml_snippet(table: Mapping[str, object]) -> str:
@@ -252,8 +261,9 @@ def tune(
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         sampler = optuna.samplers.TPESampler(seed=setup.seed, multivariate=True)
     study = optuna.create_study(direction="minimize", sampler=sampler)
-    distributions = {w.field: optuna.distributions.FloatDistribution(w.low, w.high, log=w.log) for w in space}
-    study.enqueue_trial({w.field: float(current_value(missions[0], w.field)) for w in space})
+    current = {w.field: current_value(missions[0], w.field) for w in space}
+    distributions = {w.field: _distribution(w, current[w.field]) for w in space}
+    study.enqueue_trial(current)
     reference: np.ndarray | None = None
     history: list[dict] = []
     out.mkdir(parents=True, exist_ok=True)

@@ -75,7 +75,10 @@ def test_the_default_space_holds_the_current_weights_and_each_algorithm_tunes_wh
     check_space(SPACE, [SCENARIO])
     proposed = {w.field for w in select(SPACE, "proposed", None)}
     assert {"kappa", "v_max", "c_max", "beta.1", "comm_cost_cap", "delta.1", "chi.1"} == proposed
-    assert {w.field for w in select(SPACE, "no-ta", None)} == {"delta.1", "chi.1"}
+    assert {w.field for w in select(SPACE, "no-ta", None)} == {"chi.1"}
+    assert {w.field for w in select(SPACE, "pheromone", None)} == {
+        "chi.1", "pheromone.weight", "pheromone.evaporation", "pheromone.diffusion"
+    }  # fmt: skip
     assert {w.field for w in select(SPACE, "pheromone", ["pheromone.weight"])} == {"pheromone.weight"}
     with pytest.raises(ValueError, match=r"proposed does not read pheromone\.weight"):
         select(SPACE, "proposed", ["kappa", "pheromone.weight"])
@@ -233,3 +236,21 @@ def test_an_unwritable_output_folder_is_a_clear_error() -> None:
     proc = _uavsearch("evaluate", "--missions", "1", "--seed", "1", "--out", "/dev/null/never", "--quiet")
     assert proc.returncode == 2
     assert "error: --out /dev/null/never:" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_tune_a_space_file_on_a_folder_of_missions(tmp_path: Path) -> None:
+    """A weight the default space lacks (an integer one, n_g) is tuned from a --space file, on the
+    mission files of a folder (the three scenarios, which share n_g = 50)."""
+    space = tmp_path / "space.toml"
+    space.write_text("[n_g]\nlow = 10\nhigh = 90\n")
+    out = tmp_path / "tune"
+    args = ("--mission-dir", "mission_files", "--space", str(space), "--steps", "15", "--budget", "9")
+    proc = _uavsearch("tune", *args, "--out", str(out), "--quiet", "--workers", "1")
+    assert proc.returncode == 0, proc.stderr
+    history = _rows(out / "history.csv")
+    assert history[0]["n_g"] == "50"
+    assert all(r["n_g"].isdigit() and 10 <= int(r["n_g"]) <= 90 for r in history)
+    assert len(history) == 3
+    table = load_weights(out / "weights.toml")
+    assert set(table) == {"n_g"} and isinstance(table["n_g"], int)
+    assert not (out / "missions").exists()  # a folder's missions are not copied
