@@ -26,7 +26,7 @@ import numpy as np
 from companion.batch.engine import RunResult
 from companion.batch.montecarlo import RunSpec, _interrupt, _worker_init, run_specs
 from companion.batch.starts import random_start
-from companion.mission import Mission, MissionError, _field_from_msgspec, load_mission, validate
+from companion.mission import Mission, MissionError, load_mission, validate
 
 METRICS = ("target_time", "mean_uncertainty")
 
@@ -137,11 +137,7 @@ def apply_weights(mission: Mission, weights: Mapping[str, object], source: str) 
 
     raw = msgspec.to_builtins(mission)
     raw["algorithm"] = merge(raw["algorithm"], weights)
-    try:
-        changed = msgspec.convert(raw, Mission)
-    except msgspec.ValidationError as exc:
-        raise MissionError(source, *_field_from_msgspec(str(exc))) from None
-    return validate(changed, source)
+    return validate(raw, source)
 
 
 def load_missions(folder: str | Path) -> list[Mission]:

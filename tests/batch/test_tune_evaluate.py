@@ -69,6 +69,10 @@ def test_weights_table_keeps_pairs_and_nested_tables_whole() -> None:
     assert current_value(m, "pheromone.weight") == 3.0 and current_value(m, "beta.0") == 1.0
     with pytest.raises(ValueError, match="'gamma' is not a field"):
         current_value(m, "gamma")
+    with pytest.raises(MissionError, match=r"^w\.toml: algorithm\.v_max: Expected `float` <= 1"):
+        apply_weights(SCENARIO, {"v_max": 1.5}, "w.toml")
+    with pytest.raises(MissionError, match="unknown field `kapa`"):
+        apply_weights(SCENARIO, {"kapa": 1.0}, "w.toml")
 
 
 def test_the_default_space_holds_the_current_weights_and_each_algorithm_tunes_what_it_reads() -> None:
