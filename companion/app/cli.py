@@ -243,22 +243,31 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 def _tune(args: argparse.Namespace) -> int:
     from companion.batch.starts import parse_layouts
-    from companion.batch.tune import SPACE, Setup, load_space, select, trial_count, tune
+    from companion.batch.tune import SPACE, Setup, load_space, plan, select, tune
 
     out = Path(args.out)
     layouts = parse_layouts(args.random_starts) if args.random_starts else ()
     space = load_space(args.space) if args.space else SPACE
     params = [p.strip() for p in args.params.split(",") if p.strip()] if args.params else None
     chosen = select(space, args.algorithm, params)
-    missions, origin = _missions(args, out, lambda n: trial_count(args.budget, n, args.runs))
+    if args.confirm < 0:
+        raise ValueError("--confirm must be at least 0")
+    missions, origin = _missions(args, out, lambda n: plan(args.budget, n, args.runs, args.confirm))
     seed = args.seed if args.seed is not None else 0
-    setup = Setup(args.algorithm, args.runs, args.steps, args.budget, seed, args.uncertainty_weight, layouts)
-    trials = trial_count(args.budget, len(missions), args.runs)
+    setup = Setup(
+        args.algorithm,
+        args.runs,
+        args.steps,
+        args.budget,
+        seed,
+        args.uncertainty_weight,
+        layouts,
+        args.confirm,
+    )
+    trials, total = plan(args.budget, len(missions), args.runs, args.confirm)
     label = f"tune {args.algorithm}: {trials} trials x {len(missions)} missions x {args.runs} runs"
-    with _bar(trials * len(missions) * args.runs, label, args.quiet) as advance:
-        result = tune(missions, chosen, setup, out, args.workers, origin, advance)
-    best = result["best"]
-    print(f"{len(result['history'])} trials; best: trial {best['trial']}, objective {best['objective']:+.4f}")
+    with _bar(total, label, args.quiet) as advance:
+        tune(missions, chosen, setup, out, args.workers, origin, advance)
     print((out / "weights.toml").read_text(), end="")
     print(f"wrote {out}/weights.toml, history.csv, study.json and tune.png")
     return 0
@@ -473,6 +482,12 @@ def build_parser() -> argparse.ArgumentParser:
     tu.add_argument("--space", default=None, help="a TOML search space (default: companion.batch.tune.SPACE)")
     tu.add_argument(
         "--uncertainty-weight", type=float, default=0.5, help="lambda: weight of the uncertainty term"
+    )
+    tu.add_argument(
+        "--confirm",
+        type=int,
+        default=5,
+        help="best candidates flown again on fresh runs before one is chosen",
     )
     _random_starts_option(tu)
     tu.set_defaults(func=_tune)

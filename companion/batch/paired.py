@@ -45,15 +45,16 @@ def specs_grid(
     runs: int,
     steps: int,
     layouts: tuple[str, ...] = (),
+    first_run: int = 0,
 ) -> list[RunSpec]:
-    """One spec per (mission, algorithm, run), in that order; run r of a mission has the mission's
-    seed and, with `layouts`, the start layout `random_start` draws for (mission, seed, r)."""
+    """One spec per (mission, algorithm, run), in that order, for runs first_run .. first_run +
+    runs - 1; run r of a mission has the mission's seed and, with `layouts`, the start layout
+    `random_start` draws for (mission, seed, r)."""
     specs = []
+    indices = range(first_run, first_run + runs)
     for m in missions:
-        starts = [random_start(m, m.seed, r, layouts)[0] if layouts else m for r in range(runs)]
-        specs += [
-            RunSpec(starts[r].with_algorithm(a), m.seed, r, steps) for a in algorithms for r in range(runs)
-        ]
+        starts = {r: random_start(m, m.seed, r, layouts)[0] if layouts else m for r in indices}
+        specs += [RunSpec(starts[r].with_algorithm(a), m.seed, r, steps) for a in algorithms for r in indices]
     return specs
 
 

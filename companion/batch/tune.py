@@ -12,7 +12,8 @@ with T_m the mean target time and U_m the mean uncertainty over the run (eq. 30)
 runs (T0_m, U0_m: the same under the current weights; T0_m floored at one step), and lambda the
 `uncertainty_weight` (0.5 by default: target time first, coverage second). Relative differences
 weigh a small mission as much as a large one. Optuna's TPE sampler, seeded, proposes candidates;
-the budget counts runs, trial 0 included.
+the best few are flown again on fresh runs before one is chosen (`tune`). The budget counts runs,
+trial 0 and the confirmation included.
 """
 
 from __future__ import annotations
@@ -218,7 +219,8 @@ def toml_snippet(table: Mapping[str, object]) -> str:
 @dataclass(frozen=True)
 class Setup:
     """What a study flies: the algorithm, R runs of K steps per mission and candidate, a budget in
-    runs, the sampler's seed, lambda, and the start layouts (empty: each mission's own)."""
+    runs, the sampler's seed, lambda, the start layouts (empty: each mission's own), and how many of
+    the best candidates are flown again on fresh runs before one is chosen."""
 
     algorithm: str
     runs: int
@@ -227,18 +229,22 @@ class Setup:
     seed: int
     uncertainty_weight: float = 0.5
     layouts: tuple[str, ...] = ()
+    confirm: int = 5
 
 
-def trial_count(budget: int, missions: int, runs: int) -> int:
-    """The trials a budget of runs buys (each flies every mission `runs` times), at least 2."""
+def plan(budget: int, missions: int, runs: int, confirm: int) -> tuple[int, int]:
+    """(search trials, total runs) a budget buys: each trial flies every mission `runs` times; the
+    confirmation flies trial 0 and the `confirm` best candidates again on fresh runs."""
     per_trial = missions * runs
-    trials = budget // per_trial if per_trial > 0 else 0
-    if trials < 2:
+    reserved = (confirm + 1) * per_trial if confirm > 0 else 0
+    trials = (budget - reserved) // per_trial if per_trial > 0 else 0
+    if trials < max(2, confirm + 1):
         raise ValueError(
-            f"--budget {budget} runs buys {trials} trial(s) of {per_trial} runs ({missions} missions x "
-            f"{runs} runs): need at least 2 (the current weights and one candidate)"
+            f"--budget {budget} runs buys {max(trials, 0)} trial(s) of {per_trial} runs ({missions} "
+            f"missions x {runs} runs) after {reserved} runs for confirming {confirm} candidates: need at "
+            f"least {max(2, confirm + 1)} (the current weights and the candidates to confirm)"
         )
-    return trials
+    return trials, trials * per_trial + reserved
 
 
 def tune(
@@ -251,11 +257,16 @@ def tune(
     advance: Callable[[], None] = lambda: None,
 ) -> dict:
     """Run the study and write weights.toml, history.csv, study.json and tune.png into `out`;
-    returns the study.json content. An interrupted study writes what it has."""
+    returns the study.json content. An interrupted study writes what it has.
+
+    The search scores each trial on runs 0..R-1 of every mission. The best `setup.confirm`
+    candidates and trial 0 then fly runs R..2R-1 (new targets, CVT draws and starts), and the
+    chosen weights are those with the lowest objective on these fresh runs (trial 0 if none is below
+    0): a candidate that was only lucky on the search runs does not survive this."""
     if setup.algorithm not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {setup.algorithm!r}; choose from {', '.join(ALGORITHMS)}")
     check_space(space, missions)
-    trials = trial_count(setup.budget, len(missions), setup.runs)
+    trials, _ = plan(setup.budget, len(missions), setup.runs, setup.confirm)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
@@ -264,22 +275,37 @@ def tune(
     current = {w.field: current_value(missions[0], w.field) for w in space}
     distributions = {w.field: _distribution(w, current[w.field]) for w in space}
     study.enqueue_trial(current)
-    reference: np.ndarray | None = None
     history: list[dict] = []
+    reference = np.empty(0)
     out.mkdir(parents=True, exist_ok=True)
     try:
         with worker_pool(workers) as pool:
+
+            def fly(values: Mapping[str, float], first_run: int, label: str) -> np.ndarray:
+                candidates = [apply_weights(m, weights_table(m, values), label) for m in missions]
+                specs = specs_grid(
+                    candidates, [setup.algorithm], setup.runs, setup.steps, setup.layouts, first_run
+                )
+                got = measure(specs, workers, pool, advance)
+                return got.reshape(len(missions), setup.runs, len(METRICS))
+
             for number in range(trials):
                 trial = study.ask(distributions)
                 values = {f: _rounded(v) for f, v in trial.params.items()}
-                candidates = [apply_weights(m, weights_table(m, values), f"trial {number}") for m in missions]
-                specs = specs_grid(candidates, [setup.algorithm], setup.runs, setup.steps, setup.layouts)
-                got = measure(specs, workers, pool, advance).reshape(len(missions), setup.runs, len(METRICS))
-                reference = got if reference is None else reference
+                got = fly(values, 0, f"trial {number}")
+                reference = got if number == 0 else reference
                 s = score(got, reference, setup.uncertainty_weight)
                 study.tell(trial, s.objective)
                 history.append(_row(number, values, s, got))
                 _write_history(out / "history.csv", history, space)
+            if setup.confirm:
+                fresh = fly(history[0]["weights"], setup.runs, "trial 0, confirmation")
+                history[0] |= {"confirmation_objective": 0.0, "confirmation_per_mission": _means(fresh)}
+                for row in sorted(history[1:], key=lambda r: r["objective"])[: setup.confirm]:
+                    got = fly(row["weights"], setup.runs, f"trial {row['trial']}, confirmation")
+                    row["confirmation_objective"] = score(got, fresh, setup.uncertainty_weight).objective
+                    row["confirmation_per_mission"] = _means(got)
+                    _write_history(out / "history.csv", history, space)
     finally:
         result = _finish(out, history, space, missions[0], setup, trials, meta or {}) if history else {}
     return result
@@ -292,9 +318,25 @@ def _row(number: int, values: dict[str, float], s: Score, got: np.ndarray) -> di
         **{f"relative_target_time{k}": v for k, v in _parts(s.target_time).items()},
         **{f"relative_uncertainty{k}": v for k, v in _parts(s.uncertainty).items()},
         "missions_sooner": s.wins,
+        "confirmation_objective": None,
         "weights": values,
-        "per_mission": {metric: got[:, :, q].mean(axis=1).tolist() for q, metric in enumerate(METRICS)},
+        "per_mission": _means(got),
+        "confirmation_per_mission": None,
     }
+
+
+def _means(got: np.ndarray) -> dict[str, list[float]]:
+    """Each metric's mean over the runs of each mission."""
+    return {metric: got[:, :, q].mean(axis=1).tolist() for q, metric in enumerate(METRICS)}
+
+
+def chosen_trial(history: Sequence[dict]) -> dict:
+    """The confirmed trial with the lowest objective on the fresh runs (trial 0 scores 0 there), or
+    without a confirmation the trial with the lowest objective."""
+    confirmed = [r for r in history if r["confirmation_objective"] is not None]
+    if confirmed:
+        return min(confirmed, key=lambda r: (r["confirmation_objective"], r["trial"]))
+    return min(history, key=lambda r: (r["objective"], r["trial"]))
 
 
 def _parts(ci: Interval) -> dict[str, float]:
@@ -302,7 +344,7 @@ def _parts(ci: Interval) -> dict[str, float]:
 
 
 def _write_history(path: Path, history: list[dict], space: Sequence[Weight]) -> None:
-    scalar = [k for k in history[0] if k not in ("weights", "per_mission")]
+    scalar = [k for k in history[0] if k not in ("weights", "per_mission", "confirmation_per_mission")]
     with path.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow([*scalar, *(s.field for s in space)])
@@ -319,21 +361,30 @@ def _finish(
     trials: int,
     meta: dict,
 ) -> dict:
-    """Write weights.toml (the best trial's), study.json and tune.png."""
-    best = min(history, key=lambda row: (row["objective"], row["trial"]))
-    table = weights_table(mission, best["weights"])
-    per_trial = len(best["per_mission"][METRICS[0]]) * setup.runs
-    used = len(history) * per_trial
+    """Write weights.toml (the chosen trial's), study.json and tune.png."""
+    chosen = chosen_trial(history)
+    table = weights_table(mission, chosen["weights"])
+    per_trial = len(chosen["per_mission"][METRICS[0]]) * setup.runs
+    confirmed = sum(r["confirmation_objective"] is not None for r in history)
+    used = (len(history) + confirmed) * per_trial
+    if chosen["trial"] == 0:
+        verdict = "no candidate beat the weights before" + (" on fresh runs" if confirmed else "")
+        verdict += ": these are they"
+    else:
+        verdict = (
+            f"chosen: trial {chosen['trial']}, objective {chosen['objective']:+.4f} on the search runs (mean "
+            f"target time {100 * chosen['relative_target_time']:+.1f} %, mean uncertainty "
+            f"{100 * chosen['relative_uncertainty']:+.1f} %)"
+        )
+        if chosen["confirmation_objective"] is not None:
+            verdict += f", {chosen['confirmation_objective']:+.4f} on fresh runs"
     header = [
-        f"uavsearch tune: {setup.algorithm}, {len(history)} of {trials} trials x {per_trial} runs "
-        f"({used} of a budget of {setup.budget} runs), {setup.steps} steps per run, seed {setup.seed}",
-        f"objective: mean over missions of the relative change of the mean target time "
+        f"uavsearch tune: {setup.algorithm}, {len(history)} of {trials} trials x {per_trial} runs, "
+        f"{max(confirmed - 1, 0)} confirmed on fresh runs ({used} of a budget of {setup.budget} runs), "
+        f"{setup.steps} steps per run, seed {setup.seed}",
+        "objective: mean over the training missions of the relative change of the mean target time "
         f"+ {setup.uncertainty_weight} x that of the mean uncertainty, against trial 0 (the weights before)",
-        f"best: trial {best['trial']}, objective {best['objective']:+.4f} (mean target time "
-        f"{100 * best['relative_target_time']:+.1f} %, mean uncertainty "
-        f"{100 * best['relative_uncertainty']:+.1f} %, on the training missions)"
-        if best["trial"] != 0
-        else "no candidate beat the weights before: these are they",
+        verdict,
         "The lines below [algorithm] go into a mission file's [algorithm] section.",
     ]
     snippet = "".join(f"# {line}\n" for line in header) + "[algorithm]\n" + toml_snippet(table)
@@ -346,7 +397,12 @@ def _finish(
         "runs_used": used,
         **meta,
         "space": [asdict(w) for w in space],
-        "best": {"trial": best["trial"], "objective": best["objective"], "algorithm": table},
+        "chosen": {
+            "trial": chosen["trial"],
+            "objective": chosen["objective"],
+            "confirmation_objective": chosen["confirmation_objective"],
+            "algorithm": table,
+        },
         "history": history,
     }
     write_json(out / "study.json", result)
