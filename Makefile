@@ -7,12 +7,12 @@ STUDY_RUNS ?= 1000
 STUDY_OUT ?= out/study
 SWEEP_RUNS ?= 50
 
-.PHONY: install browser run mc study test bench clean
+.PHONY: install browser run run-sitl mc study test bench clean
 
 $(BIN)/uavsearch: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[test,cluster]'
 	touch $@
 
 install: $(BIN)/uavsearch
@@ -20,6 +20,12 @@ install: $(BIN)/uavsearch
 # The main job: a full simulated mission (simulator + one companion per UAV), sped up 10x.
 run: install
 	$(BIN)/uavsearch run mission_files/scenario1.toml --speedup 10 --steps 300 --out $(OUT)
+
+# The same on real autopilots: one ArduPlane SITL per UAV (binary from $ARDUPLANE_SITL or
+# ../shared/sitl/arduplane), sped up 4x (docs/companion.md, "Flying ArduPlane SITL").
+run-sitl: install
+	$(BIN)/uavsearch run mission_files/scenario1_continuous.toml --autopilot ardupilot-sitl --speedup 4 \
+		--steps 300 --out out/scenario1_sitl
 
 # The paper's Monte Carlo comparison on scenario 1 (summary table and plots).
 mc: install

@@ -78,13 +78,18 @@ class Sensor(_Base, kw_only=True):
 
 
 class Kinematics(_Base, kw_only=True):
-    """Eq. 2: constant speed, turn limited to turn_limit_deg per sampling step dT."""
+    """Eq. 2: constant speed, turn limited to turn_limit_deg per sampling step dT.
+
+    UAV i flies at `altitude + i * altitude_step` metres above the origin (a vertical backstop for
+    real flight; the algorithm and its separation figures stay horizontal).
+    """
 
     mode: Literal["grid", "continuous"] = "grid"
     speed: Positive
     step: Positive
     turn_limit_deg: Annotated[float, msgspec.Meta(gt=0, le=180)]
     altitude: float = 100.0
+    altitude_step: float = 0.0
 
 
 class Comms(_Base, kw_only=True):
@@ -158,9 +163,15 @@ class Vehicle(_Base, kw_only=True):
 
 
 class Sim(_Base, kw_only=True):
-    """Simulator options: autopilot flavour, base UDP port, integration and camera rates."""
+    """Simulator options: autopilot flavour, flight model, base UDP port, integration and camera rates.
+
+    `dynamics` (continuous kinematics only; grid mode always flies eq. 2 exactly): "arduplane",
+    bank-limited coordinated turns with a roll lag and ArduPlane's guidance laws, or "kinematic",
+    eq. 2 with instant turns (see docs/simulator.md).
+    """
 
     flavour: Literal["ardupilot", "px4"] = "ardupilot"
+    dynamics: Literal["arduplane", "kinematic"] = "arduplane"
     host: str = "127.0.0.1"
     base_port: Port = 14560
     physics_hz: Annotated[float, msgspec.Meta(ge=50)] = 50.0
@@ -213,6 +224,10 @@ class Mission(_Base, kw_only=True):
     @property
     def n_uavs(self) -> int:
         return len(self.vehicles)
+
+    def altitude_of(self, index: int) -> float:
+        """Vehicle `index`'s flight altitude above the origin: its layer of `kinematics.altitude_step`."""
+        return self.kinematics.altitude + index * self.kinematics.altitude_step
 
     def vehicle_port(self, index: int) -> int:
         """The UDP port of vehicle `index`: explicit in the file, else base_port + 10 * index."""
@@ -299,6 +314,12 @@ def _validate(m: Mission, source: str) -> None:
     for i, v in enumerate(m.vehicles):
         if not region.contains(v.x, v.y):
             fail(f"vehicles[{i}]", f"start position ({v.x}, {v.y}) is outside region.polygon")
+    lowest = min(m.altitude_of(i) for i in range(m.n_uavs))
+    if lowest <= 0:
+        fail(
+            "kinematics.altitude_step",
+            f"every UAV must fly above the origin: altitude + i * altitude_step goes down to {lowest:g} m",
+        )
     if m.kinematics.mode == "grid" and m.kinematics.turn_limit_deg < 45:
         fail("kinematics.turn_limit_deg", "grid mode turns in 45 degree steps: the limit must be >= 45")
     ports = [m.vehicle_port(i) for i in range(m.n_uavs)]

@@ -52,10 +52,15 @@ class Camera:
     """Detections of one exposure: target cells whose centre is within the sensor radius.
 
     With `miss` > 0 each visible target is dropped with that probability; with `false_alarm` > 0
-    each other cell in view is reported with that probability. Both draw from `rng`.
+    each other cell in view is reported with that probability. Both draw from `rng`. `frame`
+    builds the CameraFrame of an exposure (the bundled simulator's camera and the stand-alone
+    camera both publish these).
     """
 
-    def __init__(self, mission: Mission, grid: Grid, targets: np.ndarray, rng: np.random.Generator) -> None:
+    def __init__(
+        self, mission: Mission, grid: Grid, targets: np.ndarray, rng: np.random.Generator, frame: LocalFrame
+    ) -> None:
+        self.cell_lat, self.cell_lon = frame.cells_to_geodetic(grid.centres)
         self.centres = grid.centres
         self.is_target = np.zeros(grid.n_cells, dtype=bool)
         self.is_target[targets] = True
@@ -76,6 +81,19 @@ class Camera:
             others = np.flatnonzero(in_view)
             seen = np.concatenate([seen, others[self.rng.random(len(others)) < self.false_alarm]])
         return seen
+
+    def frame(
+        self, uav: int, time_usec: int, xy: tuple[float, float], geo: tuple[float, float, float],
+        heading: float,
+    ) -> detections.CameraFrame:
+        """The frame of vehicle `uav`'s exposure at local `xy` = geodetic `geo` (lat, lon, alt AMSL)
+        with `heading` (the core's convention)."""
+        cells = self.detect(*xy)
+        found = tuple(zip(self.cell_lat[cells].tolist(), self.cell_lon[cells].tolist(), strict=True))
+        lat, lon, alt = geo
+        return detections.CameraFrame(
+            uav=uav, time_usec=time_usec, lat=lat, lon=lon, alt=alt, heading=heading, detections=found
+        )
 
 
 def check_loopback(endpoint: str) -> str:

@@ -41,6 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="loopback Zenoh endpoint to connect to (default: the mission's mesh)")
     parser.add_argument("--truth", type=Path, default=None,
                         help="write the ground-truth evaluation record (JSON) here")
+    parser.add_argument("--approach", type=Path, default=None,
+                        help="write every pair's closest approach per step, at the physics rate (CSV)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         camera=not args.no_camera,
         zenoh_listen=tuple(args.zenoh_listen or ("tcp/127.0.0.1:0",)),
         zenoh_connect=tuple(args.zenoh_connect) if args.zenoh_connect else None,
-        truth=args.truth, host=args.host,
+        truth=args.truth, approach=args.approach, host=args.host,
     )
     try:
         host = Host(mission, options)

@@ -19,11 +19,11 @@ import numpy as np
 
 from companion.core.kinematics import Kinematics
 from companion.mission import Mission
-from companion.node.detections import CameraFrame
 from companion.node.frames import LocalFrame
 from sim_vehicles import camera as cam
+from sim_vehicles.approach import ApproachRecorder
 from sim_vehicles.clock import LockstepClock, RealTimeClock
-from sim_vehicles.dynamics.flight import ContinuousFlight, Flight, GridFlight
+from sim_vehicles.dynamics.flight import BankedFlight, Demand, Flight, GridFlight, KinematicFlight
 from sim_vehicles.mavlink_endpoint import Address, InputStats, MavlinkEndpoint
 from sim_vehicles.modes import FLAVOURS
 from sim_vehicles.protocols import ftp
@@ -58,6 +58,7 @@ class HostOptions:
     zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     zenoh_connect: tuple[str, ...] | None = None  # None: the mission's seed endpoint / router
     truth: Path | None = None
+    approach: Path | None = None  # the physics-rate closest approaches (sim_vehicles.approach)
     host: str | None = None  # None: the mission's sim.host
 
 
@@ -100,7 +101,8 @@ class HostedVehicle:
             x, y, h, up = self.position()
             lat, lon, alt = self.frame.to_geodetic(x, y, up)
             self._pose = Pose(
-                x, y, h, up, float(f.vx[i]), float(f.vy[i]), float(f.vz[i]), float(f.omega[i]), lat, lon, alt
+                x, y, h, up, float(f.vx[i]), float(f.vy[i]), float(f.vz[i]), float(f.omega[i]),
+                float(f.roll[i]), lat, lon, alt,
             )
             self._pose_tick = self.host.tick
         return self._pose
@@ -279,6 +281,11 @@ class Host:
         self.bus: cam.CameraBus | None = None
         self.stopping = False
         self.stats = RunStats()
+        self.approach = (
+            ApproachRecorder(options.approach, mission.n_uavs, k.step, 3 * mission.comms.safety)
+            if options.approach is not None
+            else None
+        )
         try:
             bind = options.host or mission.sim.host
             for i, v in enumerate(mission.vehicles):
@@ -287,7 +294,7 @@ class Host:
                     flavour,
                     ParamStore(specs, flavour.name, k.mode == "grid"),
                     (v.x, v.y),
-                    k.altitude,
+                    mission.altitude_of(i),
                     k.step,
                 )
                 endpoint = MavlinkEndpoint(bind, mission.vehicle_port(i), i + 1)
@@ -297,10 +304,8 @@ class Host:
             if options.truth is not None:
                 record = cam.truth_record(mission, self.seed, self.grid, self.targets, self.frame)
                 cam.write_truth(options.truth, record)
-            self.camera = cam.Camera(
-                mission, self.grid, self.targets, cam.instance_rng(self.seed, 0, cam.Stream.CAMERA)
-            )
-            self.cell_lat, self.cell_lon = self.frame.cells_to_geodetic(self.grid.centres)
+            rng = cam.instance_rng(self.seed, 0, cam.Stream.CAMERA)
+            self.camera = cam.Camera(mission, self.grid, self.targets, rng, self.frame)
             if options.camera:
                 connect = options.zenoh_connect
                 if connect is None:
@@ -314,11 +319,13 @@ class Host:
     def _build_flight(self) -> Flight:
         m = self.mission
         poses = np.array([(v.x, v.y, math.radians(v.heading_deg)) for v in m.vehicles], dtype=float)
+        alt = np.array([m.altitude_of(i) for i in range(m.n_uavs)])
         k = m.kinematics
         if k.mode == "grid":
             kin = Kinematics(k.mode, k.speed, k.step, math.radians(k.turn_limit_deg), m.region.cell_size)
-            return GridFlight(poses, k.altitude, k.step, self.substeps, kin)
-        return ContinuousFlight(poses, k.altitude, k.step, self.substeps)
+            return GridFlight(poses, alt, k.step, self.substeps, kin)
+        model = BankedFlight if m.sim.dynamics == "arduplane" else KinematicFlight
+        return model(poses, alt, k.step, self.substeps)
 
     @property
     def t(self) -> float:
@@ -390,19 +397,23 @@ class Host:
         fl, hosted = self.flight, self.hosted
         if fl.needs_demand():
             t = self.t
-            n = len(hosted)
-            turn, moving, speed, limit = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+            d = self._demand = Demand.empty(len(hosted))
             for i, hv in enumerate(hosted):
                 v = hv.vehicle
-                turn[i] = v.steer(t, float(fl.x[i]), float(fl.y[i]), float(fl.heading[i]))
-                moving[i], speed[i], limit[i] = v.armed, v.speed, v.turn_limit
+                turn = v.steer(t, float(fl.x[i]), float(fl.y[i]), float(fl.heading[i]))
+                d.by_bank[i], d.bank[i] = turn.bank is not None, turn.bank or 0.0
+                d.rate[i], d.bank_limit[i] = turn.rate, turn.limit
+                d.moving[i], d.speed[i], d.turn_limit[i], d.roll_limit[i] = (
+                    v.armed, v.speed, v.turn_limit, v.roll_limit
+                )
                 fl.alt_target[i] = v.alt_target
                 if v.texts or v.reached:
                     hv.flush()
-            self._demand = (turn, moving, speed, limit)
-        fl.tick(*self._demand)
+        fl.tick(self._demand)
         self.tick += 1
         t = self.t
+        if self.approach is not None:
+            self.approach.update(t, fl.x, fl.y)
         for hv in hosted:
             if t >= hv.streams.next_any:
                 for msgid in hv.streams.due(t):
@@ -426,25 +437,17 @@ class Host:
     def _publish_frame(self, hv: HostedVehicle) -> None:
         assert self.bus is not None
         p = hv.pose()
-        cells = self.camera.detect(p.x, p.y)
-        found = tuple(zip(self.cell_lat[cells].tolist(), self.cell_lon[cells].tolist(), strict=True))
-        self.bus.publish(
-            CameraFrame(
-                uav=hv.index,
-                time_usec=round(self.t * 1e6),
-                lat=p.lat,
-                lon=p.lon,
-                alt=p.alt,
-                heading=p.heading,
-                detections=found,
-            )
-        )
+        frame = self.camera.frame(hv.index, round(self.t * 1e6), (p.x, p.y), (p.lat, p.lon, p.alt), p.heading)
+        self.bus.publish(frame)
         self.stats.frames_published += 1
 
     def close(self) -> None:
         if self.bus is not None:
             self.bus.close()
             self.bus = None
+        if self.approach is not None:
+            self.approach.close()
+            self.approach = None
         for hv in self.hosted:
             hv.endpoint.close()
         self.selector.close()

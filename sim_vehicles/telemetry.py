@@ -114,6 +114,7 @@ class Pose:
     vy: float
     vz: float
     omega: float
+    roll: float  # bank, positive turning counter-clockwise (MAVLink's roll is the opposite)
     lat: float
     lon: float
     alt: float
@@ -163,9 +164,12 @@ class TelemetryBuilder:
 
     def sys_status(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         bad, unhandled, rejected = (min(e, 65535) for e in self.errors)
-        healthy = SENSORS | M.MAV_SYS_STATUS_GEOFENCE  # no fence, never breached
+        v, fence = self.vehicle, M.MAV_SYS_STATUS_GEOFENCE
+        present = SENSORS | (fence if v.fence else 0)
+        enabled = SENSORS | (fence if v.fence_enabled else 0)
+        healthy = SENSORS | (0 if v.fence_breached else fence)
         return M.MAVLink_sys_status_message(
-            SENSORS, SENSORS, healthy, 100, 12600, 500, 100, 0, bad, unhandled, rejected, 0, 0
+            present, enabled, healthy, 100, 12600, 500, 100, 0, bad, unhandled, rejected, 0, 0
         )
 
     def gps_raw_int(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
@@ -204,8 +208,8 @@ class TelemetryBuilder:
 
     def attitude(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         yaw_rate = -pose.omega  # CW positive, as MAVLink's yaw
-        roll = math.atan(pose.groundspeed * yaw_rate / 9.80665)
-        return M.MAVLink_attitude_message(_ms(t), roll, 0.0, heading_to_yaw(pose.heading), 0.0, 0.0, yaw_rate)
+        yaw = heading_to_yaw(pose.heading)
+        return M.MAVLink_attitude_message(_ms(t), -pose.roll, 0.0, yaw, 0.0, 0.0, yaw_rate)
 
     def vfr_hud(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         hdg = round(math.degrees(heading_to_yaw(pose.heading))) % 360

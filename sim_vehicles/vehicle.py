@@ -1,9 +1,19 @@
-"""One simulated vehicle's autopilot logic: arming, modes, guidance and failsafes.
+"""One simulated vehicle's autopilot logic: arming, modes, guidance, fence and failsafes.
 
 Pure state and rules, no sockets or clocks: every method takes the simulated time `t` (s) and,
 where it matters, the vehicle's pose in the local frame (x east, y north, heading CCW from east).
-Guidance answers with the *turn per sampling step* it wants (rad, CCW positive); the flight model
-limits and integrates it (see `dynamics.flight`).
+Guidance answers with a `Turn`: the bank angle ArduPlane's laws ask for (see
+`dynamics.navigation`) with the command's own bank limit, or the turn rate of the simulator's
+direct turn-rate command; the flight model limits and integrates it (see `dynamics.flight`):
+
+- GUIDED circles its guided point: where GUIDED was entered, or the last DO_REPOSITION point;
+- a heading hold (GUIDED_CHANGE_HEADING) holds until another guidance replaces it, banking at most
+  atan(param3 / g);
+- a turn-rate command (the simulator's SET_ATTITUDE_TARGET yaw rate) holds for SIM_GUIDED_TMO
+  seconds after the last one, then the vehicle goes back to circling its guided point (as
+  ArduPlane does after a SET_ATTITUDE_TARGET expires);
+- the fence: outside an uploaded inclusion polygon, with FENCE_ENABLE and FENCE_TYPE's polygon bit
+  set, the vehicle reports the breach and, with FENCE_ACTION 1, flies RTL.
 """
 
 from __future__ import annotations
@@ -14,33 +24,43 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.core.geometry import ConvexPolygon
+from sim_vehicles.dynamics import navigation as nav
 from sim_vehicles.modes import Behaviour, Flavour, Mode
 from sim_vehicles.protocols.params import ParamStore
 
 SETPOINT_RATE_WINDOW = 1.0  # s: PX4 OFFBOARD needs > 2 setpoints in this window...
 SETPOINT_MAX_GAP = 0.5  # s: ...and the last one this recent
+FENCE_POLYGON_BIT = 4
+FENCE_ACTION_RTL = 1
+NO_BANK_LIMIT = math.pi / 2  # the airframe's roll limit applies
 
 
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
-
-
-@dataclass
-class Orbit:
-    """Fly to (x, y), then circle it clockwise (ArduPlane's default loiter direction)."""
+@dataclass(frozen=True)
+class Loiter:
+    """Circle (x, y); radius > 0 clockwise (ArduPlane's default), < 0 counter-clockwise."""
 
     x: float
     y: float
     radius: float
+
+
+@dataclass
+class Leg:
+    """An AUTO leg: track the line from `start` to (x, y), which counts as reached near it."""
+
+    start: tuple[float, float]
+    x: float
+    y: float
     arrived: bool = False
 
 
 @dataclass(frozen=True)
 class HeadingHold:
-    """Hold a heading (rad CCW from east) until `expires` (simulated s)."""
+    """Hold a heading (rad CCW from east), turning with at most `accel` m/s^2 (param3)."""
 
     heading: float
-    expires: float
+    accel: float
 
 
 @dataclass(frozen=True)
@@ -51,7 +71,17 @@ class RateHold:
     expires: float
 
 
-Nav = Orbit | HeadingHold | RateHold | None  # None: wings level, straight on
+Nav = Loiter | Leg | HeadingHold | RateHold | None  # None: wings level, straight on
+
+
+@dataclass(frozen=True)
+class Turn:
+    """What guidance asks of the flight model: a bank angle (rad) or, if `bank` is None, a turn
+    rate (rad/s); both counter-clockwise positive; `limit` the command's own bank limit (rad)."""
+
+    bank: float | None = 0.0
+    rate: float = 0.0
+    limit: float = NO_BANK_LIMIT
 
 
 @dataclass(frozen=True)
@@ -66,7 +96,7 @@ class Waypoint:
 
 
 class Vehicle:
-    """Arming, flight mode, guidance target and failsafes of one vehicle."""
+    """Arming, flight mode, guidance target, fence and failsafes of one vehicle."""
 
     def __init__(
         self, index: int, flavour: Flavour, params: ParamStore, home: tuple[float, float],
@@ -80,10 +110,13 @@ class Vehicle:
         self.armed = False
         self.mode: Mode = flavour.by_name(flavour.initial)
         self.nav: Nav = None
+        self.guided_point = Loiter(home[0], home[1], self.loiter_radius)
         self.speed = params.value("cruise_speed")
         self.alt_target = alt
         self.mission: list[Waypoint] = []
         self.mission_index = 0
+        self.fence: list[ConvexPolygon] = []  # inclusion polygons, local frame
+        self.fence_breached = False
         self.setpoints: deque[float] = deque(maxlen=3)
         self.offboard_nav: Nav = None
         self.texts: list[tuple[int, str]] = []  # STATUSTEXTs to send (severity, text)
@@ -98,6 +131,17 @@ class Vehicle:
     def turn_limit(self) -> float:
         """Turn limit per sampling step (rad)."""
         return math.radians(self.params.value("turn_limit"))
+
+    @property
+    def roll_limit(self) -> float:
+        return math.radians(self.params.value("roll_limit"))
+
+    @property
+    def fence_enabled(self) -> bool:
+        p = self.params
+        return bool(self.fence) and p.value("fence_enable", 0.0) == 1 and (
+            int(p.value("fence_type", 0.0)) & FENCE_POLYGON_BIT > 0
+        )
 
     @property
     def current_seq(self) -> int:
@@ -134,33 +178,40 @@ class Vehicle:
         self, x: float, y: float, target: tuple[float, float], up: float | None, radius: float,
         change_mode: bool,
     ) -> int:
-        """MAV_CMD_DO_REPOSITION: fly to `target`, then loiter (ArduPlane GUIDED / PX4 Hold)."""
+        """MAV_CMD_DO_REPOSITION: fly to `target` and circle it (ArduPlane GUIDED / PX4 Hold);
+        `radius` 0 means WP_LOITER_RAD, its sign the direction."""
         go_to = self.flavour.by_name(self.flavour.reposition)
         if self.mode != go_to and not change_mode:
             return mavlink.MAV_RESULT_FAILED
         if self.mode != go_to:
             self._enter(go_to, x, y)
-        self.nav = Orbit(target[0], target[1], radius if radius > 0 else self.loiter_radius)
+        self.guided_point = Loiter(target[0], target[1], radius or self.loiter_radius)
+        self.nav = self.guided_point
         if up is not None:
             self.alt_target = up
         return mavlink.MAV_RESULT_ACCEPTED
 
-    def change_heading(self, t: float, x: float, y: float, kind: int, heading: float) -> int:
-        """MAV_CMD_GUIDED_CHANGE_HEADING (ArduPlane): hold a heading, or cancel (kind 2)."""
+    def change_heading(self, t: float, x: float, y: float, kind: int, heading: float, accel: float) -> int:
+        """MAV_CMD_GUIDED_CHANGE_HEADING (ArduPlane): hold a heading with at most `accel` m/s^2
+        (kinds 0 and 1), or cancel it (kind 2: circle the guided point)."""
         if self.mode.behaviour is not Behaviour.GUIDED:
             return mavlink.MAV_RESULT_FAILED
-        if kind == 2:
-            self.nav = Orbit(x, y, self.loiter_radius, arrived=True)
-        else:
-            self.nav = HeadingHold(heading, t + self.params.value("guided_timeout"))
+        self.nav = self.guided_point if kind == 2 else HeadingHold(heading, accel)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def change_altitude(self, up: float) -> int:
+        """MAV_CMD_GUIDED_CHANGE_ALTITUDE (ArduPlane GUIDED): climb or descend to `up`."""
+        if self.mode.behaviour is not Behaviour.GUIDED:
+            return mavlink.MAV_RESULT_FAILED
+        self.alt_target = up
         return mavlink.MAV_RESULT_ACCEPTED
 
     def change_speed(self, speed: float) -> int:
         """DO_CHANGE_SPEED / GUIDED_CHANGE_SPEED: new cruise speed (negative: no change)."""
         if speed < 0:
             return mavlink.MAV_RESULT_ACCEPTED
-        spec = self.params.specs[0]
-        if self.params.grid or not spec.lo <= speed <= spec.hi:
+        p = self.params
+        if p.grid or not p.value("airspeed_min") <= speed <= p.value("airspeed_max"):
             return mavlink.MAV_RESULT_DENIED
         self.speed = speed
         return mavlink.MAV_RESULT_ACCEPTED
@@ -170,6 +221,9 @@ class Vehicle:
         if ok and self.params.specs[index].key == "cruise_speed":
             self.speed = value
         return ok
+
+    def set_fence(self, polygons: list[ConvexPolygon]) -> None:
+        self.fence, self.fence_breached = polygons, False
 
     def turn_rate(self, t: float, rate: float) -> bool:
         """The bundled simulator's direct turn-rate command (rad/s CCW); False if not in control."""
@@ -191,8 +245,8 @@ class Vehicle:
             self.setpoints.append(t)
             if target is not None:
                 old = self.offboard_nav
-                if not (isinstance(old, Orbit) and (old.x, old.y) == target):
-                    self.offboard_nav = Orbit(target[0], target[1], self.loiter_radius)
+                if not (isinstance(old, Loiter) and (old.x, old.y) == target):
+                    self.offboard_nav = Loiter(target[0], target[1], self.loiter_radius)
             if self.mode.behaviour is not Behaviour.OFFBOARD:
                 return False
             self.nav = self.offboard_nav or self.nav
@@ -217,52 +271,63 @@ class Vehicle:
         return True
 
     # ---- guidance -----------------------------------------------------------------------
-    def steer(self, t: float, x: float, y: float, heading: float) -> float:
-        """Apply failsafes, then the turn per step (rad) the current guidance asks for."""
+    def steer(self, t: float, x: float, y: float, heading: float) -> Turn:
+        """Apply the fence and failsafes, then the turn the current guidance asks for."""
         self.last_xy = (x, y)
+        self._fence_check(x, y)
         self._failsafes(t, x, y)
-        nav = self.nav
-        if nav is None:
-            return 0.0
-        if isinstance(nav, RateHold):
-            return nav.rate * self.step
-        if isinstance(nav, HeadingHold):
-            return _wrap(nav.heading - heading)
-        if not nav.arrived:
-            self._check_arrival(nav, x, y, heading)
-        if not nav.arrived:
-            return _wrap(math.atan2(nav.y - y, nav.x - x) - heading)
-        return self._orbit_turn(nav, x, y, heading)
+        v = max(self.speed, 1.0)
+        target = self.nav
+        if target is None:
+            return Turn()
+        if isinstance(target, RateHold):
+            return Turn(bank=None, rate=target.rate)
+        if isinstance(target, HeadingHold):
+            bank = nav.heading_hold(heading, target.heading, target.accel)
+            return Turn(bank, limit=nav.heading_bank_limit(target.accel))
+        if isinstance(target, Leg):
+            self._check_arrival(target, x, y, heading)
+            if self.nav is not target:
+                return self.steer(t, x, y, heading)
+            accel = nav.track(x, y, heading, v, target.start, (target.x, target.y))
+        else:
+            accel = nav.loiter(x, y, heading, v, (target.x, target.y), target.radius)
+        return Turn(math.atan(accel / nav.GRAVITY))
 
-    def _orbit_turn(self, nav: Orbit, x: float, y: float, heading: float) -> float:
-        dx, dy = x - nav.x, y - nav.y
-        r = math.hypot(dx, dy)
-        course = math.atan2(dy, dx) - math.pi / 2 - math.atan2(r - nav.radius, 0.5 * nav.radius)
-        feed_forward = -self.speed * self.step / nav.radius if r < 2 * nav.radius else 0.0
-        return _wrap(course - heading) + feed_forward
-
-    def _check_arrival(self, nav: Orbit, x: float, y: float, heading: float) -> None:
+    def _check_arrival(self, leg: Leg, x: float, y: float, heading: float) -> None:
         radius = self.params.value("wp_radius")
-        dx, dy = nav.x - x, nav.y - y
+        dx, dy = leg.x - x, leg.y - y
         d = math.hypot(dx, dy)
         behind = dx * math.cos(heading) + dy * math.sin(heading) < 0
         if d > radius and not (behind and d < 3 * radius):
             return
-        nav.arrived = True
+        leg.arrived = True
         if self.mode.behaviour is Behaviour.AUTO and self.mission_index < len(self.mission):
             wp = self.mission[self.mission_index]
             self.reached.append(wp.seq)
             self.say(f"Reached waypoint #{wp.seq}")
-            if wp.command != mavlink.MAV_CMD_NAV_LOITER_UNLIM:
+            if wp.command == mavlink.MAV_CMD_NAV_LOITER_UNLIM:
+                self.nav = Loiter(wp.x, wp.y, self.loiter_radius)
+            else:
                 self.mission_index += 1
                 self._next_waypoint()
 
+    def _fence_check(self, x: float, y: float) -> None:
+        if not self.fence_enabled:
+            self.fence_breached = False
+            return
+        outside = not all(p.contains(x, y) for p in self.fence)
+        if outside and not self.fence_breached and self.armed:
+            self.say("Fence breached", mavlink.MAV_SEVERITY_CRITICAL)
+            rtl = self.flavour.by_name(self.flavour.rtl)
+            if self.params.value("fence_action", 0.0) == FENCE_ACTION_RTL and self.mode != rtl:
+                self._enter(rtl, x, y)
+        self.fence_breached = outside
+
     def _failsafes(self, t: float, x: float, y: float) -> None:
-        if self.mode.behaviour is Behaviour.GUIDED and isinstance(self.nav, HeadingHold | RateHold):
+        if self.mode.behaviour is Behaviour.GUIDED and isinstance(self.nav, RateHold):
             if t > self.nav.expires:
-                timeout = self.params.value("guided_timeout")
-                self._enter(self.flavour.by_name(self.flavour.hold), x, y)
-                self.say(f"GUIDED: no guidance for {timeout:g} s, LOITER", mavlink.MAV_SEVERITY_WARNING)
+                self.nav = self.guided_point
         elif self.mode.behaviour is Behaviour.OFFBOARD and (
             not self.setpoints or t - self.setpoints[-1] > self.params.value("guided_timeout")
         ):
@@ -281,12 +346,15 @@ class Vehicle:
         b = mode.behaviour
         if b is Behaviour.STRAIGHT:
             self.nav = None
-        elif b in (Behaviour.LOITER, Behaviour.GUIDED):
-            self.nav = Orbit(x, y, self.loiter_radius, arrived=True)
+        elif b is Behaviour.GUIDED:
+            self.guided_point = Loiter(x, y, self.loiter_radius)
+            self.nav = self.guided_point
+        elif b is Behaviour.LOITER:
+            self.nav = Loiter(x, y, self.loiter_radius)
         elif b is Behaviour.RTL:
-            self.nav = Orbit(self.home[0], self.home[1], self.loiter_radius)
+            self.nav = Loiter(self.home[0], self.home[1], self.loiter_radius)
         elif b is Behaviour.OFFBOARD:
-            self.nav = self.offboard_nav or Orbit(x, y, self.loiter_radius, arrived=True)
+            self.nav = self.offboard_nav or Loiter(x, y, self.loiter_radius)
         else:
             self._next_waypoint()
 
@@ -298,7 +366,7 @@ class Vehicle:
                 self._enter(self.flavour.by_name(self.flavour.rtl), *self.last_xy)
                 return
             if math.isfinite(wp.x):
-                self.nav = Orbit(wp.x, wp.y, self.loiter_radius)
+                self.nav = Leg(self.last_xy, wp.x, wp.y)
                 if wp.up is not None:
                     self.alt_target = wp.up
                 return

@@ -11,6 +11,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.batch.executors import ClusterError
 from companion.mission import Mission, MissionError, load_mission
 
 if TYPE_CHECKING:
@@ -18,6 +19,7 @@ if TYPE_CHECKING:
 
 
 def _mc(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import compare
     from companion.batch.report import copy_mission
     from companion.batch.starts import parse_layouts
@@ -27,18 +29,19 @@ def _mc(args: argparse.Namespace) -> int:
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
     seed = mission.seed if args.seed is None else args.seed
     steps = args.steps or mission.steps
-    summary = compare(
-        mission,
-        algorithms,
-        args.runs,
-        steps,
-        seed,
-        Path(args.out),
-        args.workers,
-        args.save_trajectories,
-        not args.quiet,
-        layouts,
-    )
+    with open_executor(args.scheduler, args.workers) as executor:
+        summary = compare(
+            mission,
+            algorithms,
+            args.runs,
+            steps,
+            seed,
+            Path(args.out),
+            save_trajectories=args.save_trajectories,
+            progress=not args.quiet,
+            executor=executor,
+            layouts=layouts,
+        )
     copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
     starts = " and starts.csv" if layouts else ""
@@ -79,21 +82,24 @@ def _print_summary(summary: dict) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import sweep, sweep_values
 
     mission = load_mission(args.mission)
     seed = mission.seed if args.seed is None else args.seed
-    points = sweep(
-        mission,
-        args.param,
-        sweep_values(args.values),
-        args.runs,
-        args.steps or mission.steps,
-        seed,
-        Path(args.out),
-        args.workers,
-        not args.quiet,
-    )
+    values = sweep_values(args.values)
+    with open_executor(args.scheduler, args.workers) as executor:
+        points = sweep(
+            mission,
+            args.param,
+            values,
+            args.runs,
+            args.steps or mission.steps,
+            seed,
+            Path(args.out),
+            progress=not args.quiet,
+            executor=executor,
+        )
     for p in points:
         print(
             f"{args.param}={p[args.param]}: mean target time {p['mean_target_time']:.1f}, "
@@ -104,13 +110,34 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.experiments import bench, format_bench
 
     missions = [load_mission(m) for m in args.missions]
-    result = bench(missions, args.runs, args.steps, args.seed, args.workers, args.study_runs)
+    with open_executor(args.scheduler, args.workers) as executor:
+        result = bench(
+            missions, args.runs, args.steps, args.seed, study_runs=args.study_runs, executor=executor
+        )
     print(format_bench(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+def _cluster_bench(args: argparse.Namespace) -> int:
+    from companion.bench.cluster_bench import cluster_bench, format_cluster_bench
+
+    missions = [load_mission(m) for m in args.missions]
+    try:
+        workers = [int(w) for w in args.workers.split(",") if w.strip()]
+    except ValueError:
+        workers = []
+    if not workers or min(workers) < 1:
+        raise ValueError(f"--workers {args.workers!r}: give worker counts of at least 1, e.g. 1,2")
+    rows = cluster_bench(missions, workers, args.study_runs, args.steps, args.seed)
+    print(format_cluster_bench(rows))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
     return 0
 
 
@@ -144,23 +171,26 @@ def _generate(args: argparse.Namespace) -> int:
 def _soak(args: argparse.Namespace) -> int:
     from rich.console import Console
 
+    from companion.batch.executors import open_executor
     from companion.batch.soak import soak, soak_specs
 
     algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
     specs = soak_specs(args.missions, args.seed, args.steps, algorithms, args.loss, args.kill, _family(args))
     console = Console(highlight=False)
     runs = events = 0
-    for row in soak(specs, args.workers):
-        runs += 1
-        events += not row.clean
-        if args.verbose or row.separation_losses or row.link_losses:
-            killed = f" killed {row.killed[0][0]}@{row.killed[0][1]}" if row.killed else ""
-            console.print(
-                f"{row.mission} {row.mode} {row.uavs} UAVs {row.algorithm}{killed}: "
-                f"{row.separation_losses} separation, {row.link_losses} link events, "
-                f"closest approach {row.closest_approach:.1f} m, found {row.targets_found}/{row.targets}",
-                style=None if row.clean else "bold red",
-            )
+    with open_executor(args.scheduler, args.workers) as executor:
+        for row in soak(specs, executor=executor):
+            runs += 1
+            events += not row.clean
+            if args.verbose or row.separation_losses or row.link_losses:
+                killed = f" killed {row.killed[0][0]}@{row.killed[0][1]}" if row.killed else ""
+                console.print(
+                    f"{row.mission} {row.mode} {row.uavs} UAVs {row.algorithm}{killed}: "
+                    f"{row.separation_losses} separation, {row.link_losses} link events, "
+                    f"closest approach {row.closest_approach:.1f} m, "
+                    f"found {row.targets_found}/{row.targets}",
+                    style=None if row.clean else "bold red",
+                )
     what = "a separation event" if args.kill else "a separation or link event"
     print(f"{runs} runs of {args.missions} generated missions: {events} with {what}")
     return 1 if events else 0
@@ -221,6 +251,7 @@ def _missions(
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.heldout import MIN_RUNS, evaluate
     from companion.batch.starts import parse_layouts
 
@@ -234,14 +265,16 @@ def _evaluate(args: argparse.Namespace) -> int:
     layouts = parse_layouts(args.random_starts) if args.random_starts else ()
     missions, origin = _missions(args, out, check)
     total = 3 * args.runs * len(missions)
-    with _bar(total, f"{len(missions)} missions x 3 algorithms x {args.runs} runs", args.quiet) as advance:
-        result = evaluate(missions, args.runs, args.steps, out, args.workers, layouts, origin, advance)
+    label = f"{len(missions)} missions x 3 algorithms x {args.runs} runs"
+    with open_executor(args.scheduler, args.workers) as executor, _bar(total, label, args.quiet) as advance:
+        result = evaluate(missions, args.runs, args.steps, out, executor, layouts, origin, advance)
     _print_evaluation(result)
     print(f"wrote {out}/evaluate.json, missions.csv, overall.csv, runs.csv and evaluate.png")
     return 0
 
 
 def _tune(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
     from companion.batch.starts import parse_layouts
     from companion.batch.tune import SPACE, Setup, load_space, plan, select, tune
 
@@ -266,8 +299,11 @@ def _tune(args: argparse.Namespace) -> int:
     )
     trials, total = plan(args.budget, len(missions), args.runs, args.confirm)
     label = f"tune {args.algorithm}: {trials} trials x {len(missions)} missions x {args.runs} runs"
-    with _bar(total, label, args.quiet) as advance:
-        tune(missions, chosen, setup, out, args.workers, origin, advance)
+    with (
+        open_executor(args.scheduler, args.workers, keep=True) as executor,
+        _bar(total, label, args.quiet) as advance,
+    ):
+        tune(missions, chosen, setup, out, executor, origin, advance)
     print((out / "weights.toml").read_text(), end="")
     print(f"wrote {out}/weights.toml, history.csv, study.json and tune.png")
     return 0
@@ -329,6 +365,11 @@ def _run(args: argparse.Namespace) -> int:
         keep_going=args.keep_going,
         view=args.view,
         view_port=args.view_port,
+        autopilot=args.autopilot,
+        vehicles=_links(args.vehicles),
+        camera_links=_links(args.camera_links),
+        sitl_binary=args.sitl_binary,
+        sitl_defaults=args.sitl_defaults,
     )
     try:
         return run_mission(options)
@@ -343,6 +384,10 @@ def _view(args: argparse.Namespace) -> int:
     return run_view(args)
 
 
+def _links(text: str | None) -> tuple[str, ...]:
+    return tuple(u.strip() for u in (text or "").split(",") if u.strip())
+
+
 def _router(args: argparse.Namespace) -> int:
     from companion.node.mesh import router_main
 
@@ -352,6 +397,12 @@ def _router(args: argparse.Namespace) -> int:
 
 def _sim(args: argparse.Namespace) -> int:
     from sim_vehicles.cli import run
+
+    return run(args)
+
+
+def _camera(args: argparse.Namespace) -> int:
+    from sim_vehicles.camera_node import run
 
     return run(args)
 
@@ -379,6 +430,17 @@ def _random_starts_option(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="tcp://HOST:PORT",
+        help="run on the workers of this Dask scheduler instead of local processes (README: cluster)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uavsearch", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -390,7 +452,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--steps", type=int, default=None, help="sampling moments per run (default: mission)")
     mc.add_argument("--seed", type=int, default=None, help="default: the mission's seed")
     mc.add_argument("--out", default="out/mc")
-    mc.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    _add_executor_arguments(mc)
     mc.add_argument("--save-trajectories", action="store_true")
     mc.add_argument("--quiet", action="store_true", help="no progress bar")
     _random_starts_option(mc)
@@ -404,7 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--steps", type=int, default=None)
     sw.add_argument("--seed", type=int, default=None)
     sw.add_argument("--out", default="out/sweep")
-    sw.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(sw)
     sw.add_argument("--quiet", action="store_true")
     sw.set_defaults(func=_sweep)
 
@@ -413,12 +475,23 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--runs", type=int, default=3)
     be.add_argument("--steps", type=int, default=1000)
     be.add_argument("--seed", type=int, default=1)
-    be.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(be)
     be.add_argument(
         "--study-runs", type=int, default=8, help="runs per mission and algorithm in the throughput"
     )
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
     be.set_defaults(func=_bench)
+
+    cl = sub.add_parser(
+        "cluster-bench", help="Monte Carlo throughput: local pool against a Dask cluster on loopback"
+    )
+    cl.add_argument("--missions", nargs="+", default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)])
+    cl.add_argument("--workers", default="1,2", help="worker counts, e.g. 1,2")
+    cl.add_argument("--study-runs", type=int, default=20, help="runs per mission and algorithm")
+    cl.add_argument("--steps", type=int, default=1000)
+    cl.add_argument("--seed", type=int, default=1)
+    cl.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    cl.set_defaults(func=_cluster_bench)
 
     def family_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("--uavs", default="2-12", help="UAVs per mission (range)")
@@ -442,7 +515,7 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("--algorithms", default="proposed,no-ta,pheromone")
     so.add_argument("--loss", type=float, default=0.0, help="message loss probability on the radio")
     so.add_argument("--kill", action="store_true", help="one companion per mission dies mid-run")
-    so.add_argument("--workers", type=int, default=None)
+    _add_executor_arguments(so)
     so.add_argument("--verbose", action="store_true", help="print every run, not only those with events")
     family_options(so)
     so.set_defaults(func=_soak)
@@ -459,7 +532,7 @@ def build_parser() -> argparse.ArgumentParser:
             help="TOML files whose [algorithm] tables replace the missions' weights, in order",
         )
         p.add_argument("--out", default=out)
-        p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+        _add_executor_arguments(p)
         p.add_argument("--quiet", action="store_true", help="no progress bar")
         family_options(p)
 
@@ -492,7 +565,7 @@ def build_parser() -> argparse.ArgumentParser:
     _random_starts_option(tu)
     tu.set_defaults(func=_tune)
 
-    from companion.node.process import COMMAND_MODES
+    from companion.node.guidance import COMMAND_MODES
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
     co.add_argument("--mission", required=True)
@@ -504,7 +577,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     co.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
     co.add_argument(
-        "--takeover", action="store_true", help="switch the vehicle to its guided mode and arm it"
+        "--takeover",
+        action="store_true",
+        help="take off if on the ground, switch the vehicle to its guided mode and arm it",
+    )
+    co.add_argument(
+        "--fence",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="upload the region plus its margin as the autopilot's fence (default: with --takeover)",
     )
     co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
     co.add_argument("--steps", type=int, default=None)
@@ -519,8 +600,29 @@ def build_parser() -> argparse.ArgumentParser:
     ru.add_argument("--steps", type=int, default=None)
     ru.add_argument("--seed", type=int, default=None)
     ru.add_argument("--out", default="out/run")
-    ru.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
+    ru.add_argument(
+        "--command-mode",
+        choices=COMMAND_MODES,
+        default=None,
+        help="default: turn-rate on the bundled simulator, heading on other vehicles",
+    )
     ru.add_argument("--flavour", choices=("ardupilot", "px4"), default=None)
+    ru.add_argument(
+        "--autopilot",
+        choices=("bundled", "ardupilot-sitl"),
+        default="bundled",
+        help="the bundled simulator, or one ArduPlane SITL per UAV at its start pose",
+    )
+    ru.add_argument(
+        "--vehicles", default=None, help="fly vehicles that exist: one pymavlink URL per UAV, comma-separated"
+    )
+    ru.add_argument(
+        "--camera-links", default=None, help="with --vehicles: links for the stand-alone simulated camera"
+    )
+    ru.add_argument("--sitl-binary", default=None, help="ArduPlane SITL binary (default: $ARDUPLANE_SITL)")
+    ru.add_argument(
+        "--sitl-defaults", default=None, help="SITL parameter defaults (default: plane.parm by it)"
+    )
     ru.add_argument("--quiet", action="store_true")
     ru.add_argument(
         "--keep-going", action="store_true", help="fly all the steps even when every target is found"
@@ -545,6 +647,13 @@ def build_parser() -> argparse.ArgumentParser:
     si = sub.add_parser("sim", help="the MAVLink fixed-wing simulator (all the mission's vehicles)")
     add_arguments(si)
     si.set_defaults(func=_sim)
+    from sim_vehicles import camera_node
+
+    ca = sub.add_parser(
+        "camera", help="a stand-alone simulated camera for external vehicles (e.g. ArduPlane SITL)"
+    )
+    camera_node.add_arguments(ca)
+    ca.set_defaults(func=_camera)
     sb = sub.add_parser(
         "sim-bench", help="simulator capacity: vehicles in real time, highest speedup", add_help=False
     )
@@ -574,6 +683,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except ClusterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

@@ -1,10 +1,15 @@
 """`uavsearch run`: the whole swarm with one command.
 
-Starts the simulator, a Zenoh router when the mission's mesh is in client mode, and one companion
+Starts the vehicles, a Zenoh router when the mission's mesh is in client mode, and one companion
 per UAV, each as a subprocess; shows live progress; ends when every target is found or after K
-steps; stops every child; scores the run against the simulator's truth record and writes the
-batch engine's files (summary.json, trajectories.csv, plots) plus one MAVLink .tlog per vehicle.
-Exits 1 when the mission's pass criteria fail.
+steps; stops every child; scores the run against the mission's ground truth and writes the batch
+engine's files (summary.json, trajectories.csv, plots), the plan-versus-flight figures
+(tracking.json) and one MAVLink .tlog per vehicle. Exits 1 when the mission's pass criteria fail.
+
+The vehicles are the bundled simulator (default); or ArduPlane SITL, one instance per UAV at its
+start pose (`--autopilot ardupilot-sitl`), with the stand-alone simulated camera reading their
+positions; or vehicles that already exist (`--vehicles URL,...`, optionally with the stand-alone
+camera on `--camera-links URL,...`).
 """
 
 from __future__ import annotations
@@ -21,12 +26,23 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.app.evaluation import CompanionLogs, evaluate, failed_criteria, truth_cells
+from companion.app import sitl
+from companion.app.evaluation import (
+    CompanionLogs,
+    evaluate,
+    failed_criteria,
+    flight_report,
+    read_approach,
+    truth_cells,
+)
 from companion.batch import plots, report
 from companion.batch.engine import warm_up
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance
 from companion.core.world import World, build_world
-from companion.mission import load_mission
+from companion.mission import Mission, load_mission
+from companion.node.airframe import Airframe, refusal
+from companion.node.frames import LocalFrame
+from sim_vehicles import camera as cam
 
 START_TIMEOUT_S = 120.0
 STOP_TIMEOUT_S = 15.0
@@ -40,12 +56,25 @@ class RunOptions:
     lockstep: bool = False
     steps: int | None = None
     seed: int | None = None
-    command_mode: str = "turn-rate"
+    command_mode: str | None = None  # None: turn-rate on the bundled simulator, heading otherwise
     flavour: str | None = None
     progress: bool = True
     keep_going: bool = False  # fly all the steps even when every target is found
     view: bool = False  # serve the live map (`uavsearch view`) while the swarm flies
     view_port: int = 0
+    autopilot: str = "bundled"  # or "ardupilot-sitl"
+    vehicles: tuple[str, ...] = ()  # external vehicles, one pymavlink URL per UAV
+    camera_links: tuple[str, ...] = ()  # the stand-alone camera's links to the external vehicles
+    sitl_binary: str | None = None
+    sitl_defaults: str | None = None
+
+    @property
+    def external(self) -> bool:
+        return self.autopilot != "bundled" or bool(self.vehicles)
+
+    @property
+    def mode(self) -> str:
+        return self.command_mode or ("heading" if self.external else "turn-rate")
 
 
 class Children:
@@ -53,12 +82,15 @@ class Children:
 
     def __init__(self) -> None:
         self.procs: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, Path] = {}
 
-    def start(self, name: str, argv: list[str], log: Path) -> subprocess.Popen:
+    def start(self, name: str, argv: list[str], log: Path, cwd: Path | None = None) -> subprocess.Popen:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         with log.open("w") as f:
-            proc = subprocess.Popen(argv, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True)
-        self.procs[name] = proc
+            proc = subprocess.Popen(
+                argv, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True, cwd=cwd
+            )
+        self.procs[name], self.logs[name] = proc, log
         return proc
 
     def stop(self) -> None:
@@ -118,9 +150,135 @@ def _live_line(
     )
 
 
+def _check_options(opts: RunOptions, mission: Mission) -> str | None:
+    """Why the run cannot start (None: it can)."""
+    if opts.vehicles and len(opts.vehicles) != mission.n_uavs:
+        return f"--vehicles: {len(opts.vehicles)} links for the mission's {mission.n_uavs} UAVs"
+    if opts.camera_links and len(opts.camera_links) != mission.n_uavs:
+        return f"--camera-links: {len(opts.camera_links)} links for the mission's {mission.n_uavs} UAVs"
+    if opts.autopilot == "ardupilot-sitl":
+        if opts.vehicles:
+            return "--vehicles and --autopilot ardupilot-sitl exclude each other"
+        problem = refusal(mission, Airframe("ardupilot", {}, simulator=False), opts.mode)
+        if problem:
+            return f"--autopilot ardupilot-sitl: {problem}"
+    return None
+
+
+def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | None) -> list[str]:
+    argv = [
+        sys.executable,
+        "-m",
+        "companion.app.cli",
+        "companion",
+        "--mission",
+        str(opts.mission_file),
+        "--uav",
+        str(i),
+        "--takeover",
+        "--steps",
+        str(steps),
+        "--seed",
+        str(seed),
+        "--out",
+        str(opts.out),
+        "--command-mode",
+        opts.mode,
+    ]
+    if url is not None:
+        argv += ["--vehicle", url]
+    if opts.lockstep:
+        argv.append("--lockstep")
+    return argv
+
+
+def _start_camera(
+    children: Children, opts: RunOptions, links: list[str], seed: int, n: int
+) -> subprocess.Popen:
+    """The stand-alone camera on `links`; returns once it has every vehicle's position stream."""
+    out = opts.out
+    camera = children.start(
+        "camera",
+        [
+            sys.executable,
+            "-m",
+            "companion.app.cli",
+            "camera",
+            "--mission",
+            str(opts.mission_file),
+            "--vehicles",
+            ",".join(links),
+            "--seed",
+            str(seed),
+            "--truth",
+            str(out / "truth.json"),
+        ],
+        out / "camera.log",
+    )
+    for i in range(n):
+        _wait_for_line(out / "camera.log", f"camera: vehicle {i} up", camera, START_TIMEOUT_S)
+    return camera
+
+
+def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: int) -> list[str]:
+    """One ArduPlane SITL per UAV and the stand-alone camera on their SERIAL0 (which starts their
+    clocks together); returns the companions' links (SERIAL1)."""
+    binary = sitl.find_binary(opts.sitl_binary)
+    defaults = sitl.find_defaults(binary, opts.sitl_defaults)
+    for i in range(mission.n_uavs):
+        home = opts.out / f"sitl{i}"
+        home.mkdir(exist_ok=True)
+        argv = sitl.sitl_argv(binary, defaults, mission, i, opts.speedup)
+        children.start(f"sitl{i}", argv, opts.out / f"sitl{i}.log", cwd=home)
+    ports = [sitl.sitl_ports(mission, i) for i in range(mission.n_uavs)]
+    _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs)
+    return [p.url(p.serial1) for p in ports]
+
+
+def _start_bundled(children: Children, opts: RunOptions, mission: Mission, seed: int) -> None:
+    sim_argv = [
+        sys.executable,
+        "-m",
+        "sim_vehicles",
+        "--mission",
+        str(opts.mission_file),
+        "--seed",
+        str(seed),
+        "--truth",
+        str(opts.out / "truth.json"),
+        "--approach",
+        str(opts.out / "approach.csv"),
+        "--speedup",
+        str(opts.speedup),
+    ]
+    if opts.lockstep:
+        sim_argv.append("--lockstep")
+    if opts.flavour:
+        sim_argv += ["--flavour", opts.flavour]
+    sim = children.start("sim", sim_argv, opts.out / "sim.log")
+    _wait_for_line(opts.out / "sim.log", f"vehicle {mission.n_uavs - 1} ", sim, START_TIMEOUT_S)
+
+
+def _stopped_early(children: Children) -> str | None:
+    """What went wrong if a vehicle, the camera or the router exited, or a companion refused to fly
+    (exit code 2); a companion that stops otherwise leaves the others flying."""
+    for name, proc in children.procs.items():
+        rc = proc.poll()
+        if rc is None or (name.startswith("companion") and rc != 2):
+            continue
+        log = children.logs[name]
+        last = [line for line in log.read_text(errors="replace").splitlines() if line.startswith("error:")]
+        return f"{name} exited with code {rc}: {last[-1] if last else f'see {log}'}"
+    return None
+
+
 def run_mission(opts: RunOptions) -> int:
     """Fly the mission end to end; returns the process exit code."""
     mission = load_mission(opts.mission_file)
+    problem = _check_options(opts, mission)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     seed = mission.seed if opts.seed is None else opts.seed
     steps = opts.steps or mission.steps
     out = opts.out
@@ -132,70 +290,44 @@ def run_mission(opts: RunOptions) -> int:
     if opts.progress:
         print("loading the algorithm's compiled kernels (compiling them on a first run)", flush=True)
     warm_up(mission)  # once here, so that the companions load the kernels from numba's cache
-    py = sys.executable
     children = Children()
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     started = time.monotonic()
+    failure = None
     try:
         if mission.mesh.mode == "client":
             router = children.start(
                 "router",
-                [py, "-m", "companion.app.cli", "router", "--mission", str(opts.mission_file)],
+                [sys.executable, "-m", "companion.app.cli", "router", "--mission", str(opts.mission_file)],
                 out / "router.log",
             )
             _wait_for_line(out / "router.log", "router listening", router, START_TIMEOUT_S)
+        urls: list[str | None] = [None] * mission.n_uavs
+        if opts.autopilot == "ardupilot-sitl":
+            urls = list(_start_sitl(children, opts, mission, seed))
+        elif opts.vehicles:
+            urls = list(opts.vehicles)
+            if opts.camera_links:
+                _start_camera(children, opts, list(opts.camera_links), seed, mission.n_uavs)
+            else:  # a real detector publishes; score against the mission's simulated ground truth
+                grid, targets = cam.draw_truth(mission, seed)
+                frame = LocalFrame(mission.region.origin)
+                cam.write_truth(out / "truth.json", cam.truth_record(mission, seed, grid, targets, frame))
         if opts.view:
-            argv = [py, "-m", "companion.app.cli", "view", "--mission", str(opts.mission_file)]
+            argv = [sys.executable, "-m", "companion.app.cli", "view", "--mission", str(opts.mission_file)]
             argv += ["--seed", str(seed), "--port", str(opts.view_port)]
             view = children.start("view", argv, out / "view.log")
             line = _wait_for_line(out / "view.log", "view at ", view, START_TIMEOUT_S)
             print(f"live map of the swarm: {line.split('view at ', 1)[1]}", flush=True)
         for i in range(mission.n_uavs):
-            argv = [
-                py,
-                "-m",
-                "companion.app.cli",
-                "companion",
-                "--mission",
-                str(opts.mission_file),
-                "--uav",
-                str(i),
-                "--takeover",
-                "--steps",
-                str(steps),
-                "--seed",
-                str(seed),
-                "--out",
-                str(out),
-                "--command-mode",
-                opts.command_mode,
-            ]
-            if opts.lockstep:
-                argv.append("--lockstep")
+            argv = _companion_argv(opts, i, steps, seed, urls[i])
             children.start(f"companion{i}", argv, out / f"companion{i}.log")
-        for i in range(mission.n_uavs):  # companions first: each waits for its vehicle's heartbeat
-            proc = children.procs[f"companion{i}"]
-            _wait_for_line(out / f"companion{i}.log", "waiting for the vehicle", proc, START_TIMEOUT_S)
-        sim_argv = [
-            py,
-            "-m",
-            "sim_vehicles",
-            "--mission",
-            str(opts.mission_file),
-            "--seed",
-            str(seed),
-            "--truth",
-            str(out / "truth.json"),
-            "--speedup",
-            str(opts.speedup),
-        ]
-        if opts.lockstep:
-            sim_argv.append("--lockstep")
-        if opts.flavour:
-            sim_argv += ["--flavour", opts.flavour]
-        sim = children.start("sim", sim_argv, out / "sim.log")
-        _wait_for_line(out / "sim.log", f"vehicle {mission.n_uavs - 1} ", sim, START_TIMEOUT_S)
+        if not opts.external:
+            for i in range(mission.n_uavs):  # companions first: each waits for its vehicle's heartbeat
+                proc = children.procs[f"companion{i}"]
+                _wait_for_line(out / f"companion{i}.log", "waiting for the vehicle", proc, START_TIMEOUT_S)
+            _start_bundled(children, opts, mission, seed)
         targets = truth_cells(out / "truth.json")
         seen = np.zeros(len(targets), dtype=bool)
         last_print = 0.0
@@ -209,18 +341,26 @@ def run_mission(opts: RunOptions) -> int:
             all_found = seen.all() and not opts.keep_going
             if all_found or all(p.poll() is not None for p in companions):
                 break
-            if sim.poll() is not None:
-                print("error: the simulator stopped", file=sys.stderr)
+            failure = _stopped_early(children)
+            if failure:
                 break
+    except (RuntimeError, sitl.SitlError) as exc:
+        failure = str(exc)
     finally:
         children.stop()
         for s, h in previous.items():
             signal.signal(s, h)
+    if failure:
+        print(f"error: {failure}", file=sys.stderr)
+        if not (out / "truth.json").exists():
+            return 1
     logs.poll()
-    result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed)
+    approach = read_approach(out / "approach.csv")
+    targets = truth_cells(out / "truth.json")
+    result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed, approach)
     if result.steps == 0:
         print(
-            "error: no step was flown (see the companion and sim logs in the output directory)",
+            "error: no step was flown (see the companion and vehicle logs in the output directory)",
             file=sys.stderr,
         )
         return 1
@@ -239,15 +379,30 @@ def run_mission(opts: RunOptions) -> int:
     plots.plot_uncertainty(out / "uncertainty.png", {name: [result]})
     plots.plot_found(out / "targets_found.png", {name: [result]})
     plots.plot_links(out / "links.png", result, mission.comms.safety)
+    flight = flight_report(mission, out, logs.logs)
+    (out / "tracking.json").write_text(json.dumps(flight, indent=2) + "\n")
     if opts.view:
         print(f"replay the run with: uavsearch view --replay {out}", flush=True)
     failures = failed_criteria(world, result)
     s = summary[name]
     print(
         f"{mission.name}: {result.steps} steps, targets found {int(np.sum(result.target_steps >= 0))}/"
-        f"{len(targets)}, mean target time {s['mean_target_time']:.1f}, min lambda_2 {s['min_lambda2']:.4f}, "
-        f"min distance {s['min_distance']:.1f} m"
+        f"{len(result.target_cells)}, mean target time {s['mean_target_time']:.1f}, "
+        f"min lambda_2 {s['min_lambda2']:.4f}, min distance {s['min_distance']:.1f} m"
     )
+    if approach:
+        print(
+            "closest approach along the flown tracks (simulator, physics rate): "
+            f"{result.approach.min():.1f} m (R_s = {mission.comms.safety:g} m); "
+            f"{result.separation_losses} steps within R_s"
+        )
+    p, h = flight["position_m"], flight["heading_deg"]
+    if p["median"] is not None:
+        print(
+            f"plan vs flight ({opts.mode}): position error median {p['median']:.1f} m, p95 {p['p95']:.1f} m; "
+            f"heading error median {h['median']:.1f} deg, p95 {h['p95']:.1f} deg; "
+            f"{flight['outside_fence']} logged poses outside the fence"
+        )
     (out / "criteria.json").write_text(
         json.dumps({"passed": not failures, "failures": failures}, indent=2) + "\n"
     )

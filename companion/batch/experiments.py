@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -21,7 +20,8 @@ from rich.progress import (
 
 from companion.batch import plots, report
 from companion.batch.engine import RunResult, simulate
-from companion.batch.montecarlo import RunSpec, run_specs, specs_for, summarize
+from companion.batch.executors import LocalPool, RunExecutor
+from companion.batch.montecarlo import RunSpec, execute, run_specs, specs_for, summarize
 from companion.batch.starts import random_start
 from companion.core.world import build_world
 from companion.mission import ALGORITHMS, Mission
@@ -39,15 +39,11 @@ def _progress(enabled: bool) -> Progress:
     )
 
 
-def run_all(specs: list[RunSpec], workers: int | None, progress: bool, label: str) -> list[RunResult]:
-    """Run the specs with a progress bar; results in spec order."""
-    out: list[RunResult] = []
+def run_all(specs: list[RunSpec], executor: RunExecutor, progress: bool, label: str) -> list[RunResult]:
+    """Run the specs on the executor with a progress bar fed as runs come back; results in spec order."""
     with _progress(progress) as bar:
-        task = bar.add_task(label, total=len(specs))
-        for result in run_specs(specs, workers):
-            out.append(result)
-            bar.advance(task)
-    return out
+        task = bar.add_task(f"{label} on {executor.description}", total=len(specs))
+        return list(run_specs(specs, executor=executor, on_result=lambda: bar.advance(task)))
 
 
 def compare(
@@ -60,11 +56,13 @@ def compare(
     workers: int | None = None,
     save_trajectories: bool = False,
     progress: bool = True,
+    executor: RunExecutor | None = None,
     layouts: tuple[str, ...] = (),
 ) -> dict:
-    """The paper's comparison (Figures 8-10): every algorithm on the same mission instances. With
-    `layouts`, run r starts from the layout `starts.random_start` draws for it (starts.csv), the same
-    for every algorithm; else from the mission's."""
+    """The paper's comparison (Figures 8-10): every algorithm on the same mission instances, computed
+    on `executor` (default: a local pool of `workers` processes). With `layouts`, run r starts from
+    the layout `starts.random_start` draws for it (starts.csv), the same for every algorithm; else
+    from the mission's."""
     for a in algorithms:
         if a not in ALGORITHMS:
             raise ValueError(f"unknown algorithm {a!r}; choose from {', '.join(ALGORITHMS)}")
@@ -75,7 +73,7 @@ def compare(
         report.write_starts(out, drawn)
         mission = drawn[0][0]  # the plots show run 0, from its own start
     specs = specs_for(mission, algorithms, runs, steps, seed, record, [m for m, _ in drawn])
-    flat = run_all(specs, workers, progress, f"{mission.name}: {len(specs)} runs")
+    flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: {len(specs)} runs")
     results = {a: flat[i * runs : (i + 1) * runs] for i, a in enumerate(algorithms)}
     meta = {
         "mission": mission.name,
@@ -120,12 +118,14 @@ def sweep(
     out: Path,
     workers: int | None = None,
     progress: bool = True,
+    executor: RunExecutor | None = None,
 ) -> list[dict]:
-    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default)."""
+    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default), computed
+    on `executor` (default: a local pool of `workers` processes)."""
     out.mkdir(parents=True, exist_ok=True)
     missions = [_set_param(mission.with_algorithm("proposed"), param, v) for v in values]
     specs = [RunSpec(m, seed, r, steps) for m in missions for r in range(runs)]
-    flat = run_all(specs, workers, progress, f"{mission.name}: sweep {param}")
+    flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: sweep {param}")
     summaries = [
         summarize(flat[i * runs : (i + 1) * runs]) | {param: json.loads(v)} for i, v in enumerate(values)
     ]
@@ -143,13 +143,15 @@ def bench(
     seed: int = 1,
     workers: int | None = None,
     study_runs: int = 8,
+    executor: RunExecutor | None = None,
 ) -> dict:
     """Compute time per 1,000 sampling moments (Table 2 setting) and Monte Carlo throughput.
 
-    Throughput is timed on the study's own mix: every mission x algorithm, `study_runs` runs
-    each, on a pool of `workers`. The whole-study estimate (every mission x algorithm, 1,000 runs
-    of 1,000 steps: the paper's study for its three scenarios) is the pool's start-up (until the
-    first `workers` results are in) plus the steady per-run time after it times the remaining runs.
+    Throughput is timed on the study's own mix: every mission x algorithm, `study_runs` runs each,
+    on `executor` (default: a local pool of `workers` processes). The whole-study estimate (every
+    mission x algorithm, 1,000 runs of 1,000 steps: the paper's study for its three scenarios) is
+    the executor's start-up (until the first `executor.workers` results are in) plus the steady
+    per-run time after it times the remaining runs.
     """
     rows = []
     for mission in missions:
@@ -164,7 +166,8 @@ def bench(
                     "seconds_per_1000_steps": 1000 * float(np.mean(secs)) / steps,
                 }
             )
-    workers = workers or os.cpu_count() or 1
+    executor = executor or LocalPool(workers)
+    workers = executor.workers
     specs = [
         RunSpec(mission.with_algorithm(a), seed, r, steps)
         for r in range(study_runs)
@@ -174,7 +177,7 @@ def bench(
     n = len(specs)
     started = time.perf_counter()
     arrivals = []
-    for _ in run_specs(specs, workers):
+    for _ in executor.imap_unordered(execute, specs):
         arrivals.append(time.perf_counter() - started)
     first = min(workers, n - 1)
     per_run = (arrivals[-1] - arrivals[first - 1]) / (n - first)  # steady state, all workers busy
@@ -184,6 +187,7 @@ def bench(
         "per_algorithm": rows,
         "throughput": {
             "workers": workers,
+            "executor": executor.description,
             "runs": n,
             "steps": steps,
             "wall_seconds": arrivals[-1],
@@ -192,7 +196,7 @@ def bench(
         },
         "study_estimate_minutes": study / 60.0,
         "study_definition": f"{len(missions)} mission{'s' * (len(missions) != 1)} x {len(ALGORITHMS)} "
-        f"algorithms x 1,000 runs x 1,000 steps, on {workers} workers",
+        f"algorithms x 1,000 runs x 1,000 steps, on {executor.description}",
     }
 
 
@@ -203,7 +207,7 @@ def format_bench(result: dict) -> str:
     t = result["throughput"]
     lines.append(
         f"Monte Carlo throughput (study mix): {t['runs_per_minute']:.1f} runs of {t['steps']} steps per "
-        f"minute on {t['workers']} workers ({t['runs']} runs in {t['wall_seconds']:.1f} s, "
+        f"minute on {t['executor']} ({t['runs']} runs in {t['wall_seconds']:.1f} s, "
         f"{t['startup_seconds']:.1f} s until the first {t['workers']} finished)"
     )
     study = result["study_definition"]

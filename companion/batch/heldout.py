@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.batch import plots
+from companion.batch.executors import RunExecutor
 from companion.batch.paired import METRICS, measure, specs_grid, write_json
 from companion.batch.stats import mean_ci, wilson
 from companion.mission import ALGORITHMS, Mission
@@ -82,20 +83,19 @@ def evaluate(
     runs: int,
     steps: int,
     out: Path,
-    workers: int | None = None,
+    executor: RunExecutor | None = None,
     layouts: tuple[str, ...] = (),
     meta: dict | None = None,
-    advance: Callable[[], None] = lambda: None,
+    advance: Callable[[], object] | None = None,
 ) -> dict:
-    """Run the three algorithms on the missions and write evaluate.json, missions.csv, overall.csv,
-    runs.csv and evaluate.png into `out`; returns the evaluate.json content."""
+    """Run the three algorithms on the missions (on `executor`, default a local pool) and write
+    evaluate.json, missions.csv, overall.csv, runs.csv and evaluate.png into `out`; returns the
+    evaluate.json content."""
     if runs < MIN_RUNS:
         raise ValueError(f"--runs must be at least {MIN_RUNS} (a per-mission interval needs two paired runs)")
     algorithms = (PROPOSED, *(a for a in ALGORITHMS if a != PROPOSED))
     specs = specs_grid(missions, algorithms, runs, steps, layouts)
-    values = measure(specs, workers, advance=advance).reshape(
-        len(missions), len(algorithms), runs, len(METRICS)
-    )
+    values = measure(specs, executor, advance).reshape(len(missions), len(algorithms), runs, len(METRICS))
     names = [m.name for m in missions]
     table = paired_table(values, algorithms, names)
     result = {

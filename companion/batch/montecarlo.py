@@ -1,25 +1,19 @@
-"""Monte Carlo runner: many runs of the batch engine across a process pool, and their summary.
+"""Monte Carlo runner: many runs of the batch engine on an executor, and their summary.
 
 A run is a pure function of (mission, algorithm, seed, run index), so a `RunSpec` is all a worker
-needs: the local process pool is the default executor, and any executor with `map` (a Dask or
-Ray client's) can take the same specs.
+needs: the local process pool and a Dask cluster (`executors`) give the same results.
 """
 
 from __future__ import annotations
 
 import math
-import multiprocessing
-import os
-import signal
-import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import Executor
 from dataclasses import dataclass
-from types import FrameType
 
 import numpy as np
 
 from companion.batch.engine import RunResult, simulate
+from companion.batch.executors import LocalPool, RunExecutor, in_order
 from companion.mission import Mission
 
 
@@ -61,45 +55,17 @@ def specs_for(
     ]
 
 
-def _worker_init() -> None:
-    """Workers leave SIGINT to the parent, which stops them (a Ctrl-C reaches the whole group)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _interrupt(_signum: int, _frame: FrameType | None) -> None:
-    raise KeyboardInterrupt
-
-
 def run_specs(
-    specs: list[RunSpec], workers: int | None = None, executor: Executor | None = None
+    specs: list[RunSpec],
+    workers: int | None = None,
+    executor: RunExecutor | None = None,
+    on_result: Callable[[], object] | None = None,
 ) -> Iterator[RunResult]:
-    """Results in the order of `specs`, computed on `executor` or a local pool of `workers` processes.
-
-    With the local pool, SIGTERM is turned into KeyboardInterrupt while it runs, and an interrupted
-    study terminates its workers: no process is left behind.
-    """
-    workers = workers or os.cpu_count() or 1
-    if executor is not None:
-        yield from executor.map(execute, specs)
-        return
-    if workers == 1:
-        yield from map(execute, specs)
-        return
-    chunk = max(1, min(8, len(specs) // (4 * workers)))
-    pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init)
-    previous = (
-        signal.signal(signal.SIGTERM, _interrupt)
-        if threading.current_thread() is threading.main_thread()
-        else None
-    )
-    try:
-        yield from pool.imap(execute, specs, chunksize=chunk)
-        pool.close()
-    finally:
-        pool.terminate()
-        pool.join()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+    """The results of `specs` in their order, each as soon as those before it are in, computed on
+    `executor` (default: a `LocalPool` of `workers` processes); `on_result` is called as each run
+    comes back, in whatever order."""
+    executor = executor or LocalPool(workers)
+    yield from in_order(executor.imap_unordered(execute, specs), len(specs), on_result)
 
 
 def ci95(values: np.ndarray) -> float:

@@ -10,21 +10,16 @@ from __future__ import annotations
 
 import json
 import math
-import multiprocessing
-import os
-import signal
-import threading
 import tomllib
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import msgspec
 import numpy as np
 
 from companion.batch.engine import RunResult
-from companion.batch.montecarlo import RunSpec, _interrupt, _worker_init, run_specs
+from companion.batch.executors import RunExecutor
+from companion.batch.montecarlo import RunSpec, run_specs
 from companion.batch.starts import random_start
 from companion.mission import Mission, MissionError, load_mission, validate
 
@@ -60,37 +55,15 @@ def specs_grid(
 
 def measure(
     specs: Sequence[RunSpec],
-    workers: int | None = None,
-    executor: Executor | None = None,
-    advance: Callable[[], None] = lambda: None,
+    executor: RunExecutor | None = None,
+    advance: Callable[[], object] | None = None,
 ) -> np.ndarray:
-    """`run_metrics` of every spec, shape (len(specs), len(METRICS)), in spec order."""
+    """`run_metrics` of every spec, shape (len(specs), len(METRICS)), in spec order, computed on
+    `executor` (default: a local pool of every core); `advance` is called as each run comes back."""
     out = np.empty((len(specs), len(METRICS)))
-    for i, r in enumerate(run_specs(list(specs), workers, executor)):
+    for i, r in enumerate(run_specs(list(specs), executor=executor, on_result=advance)):
         out[i] = run_metrics(r)
-        advance()
     return out
-
-
-@contextmanager
-def worker_pool(workers: int | None) -> Iterator[Executor | None]:
-    """One pool of worker processes for a study made of many small batches (a tune's trials): a
-    fresh pool costs about 2.5 s on this machine. None for one worker (runs in this process).
-    SIGTERM is turned into KeyboardInterrupt while it lives; on leaving, queued runs are cancelled
-    and the workers finish their current run and exit."""
-    workers = workers or os.cpu_count() or 1
-    if workers == 1:
-        yield None
-        return
-    main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _interrupt) if main else None
-    pool = ProcessPoolExecutor(workers, multiprocessing.get_context("spawn"), initializer=_worker_init)
-    try:
-        yield pool
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def write_json(path: Path, content: object) -> None:

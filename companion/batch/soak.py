@@ -11,6 +11,7 @@ import msgspec
 import numpy as np
 
 from companion.batch.engine import RunResult
+from companion.batch.executors import RunExecutor
 from companion.batch.generate import Family, generate
 from companion.batch.montecarlo import RunSpec, run_specs
 from companion.mission import ALGORITHMS
@@ -64,9 +65,12 @@ def soak_specs(
     return specs
 
 
-def soak(specs: list[RunSpec], workers: int | None = None) -> Iterator[SoakRow]:
-    """Run the specs (in order) and report each run's safety figures."""
-    for spec, r in zip(specs, run_specs(specs, workers), strict=True):
+def soak(
+    specs: list[RunSpec], workers: int | None = None, executor: RunExecutor | None = None
+) -> Iterator[SoakRow]:
+    """Run the specs (in order; on `executor`, default a local pool of `workers`) and report each
+    run's safety figures."""
+    for spec, r in zip(specs, run_specs(specs, workers, executor), strict=True):
         yield row_of(spec, r)
 
 

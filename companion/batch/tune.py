@@ -22,6 +22,7 @@ import csv
 import tomllib
 import warnings
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -30,7 +31,8 @@ import numpy as np
 import optuna
 
 from companion.batch import plots
-from companion.batch.paired import METRICS, apply_weights, measure, specs_grid, worker_pool, write_json
+from companion.batch.executors import RunExecutor, open_executor
+from companion.batch.paired import METRICS, apply_weights, measure, specs_grid, write_json
 from companion.batch.stats import Interval, mean_ci
 from companion.mission import ALGORITHMS, Mission, MissionError
 
@@ -252,12 +254,13 @@ def tune(
     space: Sequence[Weight],
     setup: Setup,
     out: Path,
-    workers: int | None = None,
+    executor: RunExecutor | None = None,
     meta: dict | None = None,
-    advance: Callable[[], None] = lambda: None,
+    advance: Callable[[], object] | None = None,
 ) -> dict:
-    """Run the study and write weights.toml, history.csv, study.json and tune.png into `out`;
-    returns the study.json content. An interrupted study writes what it has.
+    """Run the study on `executor` (default: a local pool of every core, kept for the whole study)
+    and write weights.toml, history.csv, study.json and tune.png into `out`; returns the study.json
+    content. An interrupted study writes what it has.
 
     The search scores each trial on runs 0..R-1 of every mission. The best `setup.confirm`
     candidates and trial 0 then fly runs R..2R-1 (new targets, CVT draws and starts), and the
@@ -279,14 +282,14 @@ def tune(
     reference = np.empty(0)
     out.mkdir(parents=True, exist_ok=True)
     try:
-        with worker_pool(workers) as pool:
+        with nullcontext(executor) if executor else open_executor(keep=True) as runner:
 
             def fly(values: Mapping[str, float], first_run: int, label: str) -> np.ndarray:
                 candidates = [apply_weights(m, weights_table(m, values), label) for m in missions]
                 specs = specs_grid(
                     candidates, [setup.algorithm], setup.runs, setup.steps, setup.layouts, first_run
                 )
-                got = measure(specs, workers, pool, advance)
+                got = measure(specs, runner, advance)
                 return got.reshape(len(missions), setup.runs, len(METRICS))
 
             for number in range(trials):

@@ -39,7 +39,7 @@ from companion.core.messages import (
     StateMsg,
     UavState,
 )
-from companion.core.rhc import choose_grid_path, choose_path
+from companion.core.rhc import rank_candidates, rank_grid_candidates
 from companion.core.tasks import keep_task, rewards, task_completion, total_cost
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.uncertainty import apply_looks, mark_seen
@@ -258,7 +258,9 @@ class Agent:
 
     # -- mission planning ----------------------------------------------------------------------
     def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> tuple[float, ...]:
-        """Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21): complete or too costly."""
+        """Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21: complete or too costly)
+        and, when it holds a task, for tasks not worth more than the task it holds (Algorithm 2's
+        greedy bidder would not take them: lines 10-11)."""
         w, tess = self.world, self.world.tessellation
         assert tess is not None
         a = w.mission.algorithm
@@ -267,24 +269,35 @@ class Agent:
             return ()
         cost = total_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs)
         reward = rewards(self.eta * w.prior, cost, tess)
-        return tuple(np.where(done | (cost > a.c_max), 0.0, reward).tolist())
+        worthless = done | (cost > a.c_max)
+        if self.task >= 0:
+            worthless |= reward <= reward[self.task]
+        return tuple(np.where(worthless, 0.0, reward).tolist())
 
     def _plan_task(self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict) -> bool:
-        """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step."""
+        """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step.
+
+        Every UAV is a greedy bidder (Algorithm 2): it announces its rewards at step k (`BidsMsg`),
+        and at k+1 runs the local auction over the bids it heard, the tasks held by the UAVs it knows
+        of removed; a task it wins replaces the one it holds (its bids already exclude tasks worth
+        less). The held task is then reevaluated (eqs. 20-21) and dropped on a conflicting claim of
+        a higher priority."""
         w, tess = self.world, self.world.tessellation
         assert tess is not None
         a = w.mission.algorithm
-        if self.task < 0 and self.bids is not None and self.bid_stamp == k - 1:
+        if self.bids is not None and self.bid_stamp == k - 1:
             bidders = [self.uav, *sorted(bids)]
             table = np.array([self.bids, *(bids[u] for u in sorted(bids))])
             available = np.ones(tess.n_tasks, dtype=bool)
-            for u, s in self.peers.items():
-                if s.task >= 0 and u not in bids:
+            for s in self.peers.values():
+                if s.task >= 0:
                     available[s.task] = False
+            if self.task >= 0:
+                available[self.task] = False
             won = local_auction(bidders, table, available).get(self.uav)
             if won is not None:
                 self.task, self.task_reward = won
-        elif self.task >= 0:
+        if self.task >= 0:
             mine = claim_priority(self.task_reward, self.uav)
             lost = any(
                 s.task == self.task and claim_priority(s.task_reward, u) > mine for u, s in self.peers.items()
@@ -297,10 +310,9 @@ class Agent:
             if lost or not keep_task(completion, cost, a.v_max, a.c_max):
                 self.task, self.task_reward = -1, 0.0
         self.bids = None
-        if self.task < 0:
-            bids = self._my_bids(position, mst_nbrs)
-            if max(bids, default=0.0) > 0:  # nothing left to win: no auction
-                self.bids, self.bid_stamp = bids, k
+        bids = self._my_bids(position, mst_nbrs)
+        if max(bids, default=0.0) > 0:  # nothing left to win: no auction
+            self.bids, self.bid_stamp = bids, k
         return self.bids is not None
 
     # -- step ----------------------------------------------------------------------------------
@@ -350,7 +362,8 @@ class Agent:
         announce = self._plan_task(k, nxt, mst_now, bids) if self.algorithm == "proposed" else False
         safety.update_parents(k, np.array([obs.x, obs.y]))
 
-        # RHC: eq. 24 over every path of eq. 23 that the safety layer allows, eq. 22 picks the best
+        # RHC: eq. 24 over every path of eq. 23, best first (eq. 22); the safety layer takes the first
+        # it allows
         if self.algorithm == "no-ta":
             self._values[:-1] = self.eta * w.prior
         elif self.phi is not None:
@@ -360,13 +373,11 @@ class Agent:
             region = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
         else:
             region = (-1, nxt, 1.0)
-        sides = safety.candidate_sides(k, (x1, y1, h1))
         c = m.comms
-        limits = (
+        rest = (
             a.delta,
             a.chi,
             nbr_tracks,
-            sides,
             (c.range, c.attraction, c.safety, c.repulsion),
             grid.region.normals,
             grid.region.offsets,
@@ -374,21 +385,22 @@ class Agent:
         )
         if w.kinematics.mode == "grid":
             offsets = w.paths.offsets_from(h1)
-            best, path = choose_grid_path(
+            order, pts = rank_grid_candidates(
                 x1, y1, offsets, grid.x0, grid.y0, grid.lattice, grid.fov_table, self._values,
-                self._labels, *region, *limits,
+                self._labels, *region, *rest,
             )  # fmt: skip
         else:
             pts = w.paths.expand(x1, y1, h1)
             cells, fov, prefix = self._continuous_path_cells(pts)
             labels = self._labels[cells] if region[0] >= 0 else cells  # cell -1 reads the trailing -1
-            best = choose_path(pts, fov, prefix, self._values, labels, *region, *limits)
-            path = pts[max(best, 0)]
+            order = rank_candidates(pts, fov, prefix, self._values, labels, *region, *rest)
+        best, side = safety.first_allowed(k, (x1, y1, h1), order)
+        path = pts[max(best, 0)]
 
         horizon, turn = self._horizon, float(inforce.turns[0])
         if best >= 0:
             turns = tuple(w.paths.sequences[best].tolist())
-            proposal = Trajectory(k + 1, x1, y1, h1, turns, int(sides[best]))
+            proposal = Trajectory(k + 1, x1, y1, h1, turns, side)
             plan = ((x1, y1), *map(tuple, path[: horizon - 1].tolist()))
             plan_headings = (h1, *w.paths.headings_along(h1, best)[: horizon - 1])
         else:

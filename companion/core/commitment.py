@@ -23,7 +23,7 @@ import numpy as np
 
 from companion.core.geometry import FloatArray
 from companion.core.messages import StateMsg, UavState
-from companion.core.safety import compatible, feasible_sides
+from companion.core.safety import compatible, expand_rows, first_allowed
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import World
 
@@ -53,6 +53,8 @@ class Commitments:
         self.left: set[int] = set()  # reported gone by the mesh (liveliness), until heard again
         self.dead: set[int] = set()
         self.accepted = self.rejected = 0
+        self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
+        self._disks = np.zeros((0, 4))
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._shapes = world.safety.shapes
 
@@ -98,42 +100,58 @@ class Commitments:
     def _children(self) -> set[int]:
         return {c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead}
 
-    def _arrays(
-        self, k: int, first: int, resolving: bool, anchor: tuple[float, float]
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Everything a trajectory of this UAV anchored at `anchor` at step `first` must keep clear
-        of, and keep within range of (tethers: parents and children), expanded over the check's
-        window. UAVs too far to matter are left out: every point of a trajectory lies within
-        `Reach.extent` of its anchor."""
+    def _gather(self, k: int, x: float, y: float) -> None:
+        """What every other UAV may fly from t_k on (`_possible`, both trajectories), expanded once
+        for this step's checks over steps k..k + window + 1, with their owners. UAVs too far from
+        (x, y), this UAV's position at t_k, to matter for a trajectory anchored within a step of it
+        are left out (every point of a trajectory lies within `Reach.extent` of its anchor), unless
+        tethered."""
         lim = self.limits
         r = lim.reach
-        others: list[Trajectory] = []
-        tethered: list[Trajectory] = []
-        disks: list[Disk] = []
-        tether_disks: list[Disk] = []
-        links = (set(self.parents) | self._children()) - self.dead
-        reach = 2 * r.extent + r.step + lim.separation
+        reach = 2 * r.extent + 2 * r.step + lim.separation
+        links = set(self.parents) | self._children()
+        trajs: list[Trajectory] = []
+        owners: list[int] = []
+        proposals: list[bool] = []
+        disks: list[tuple[float, float, float, float]] = []  # owner, cx, cy, r
         for j in self.latest:
-            trajs, dsk = self._possible(k, j, both=not resolving or j < self.uav)
-            if j in links:
-                tethered += trajs
-                tether_disks += dsk
-            else:
+            mine, dsk = self._possible(k, j, both=True)
+            if j not in links:
                 s = self.fresh[j].state if j in self.fresh else self.latest[j]
-                near = math.hypot(s.x - anchor[0], s.y - anchor[1])
-                if near > max([reach] + [r.extent + d[2] + lim.disk_separation for d in dsk]):
+                near = math.hypot(s.x - x, s.y - y)
+                if near > max([reach] + [r.extent + r.step + d[2] + lim.disk_separation for d in dsk]):
                     continue
-            others += trajs
-            disks += dsk
-        width = r.window + 1
+            for t in mine:
+                trajs.append(t)
+                owners.append(j)
+                proposals.append(t is not mine[0])
+            disks += [(j, *d) for d in dsk]
+        count = r.window + 1
+        pts = (
+            expand_rows(lim.rows(trajs), k, count, *lim.kinematics_args)
+            if trajs
+            else np.zeros((0, count + 1, 2))
+        )
+        self._step = (k, owners, proposals, pts)
+        self._disks = np.array(disks, dtype=float).reshape(-1, 4)
 
-        def expanded(trajs: list[Trajectory]) -> FloatArray:
-            return lim.expand(lim.rows(trajs), first) if trajs else np.zeros((0, width, 2))
-
-        def table(d: list[Disk]) -> FloatArray:
-            return np.array(d, dtype=float).reshape(-1, 3)
-
-        return expanded(others), table(disks), expanded(tethered), table(tether_disks)
+    def _arrays(self, resolving: bool) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """From this step's gathering: what a trajectory of this UAV must keep clear of, and keep
+        within range of (tethers: parents and children), over the check's window from t_k (the
+        resolution of the pending proposal: the others' proposals only for lower ids) or from
+        t_k+1 (a new proposal: everything)."""
+        _, owners, proposals, pts = self._step
+        links = (set(self.parents) | self._children()) - self.dead
+        rows = [
+            i
+            for i, (j, p) in enumerate(zip(owners, proposals, strict=True))
+            if not (resolving and p and j > self.uav)
+        ]
+        tethered = [i for i in rows if owners[i] in links]
+        span = pts[:, : pts.shape[1] - 1] if resolving else pts[:, 1:]
+        disks = self._disks
+        tether_disks = [d for d in range(len(disks)) if int(disks[d, 0]) in links]
+        return span[rows], disks[:, 1:], span[tethered], disks[tether_disks, 1:]
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
@@ -142,9 +160,9 @@ class Commitments:
         lim = self.limits
         turn = lim.reach.loiter_turn
         chosen = self.inforce
+        self._gather(k, x, y)
         if self.proposal is not None and self.proposal.start == k:
-            anchor = (self.proposal.x, self.proposal.y)
-            others, disks, tethers, tether_disks = self._arrays(k, k, True, anchor)
+            others, disks, tethers, tether_disks = self._arrays(resolving=True)
             pts = lim.expand(lim.rows([self.proposal]), k)[0]
             if compatible(pts, others, disks, tethers, tether_disks, *lim.clearances):
                 chosen = self.proposal
@@ -195,20 +213,23 @@ class Commitments:
             if compatible(pts, empty_o, empty_d, tethers, empty_d, *lim.clearances):
                 self.parents = (*self.parents, j)
                 self.parent_since = k
+                if j not in self._step[1]:  # left out as too far to matter: not as a tether
+                    self._gather(k, float(position[0]), float(position[1]))
                 return
 
-    def candidate_sides(self, k: int, pose: tuple[float, float, float]) -> np.ndarray:
-        """For each path of eq. 23 (`PathTree.sequences`) from `pose` at t_k+1: the loiter side with
-        which the trajectory it makes may be proposed (fence, and compatible with what the others
-        may fly then), 0 if none."""
+    def first_allowed(self, k: int, pose: tuple[float, float, float], order: np.ndarray) -> tuple[int, int]:
+        """The first path of eq. 23 (`PathTree.sequences`) in `order` (the RHC's preference) whose
+        trajectory from `pose` at t_k+1 may be proposed (in the fence, and compatible with what the
+        others may fly then), and its loiter side; (-1, 0) if none."""
         lim = self.limits
         x, y, heading = pose
-        others, disks, tethers, tether_disks = self._arrays(k, k + 1, False, (x, y))
+        others, disks, tethers, tether_disks = self._arrays(resolving=False)
         if lim.grid:
             shapes, c, s = self._shapes[round(heading / (math.pi / 4)) % 8], 1.0, 0.0
         else:
             shapes, c, s = self._shapes[0], math.cos(heading), math.sin(heading)
-        return feasible_sides(
+        return first_allowed(
+            order,
             shapes,
             x,
             y,

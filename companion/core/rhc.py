@@ -136,23 +136,16 @@ def region_key(
 
 
 @njit(cache=True)
-def select_path(scores: FloatArray, region: FloatArray, allowed: np.ndarray) -> int:
-    """Eq. 22 under the hard constraints: among the paths the safety layer allows (`allowed` != 0),
-    those with the best `region_key` (all M steps in the region when possible), and among them the
-    best score. Ties go to the first path (the straightest). -1 when no path is allowed."""
-    best_region = -np.inf
-    for i in range(scores.shape[0]):
-        if allowed[i] != 0:
-            best_region = max(best_region, region[i])
-    best = -1
-    for i in range(scores.shape[0]):
-        if allowed[i] != 0 and region[i] >= best_region - 1e-9 and (best < 0 or scores[i] > scores[best]):
-            best = i
-    return best
+def rank_paths(scores: FloatArray, region: FloatArray) -> IntArray:
+    """Eq. 22's order of preference: paths by `region_key` (all M steps in the region first), then
+    by score, then by index (the straightest first). The safety layer takes the first path of this
+    order that it allows (`Commitments.first_allowed`)."""
+    by_score = np.argsort(-scores, kind="mergesort")
+    return by_score[np.argsort(-region[by_score], kind="mergesort")]
 
 
 @njit(cache=True)
-def choose_path(
+def rank_candidates(
     points: FloatArray,
     fov: IntArray,
     prefix: IntArray,
@@ -164,24 +157,23 @@ def choose_path(
     delta: tuple[float, float],
     chi: tuple[float, float],
     neighbour_tracks: FloatArray,
-    allowed: np.ndarray,
     comms: tuple[float, float, float, float],
     normals: FloatArray,
     offsets: FloatArray,
     cell_size: float,
-) -> int:
-    """Eq. 22: the path maximising chi_1 J^A - chi_2 J^B (eqs. 25, 29) among the paths the safety
-    layer allows, region first (`region_key`, `select_path`). `comms` is (R_c, R'_c, R_s, R'_s)."""
+) -> IntArray:
+    """Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
+    (`region_key`, `rank_paths`). `comms` is (R_c, R'_c, R_s, R'_s)."""
     benefit = search_benefit(
         points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1]
     )
     expense = path_expense(points, neighbour_tracks, comms[0], comms[1], comms[2], comms[3])
     region = region_key(prefix, points, normals, offsets, cell_size)
-    return select_path(chi[0] * benefit - chi[1] * expense, region, allowed)
+    return rank_paths(chi[0] * benefit - chi[1] * expense, region)
 
 
 @njit(cache=True)
-def choose_grid_path(
+def rank_grid_candidates(
     x: float,
     y: float,
     offsets: FloatArray,
@@ -211,5 +203,4 @@ def choose_grid_path(
             for m in range(cells.shape[1]):
                 if cells[i, m] >= 0:
                     point_labels[i, m] = cell_labels[cells[i, m]]
-    best = choose_path(pts, fov, prefix, values_padded, point_labels, task, *rest)
-    return best, pts[max(best, 0)]
+    return rank_candidates(pts, fov, prefix, values_padded, point_labels, task, *rest), pts

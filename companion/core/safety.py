@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from companion.core.geometry import ConvexPolygon, FloatArray
+from companion.core.geometry import ConvexPolygon, FloatArray, IntArray
 from companion.core.kinematics import Kinematics
 from companion.core.trajectory import HEAD, Reach, Trajectory, expand, point_clearance, segment_clearance
 
@@ -181,7 +181,8 @@ def inside_fence(pts: FloatArray, normals: FloatArray, offsets: FloatArray) -> b
 
 
 @njit(cache=True)
-def feasible_sides(
+def first_allowed(
+    order: IntArray,
     shapes: FloatArray,
     x: float,
     y: float,
@@ -198,16 +199,15 @@ def feasible_sides(
     separation: float,
     disk_separation: float,
     link: float,
-) -> np.ndarray:
-    """For each candidate path: the loiter side (+1 or -1) with which its trajectory stays in the
-    fence and is compatible with everything given, 0 if neither. `shapes` (n_paths, 2 sides,
-    window + 1, 2) holds the trajectories relative to their anchor (`Limits.shapes`), placed at
-    (x, y) and turned by the heading (cos_h, sin_h). The side that turns towards `centre` (the
-    region's centroid) at the plan's end is tried first."""
-    n_paths, width = shapes.shape[0], shapes.shape[2]
-    out = np.zeros(n_paths, dtype=np.int64)
+) -> tuple[int, int]:
+    """The first candidate path in `order` whose trajectory, with one of the loiter sides, stays in the
+    fence and is compatible with everything given: (path, side +1 or -1), or (-1, 0) if none.
+    `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
+    (`Limits.shapes`), placed at (x, y) and turned by the heading (cos_h, sin_h). The side that
+    turns towards `centre` (the region's centroid) at the plan's end is tried first."""
+    width = shapes.shape[2]
     pts = np.empty((width, 2))
-    for i in range(n_paths):
+    for i in order:
         s0 = shapes[i, 0]
         ex = s0[horizon, 0] - s0[horizon - 1, 0]
         ey = s0[horizon, 1] - s0[horizon - 1, 1]
@@ -223,9 +223,8 @@ def feasible_sides(
             if inside_fence(pts, normals, offsets) and compatible(
                 pts, others, disks, tethers, tether_disks, separation, disk_separation, link
             ):
-                out[i] = 1 if side == 0 else -1
-                break
-    return out
+                return i, 1 if side == 0 else -1
+    return -1, 0
 
 
 # -- the start: a tree of tethers and a contingency for every UAV -------------------------------------

@@ -14,7 +14,7 @@ from companion.mission import load_mission
 from companion.node.camera_feed import CameraFeed
 from companion.node.frames import LocalFrame
 from companion.node.mesh import Mesh
-from companion.node.process import Companion, CompanionOptions, camera_key_of, default_vehicle_url
+from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
 from companion.node.vehicle_link import LinkError, VehicleLink
 
 
@@ -32,6 +32,7 @@ def run_companion(args: argparse.Namespace) -> int:
         vehicle_url=args.vehicle or default_vehicle_url(mission, args.uav),
         command_mode=args.command_mode,
         takeover=args.takeover,
+        fence=args.fence,
         lockstep=args.lockstep,
         seed=args.seed,
         steps=args.steps,
@@ -57,6 +58,9 @@ def run_companion(args: argparse.Namespace) -> int:
             except LinkError as exc:
                 print(f"error: {exc}", file=sys.stderr)
                 return 1
+            except Refused as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
             finally:
                 companion.close()
                 camera.close()

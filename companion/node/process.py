@@ -5,6 +5,12 @@ camera's detections, takes the peers' step k-1 messages from the mesh, calls `Ag
 the command to the vehicle in the chosen command mode (only while the vehicle is in its guided
 mode) and publishes the outbox. The clock is the vehicle's: a sped-up simulator just works.
 
+On connecting it reads the autopilot's airframe parameters, warns when the mission cannot be flown
+and refuses command modes the autopilot does not fly (`airframe`); with `--takeover` it puts the
+vehicle in guided flight (`takeover`) and uploads the region plus its margin as the autopilot's
+fence (`fence`). Every step it measures how far the vehicle is from where the plan put it and
+guards the region (`tracking`).
+
 In lockstep the bundled simulator advances only when every companion has reported that its step
 is done (MAV_CMD_USER_1, see docs/simulator.md), and each step waits for the pose, the camera frame
 and the peers' messages of that step, so a distributed run reproduces the batch engine's.
@@ -25,29 +31,45 @@ import numpy as np
 
 from companion.batch.engine import warm_up
 from companion.core.agent import Agent, Command, Observation
+from companion.core.geometry import ConvexPolygon
 from companion.core.kinematics import arc_advance
 from companion.core.world import build_world
 from companion.mission import Mission
+from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.camera_feed import CameraFeed
 from companion.node.detections import camera_key
-from companion.node.frames import LocalFrame, heading_to_yaw
+from companion.node.fence import fence_margin, fence_polygon, upload_fence
+from companion.node.frames import LocalFrame
+from companion.node.guidance import Guidance
 from companion.node.mesh import Mesh
-from companion.node.vehicle_link import ARDUPILOT_GUIDED, PX4_HOLD, PX4_OFFBOARD, VehicleLink
+from companion.node.takeover import steerable, take_over
+from companion.node.tracking import Guard, PlanError, PlanTracker, RegionGuard
+from companion.node.vehicle_link import VehicleLink
 
 log = logging.getLogger("companion")
 
-COMMAND_MODES = ("turn-rate", "heading", "reposition", "position-target")
 LOCKSTEP_COMMAND = 31010  # MAV_CMD_USER_1: "lockstep: ready for step param1"
-# Guidance is streamed (vehicle seconds between repeats of the current command) so that the
-# autopilot's guidance timeout never fires between steps; PX4 OFFBOARD needs more than 2 Hz.
-STREAM_PERIOD_S = {"turn-rate": 0.5, "heading": 0.5, "position-target": 0.2}
 # In real time a step is planned LEAD of a step before it starts, from the pose predicted for its
 # start, so that the command is in place when the autopilot begins the step (no one-step lag).
 LEAD = 0.25
 LINK_TIMEOUT_S = 3.0  # wall seconds without HEARTBEAT before the link counts as lost
 PEER_WAIT_S = 30.0  # lockstep: how long to wait for a live peer's messages before going on
-TAKEOVER_TIMEOUT_S = 30.0  # wall seconds --takeover keeps trying to set the guided mode and arm
-LEAD_STEPS, LEAD_MIN_M = 5, 200.0  # waypoint modes fly to a point this far ahead (see _lead_point)
+SIMULATOR_PARAM_WAIT_S = 3.0  # the airframe's parameters have answered by then: others need no longer
+PLAN_COLUMNS = [
+    "step",
+    "planned_x",
+    "planned_y",
+    "planned_heading",
+    "x",
+    "y",
+    "heading",
+    "error_m",
+    "error_deg",
+]
+
+
+class Refused(RuntimeError):
+    """The autopilot cannot fly the mission in the chosen command mode (the message says why)."""
 
 
 @dataclass(frozen=True)
@@ -57,6 +79,7 @@ class CompanionOptions:
     vehicle_url: str
     command_mode: str = "turn-rate"
     takeover: bool = False
+    fence: bool | None = None  # upload the region plus margin as the autopilot's fence (default: takeover)
     lockstep: bool = False
     seed: int | None = None
     steps: int | None = None
@@ -83,12 +106,19 @@ class Companion:
         self.last_position: np.ndarray | None = None
         self.steering = True
         self.last_command: Command | None = None
-        self._last_send = -math.inf
+        self.guidance = Guidance(link, self.frame, m, opts.uav, opts.command_mode)
+        k = m.kinematics
+        self.tracker = PlanTracker(opts.uav, k.speed, k.step, bound_m=k.speed * k.step)
+        margin = fence_margin(m)
+        self.fence = fence_polygon(m, margin)
+        region = ConvexPolygon.from_vertices(m.region.polygon)
+        self.guard = RegionGuard(opts.uav, region, self.fence, depth=margin, step_length=k.speed * k.step)
+        self.airframe_warnings: list[str] = []
+        self.fence_uploaded = False
         self._seen_alive: set[int] = set()
         self._departed: set[int] = set()
-        self._rows: list[list[object]] = []
-        self._log_file = None
-        self._log = None
+        self._log_file = self._plan_file = None
+        self._log = self._plan_log = None
         if opts.out is not None:
             opts.out.mkdir(parents=True, exist_ok=True)
             self._log_file = (opts.out / f"uav{opts.uav}.csv").open("w", newline="")
@@ -108,77 +138,55 @@ class Companion:
                     "cmd_x",
                     "cmd_y",
                     "peers",
+                    "up",
                 ]
             )
+            self._plan_file = (opts.out / f"uav{opts.uav}_plan.csv").open("w", newline="")
+            self._plan_log = csv.writer(self._plan_file)
+            self._plan_log.writerow(PLAN_COLUMNS)
 
     # -- vehicle ---------------------------------------------------------------------------------
     def _steerable(self) -> bool:
-        s = self.link.state
-        if s.px4:
-            if self.opts.command_mode == "reposition":
-                return s.custom_mode in (PX4_HOLD, PX4_OFFBOARD)
-            return s.custom_mode == PX4_OFFBOARD
-        return s.custom_mode == ARDUPILOT_GUIDED
+        return steerable(self.link, self.opts.command_mode)
 
-    def _take_over(self, stop: threading.Event) -> None:
-        """Switch the vehicle to its guided mode and arm it (only with --takeover), retrying until
-        its HEARTBEAT shows both. PX4 refuses OFFBOARD without a setpoint stream (> 2 Hz): stream
-        the current position first, and keep streaming while waiting."""
-        s, link = self.link.state, self.link
-        offboard = s.px4 and self.opts.command_mode != "reposition"
-        want = (PX4_OFFBOARD if offboard else PX4_HOLD) if s.px4 else ARDUPILOT_GUIDED
-        deadline = time.monotonic() + TAKEOVER_TIMEOUT_S
-        sent, last_wall, last_try = 0, -math.inf, -math.inf
-        while not stop.is_set() and not (self._steerable() and s.armed):
-            now = time.monotonic()
-            if now > deadline:
-                log.warning("uav %d: takeover failed: not in the guided mode and armed", self.opts.uav)
-                return
-            period = STREAM_PERIOD_S["position-target"]
-            if offboard and (s.time_s - self._last_send >= period or now - last_wall >= period):
-                self._send_target_of(s.x, s.y)
-                self._last_send, last_wall, sent = s.time_s, now, sent + 1
-            if (not offboard or sent >= 3) and now - last_try >= 1.0:
-                link.set_mode(want)
-                link.arm()
-                last_try = now
-            link.poll(0.02)
-
-    def _send_target_of(self, x: float, y: float) -> None:
-        lat, lon, _ = self.frame.to_geodetic(x, y)
-        self.link.position_target(lat, lon, self.opts.mission.kinematics.altitude)
-
-    def _send(self, command: Command) -> None:
-        mode, link = self.opts.command_mode, self.link
-        if mode == "turn-rate":
-            link.turn_rate(-command.heading_rate)  # MAVLink yaw rate is clockwise-positive
-        elif mode == "heading":
-            link.change_heading(math.degrees(heading_to_yaw(command.heading)))
-        elif mode == "reposition":
-            lat, lon, _ = self.frame.to_geodetic(*self._lead_point(command))
-            link.reposition(lat, lon, self.opts.mission.kinematics.altitude)
-        else:
-            self._send_target_of(*self._lead_point(command))
-        self._last_send = link.state.time_s
-
-    def _lead_point(self, command: Command) -> tuple[float, float]:
-        """Where the waypoint modes fly: ahead of the step's pose on the commanded heading.
-
-        The next planned path point is one step (v dT) away, inside the acceptance radius of an
-        autopilot (WP_RADIUS, NAV_ACC_RAD): it would count as reached at once and the vehicle
-        would loiter around it. A point LEAD_STEPS steps (at least LEAD_MIN_M) out on the heading
-        the plan reaches after its first step turns the vehicle onto that heading now.
-        """
-        assert self.last_position is not None
+    def _check_airframe(self) -> None:
+        """Read the airframe's parameters, warn about what the mission asks beyond them, refuse
+        what the autopilot cannot fly."""
+        flavour = "px4" if self.link.state.px4 else "ardupilot"
+        values = self.link.read_params(Airframe.names(flavour))
+        values |= self.link.read_params([SIMULATOR_PARAM], timeout=SIMULATOR_PARAM_WAIT_S)
+        airframe = Airframe.from_params(flavour, values)
+        problem = refusal(self.opts.mission, airframe, self.opts.command_mode)
+        if problem:
+            raise Refused(f"uav {self.opts.uav}: {problem}")
+        self.airframe_warnings = check_mission(self.opts.mission, airframe)
+        for warning in self.airframe_warnings:
+            log.warning("uav %d: mission vs airframe: %s", self.opts.uav, warning)
+        cruise = airframe.get("cruise")
         k = self.opts.mission.kinematics
-        lead = max(LEAD_STEPS * k.speed * k.step, LEAD_MIN_M)
-        x, y = float(self.last_position[0]), float(self.last_position[1])
-        return x + lead * math.cos(command.heading), y + lead * math.sin(command.heading)
+        self.guidance.set_speed = (
+            k.mode == "continuous" and cruise is not None and abs(cruise - k.speed) > 0.1
+        )
+
+    def _upload_fence(self) -> None:
+        error = upload_fence(self.link, self.frame, self.fence)
+        if error:
+            log.warning("uav %d: fence not set: %s", self.opts.uav, error)
+        else:
+            self.fence_uploaded = True
+            log.info(
+                "uav %d: fence enabled: the region plus %.0f m (%d vertices)",
+                self.opts.uav,
+                fence_margin(self.opts.mission),
+                len(self.fence.vertices),
+            )
 
     # -- one step --------------------------------------------------------------------------------
     def _pose(self, ahead: float = 0.0) -> tuple[float, float, float]:
-        """The vehicle's pose `ahead` seconds from its latest telemetry, by eq. 2 under the command
-        it is flying (grid mode: on the cell centre it is flying to, heading a multiple of 45 deg)."""
+        """The vehicle's pose `ahead` seconds from its latest telemetry, by eq. 2 at the turn rate it
+        is flying: the commanded one on the simulator's turn-rate command, the measured one
+        (ATTITUDE) with an autopilot's guidance; grid mode: on the cell centre it is flying to,
+        heading a multiple of 45 deg."""
         s, kin = self.link.state, self.world.kinematics
         if kin.mode == "grid":  # grid UAVs sit on cell centres, headings on 45 deg
             g = self.world.grid
@@ -191,7 +199,12 @@ class Companion:
             return g.x0 + col * g.cell_size, g.y0 + row * g.cell_size, heading
         if ahead <= 0:
             return s.x, s.y, s.heading
-        rate = self.last_command.heading_rate if self.last_command is not None and self.steering else 0.0
+        if self.opts.command_mode != "turn-rate":  # autopilots turn at their own pace: as measured
+            rate = s.turn_rate
+        elif self.last_command is not None and self.steering:  # the simulator turns as told
+            rate = self.last_command.heading_rate
+        else:
+            rate = 0.0
         x, y, h = arc_advance(s.x, s.y, s.heading, rate, kin.speed, ahead)
         return float(x), float(y), float(h)
 
@@ -218,9 +231,13 @@ class Companion:
         )
         self.mesh.publish(k, outbox, position=(x, y))
         self.last_position = np.array([x, y])
-        steered = self.steering and self._steerable()
+        steered = self.steering and self._steerable() and self._guard(k, x, y)
         if steered:
-            self._send(command)
+            self.guidance.step(command, (x, y))
+            self.tracker.expect(k + 1, command.waypoint[0], command.waypoint[1], command.heading)
+        else:
+            self.guidance.paused()
+            self.tracker.cancel()
         self.last_command = command
         self.steps_done += 1
         if self._log is not None:
@@ -239,11 +256,45 @@ class Companion:
                     f"{command.waypoint[0]:.3f}",
                     f"{command.waypoint[1]:.3f}",
                     len(self.agent.peers),
+                    f"{self.link.state.up:.2f}",
                 ]
             )
             assert self._log_file is not None
             self._log_file.flush()
         return command
+
+    def _guard(self, k: int, x: float, y: float) -> bool:
+        """The region guard's verdict on step k: True if the plan may be flown."""
+        if self.guard.state is Guard.RELEASED:
+            return False
+        back_to = self.guard.check(k, x, y)
+        if back_to is not None:
+            self.guidance.go_to(*back_to)
+        return self.guard.state is Guard.INSIDE
+
+    def _measure(self) -> None:
+        """Plan versus flight, once the vehicle's telemetry reaches the planned step's time."""
+        s = self.link.state
+        error = self.tracker.measure(s.time_s, s.x, s.y, s.heading)
+        if error is not None:
+            self._log_plan(error)
+
+    def _log_plan(self, e: PlanError) -> None:
+        if self._plan_log is None:
+            return
+        self._plan_log.writerow(
+            [
+                e.step,
+                *(f"{v:.3f}" for v in e.planned[:2]),
+                f"{e.planned[2]:.6f}",
+                *(f"{v:.3f}" for v in e.flown[:2]),
+                f"{e.flown[2]:.6f}",
+                f"{e.position_m:.3f}",
+                f"{e.heading_deg:.3f}",
+            ]
+        )
+        assert self._plan_file is not None
+        self._plan_file.flush()
 
     # -- loops -----------------------------------------------------------------------------------
     def _check_link(self) -> bool:
@@ -264,12 +315,15 @@ class Companion:
         self.link.wait_heartbeat(120.0, stop.is_set)
         log.info("uav %d: vehicle system %d is up", self.opts.uav, self.link.state.system)
         self.link.request_streams()
+        self._check_airframe()
         if self.opts.lockstep:
             self.link.command_long(LOCKSTEP_COMMAND, 0)  # the simulator resends the current step's state
         while not stop.is_set() and not self.link.state.has_pose:
             self.link.poll(0.2)
         if self.opts.takeover:
-            self._take_over(stop)
+            take_over(self.link, self.guidance, self.opts.uav, stop)
+        if (self.opts.takeover if self.opts.fence is None else self.opts.fence) and not stop.is_set():
+            self._upload_fence()
         budget = self.opts.steps if self.opts.steps is not None else self.opts.mission.steps
         if self.opts.lockstep:
             self._run_lockstep(stop, budget)
@@ -288,6 +342,7 @@ class Companion:
                 last_beat = now
             if not self._check_link() or not self.link.state.has_pose:
                 continue
+            self._measure()
             t = self.link.state.time_s
             lead = LEAD * self.dt
             if next_k is None:
@@ -297,13 +352,12 @@ class Companion:
                 self.step(k, ahead=k * self.dt - t)
                 next_k = k + 1
             elif (
-                self.opts.command_mode in STREAM_PERIOD_S
-                and self.last_command is not None
-                and self.steering
+                self.steering
+                and self.guard.state is Guard.INSIDE
                 and self._steerable()
-                and t - self._last_send >= STREAM_PERIOD_S[self.opts.command_mode]
+                and self.guidance.due(t)
             ):
-                self._send(self.last_command)
+                self.guidance.repeat()
 
     def _run_lockstep(self, stop: threading.Event, budget: int) -> None:
         k = 0
@@ -319,6 +373,7 @@ class Companion:
                 missing = self.mesh.wait_for(k - 1, peers, PEER_WAIT_S)
                 if missing:
                     log.warning("uav %d: step %d: no messages from %s", self.opts.uav, k, sorted(missing))
+            self._measure()
             self.step(k)
             self.link.command_long(LOCKSTEP_COMMAND, k + 1)
             self.link.send_heartbeat()
@@ -334,11 +389,18 @@ class Companion:
             "rejected_mavlink": self.link.rejected,
             "rejected_camera": self.camera.rejected,
             "mesh": asdict(self.mesh.stats),
+            "plan_vs_flight": self.tracker.summary(),
+            "command_mode": self.opts.command_mode,
+            "airframe_warnings": self.airframe_warnings,
+            "fence_uploaded": self.fence_uploaded,
+            "fence_exits": self.guard.exits,
+            "guard": self.guard.state.value,
         }
 
     def close(self) -> None:
-        if self._log_file is not None:
-            self._log_file.close()
+        for f in (self._log_file, self._plan_file):
+            if f is not None:
+                f.close()
         if self.opts.out is not None:
             (self.opts.out / f"uav{self.opts.uav}.json").write_text(
                 json.dumps(self.report(), indent=2) + "\n"

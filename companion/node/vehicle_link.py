@@ -4,15 +4,18 @@ Any pymavlink connection string works (udp, udpin, udpout, tcp, serial). The lin
 autopilot's HEARTBEAT, asks for the telemetry it needs at the rates it needs, keeps the latest
 vehicle state (pose in the mission's local frame, mode, armed flag, vehicle time) and records a
 .tlog of everything it receives and sends. It never changes the vehicle's mode or arms it unless
-asked to (`take_over`).
+asked to (`companion.node.takeover`). Replies to requests (COMMAND_ACK, PARAM_VALUE, the mission
+protocol's requests and acks) are kept for the code that waits for them (`await_reply`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import struct
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +29,7 @@ from companion.node.frames import LocalFrame, yaw_to_heading
 
 COMPANION_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
 ARDUPILOT_GUIDED = 15
+ARDUPILOT_TAKEOFF = 13
 PX4_OFFBOARD = 6 << 16
 PX4_HOLD = (4 << 16) | (3 << 24)  # AUTO.LOITER
 
@@ -34,7 +38,9 @@ STREAMS_HZ = {
     mavlink.MAVLINK_MSG_ID_ATTITUDE: 10.0,
     mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
 }
+REPLIES = frozenset({"COMMAND_ACK", "PARAM_VALUE", "MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK"})
 
 
 class LinkError(RuntimeError):
@@ -54,7 +60,10 @@ class VehicleState:
     y: float = math.nan
     up: float = math.nan
     heading: float = math.nan
+    turn_rate: float = 0.0  # heading rate (rad/s, CCW positive) from ATTITUDE
     last_heartbeat: float = -math.inf  # wall clock (time.monotonic) of the latest HEARTBEAT
+    gps_fix: int = 0  # GPS_RAW_INT.fix_type (3: 3D)
+    prearm_ok: bool = False  # SYS_STATUS: pre-arm checks present and passing
     texts: list[str] = field(default_factory=list)
 
     @property
@@ -83,15 +92,18 @@ class TlogWriter:
 class VehicleLink:
     """One autopilot over MAVLink."""
 
-    def __init__(self, url: str, frame: LocalFrame, tlog: Path | None = None) -> None:
+    def __init__(
+        self, url: str, frame: LocalFrame, tlog: Path | None = None, component: int = COMPANION_COMPONENT
+    ) -> None:
         self.url, self.frame = url, frame
         self.state = VehicleState()
         self.rejected = 0
+        self.replies: deque[mavlink.MAVLink_message] = deque(maxlen=256)
         self._tlog = TlogWriter(tlog) if tlog else None
         self._conn = mavutil.mavlink_connection(
             url,
             source_system=255,
-            source_component=COMPANION_COMPONENT,
+            source_component=component,
             autoreconnect=True,
             dialect="ardupilotmega",
         )
@@ -128,11 +140,14 @@ class VehicleLink:
     def poll(self, timeout: float) -> int:
         """Read every pending message (waiting up to `timeout` for the first); returns how many."""
         count = 0
-        msg = self._conn.recv_match(blocking=True, timeout=timeout)
-        while msg is not None:
-            count += 1
-            self._handle(msg)
-            msg = self._conn.recv_match(blocking=False)
+        try:
+            msg = self._conn.recv_match(blocking=True, timeout=timeout)
+            while msg is not None:
+                count += 1
+                self._handle(msg)
+                msg = self._conn.recv_match(blocking=False)
+        except (OSError, ValueError):  # a TCP vehicle gone: pymavlink's reconnect was refused
+            time.sleep(timeout)
         return count
 
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
@@ -160,9 +175,77 @@ class VehicleLink:
             s.time_s = msg.time_boot_ms * 1e-3
         elif kind == "ATTITUDE":
             s.heading = yaw_to_heading(msg.yaw)
+            # body yaw rate = heading rate * cos(roll) * cos(pitch) in a level turn; CW positive
+            s.turn_rate = -msg.yawspeed / max(math.cos(msg.roll) * math.cos(msg.pitch), 0.2)
+        elif kind == "GPS_RAW_INT":
+            s.gps_fix = msg.fix_type
+        elif kind == "SYS_STATUS":
+            bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+            s.prearm_ok = bool(msg.onboard_control_sensors_present & msg.onboard_control_sensors_health & bit)
         elif kind == "STATUSTEXT":
             s.texts.append(msg.text)
             del s.texts[:-50]
+        elif kind in REPLIES:
+            self.replies.append(msg)
+
+    def await_reply(
+        self, match: Callable[[mavlink.MAVLink_message], bool], timeout: float
+    ) -> mavlink.MAVLink_message | None:
+        """The first kept reply that `match`es (removed from the kept ones), polling up to `timeout` s."""
+        deadline = time.monotonic() + timeout
+        while True:
+            for msg in self.replies:
+                if match(msg):
+                    self.replies.remove(msg)
+                    return msg
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            self.poll(min(left, 0.1))
+
+    # -- requests with replies -----------------------------------------------------------------
+    def command_ack(self, command: int, *params: float, timeout: float = 1.5, tries: int = 3) -> int | None:
+        """COMMAND_LONG until its COMMAND_ACK arrives; the MAV_RESULT, or None if none came."""
+        for _ in range(tries):
+            self.command_long(command, *params)
+            ack = self.await_reply(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command, timeout)
+            if ack is not None:
+                return int(ack.result)
+        return None
+
+    def read_params(self, names: list[str], timeout: float = 6.0) -> dict[str, float]:
+        """PARAM_REQUEST_READ by name, re-asked every second; the values that came within `timeout`
+        (an autopilot ignores names it does not have)."""
+        found: dict[str, float] = {}
+        deadline = time.monotonic() + timeout
+        while (missing := [n for n in names if n not in found]) and time.monotonic() < deadline:
+            for name in missing:
+                self._conn.mav.param_request_read_send(
+                    self.state.system, mavlink.MAV_COMP_ID_AUTOPILOT1, name.encode(), -1
+                )
+            ask_again = min(deadline, time.monotonic() + 1.0)
+            while time.monotonic() < ask_again:
+                msg = self.await_reply(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id in missing, 0.1)
+                if msg is not None:
+                    found[msg.param_id] = float(msg.param_value)
+                    if all(n in found for n in names):
+                        break
+        return found
+
+    def set_param(self, name: str, value: float, timeout: float = 1.5, tries: int = 3) -> bool:
+        """PARAM_SET until the PARAM_VALUE echo shows `value`."""
+        for _ in range(tries):
+            self._conn.mav.param_set_send(
+                self.state.system,
+                mavlink.MAV_COMP_ID_AUTOPILOT1,
+                name.encode(),
+                value,
+                mavlink.MAV_PARAM_TYPE_REAL32,
+            )
+            echo = self.await_reply(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name, timeout)
+            if echo is not None and math.isclose(echo.param_value, value, rel_tol=1e-6, abs_tol=1e-6):
+                return True
+        return False
 
     # -- guidance ----------------------------------------------------------------------------------
     def command_long(self, command: int, *params: float) -> None:
@@ -196,9 +279,23 @@ class VehicleLink:
             0.0,
         )
 
-    def change_heading(self, yaw_deg: float) -> None:
-        """MAV_CMD_GUIDED_CHANGE_HEADING: heading type 1 (heading), 0-360 degrees clockwise from north."""
-        self.command_long(mavlink.MAV_CMD_GUIDED_CHANGE_HEADING, 1, yaw_deg % 360.0, 0.0)
+    def change_heading(self, yaw_deg: float, accel: float) -> None:
+        """MAV_CMD_GUIDED_CHANGE_HEADING: heading type 1 (heading), 0-360 degrees clockwise from north,
+        param3 the largest centripetal acceleration (m/s^2) the turn may use (ArduPlane: bank limit
+        atan(accel / g); it clamps the value to at least 0.05, so 0 means "do not turn")."""
+        self.command_long(mavlink.MAV_CMD_GUIDED_CHANGE_HEADING, 1, yaw_deg % 360.0, accel)
+
+    def change_altitude(self, up: float) -> None:
+        """MAV_CMD_GUIDED_CHANGE_ALTITUDE (COMMAND_INT, relative altitude; param3 0: the autopilot's
+        own climb rate)."""
+        self.command_int(
+            mavlink.MAV_CMD_GUIDED_CHANGE_ALTITUDE,
+            mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            (0.0, 0.0, 0.0, 0.0),
+            0,
+            0,
+            up,
+        )
 
     def reposition(self, lat: float, lon: float, up: float) -> None:
         """MAV_CMD_DO_REPOSITION as COMMAND_INT (relative altitude), without the change-mode flag."""
@@ -242,6 +339,36 @@ class VehicleLink:
             0,
         )
 
+    def mission_count(self, count: int, mission_type: int) -> None:
+        """MISSION_COUNT: starts an upload of `count` items of `mission_type`."""
+        self._conn.mav.mission_count_send(
+            self.state.system, mavlink.MAV_COMP_ID_AUTOPILOT1, count, mission_type
+        )
+
+    def fence_vertex(self, seq: int, count: int, lat: float, lon: float) -> None:
+        """MISSION_ITEM_INT of a fence upload: vertex `seq` of one inclusion polygon of `count` vertices."""
+        self._conn.mav.mission_item_int_send(
+            self.state.system,
+            mavlink.MAV_COMP_ID_AUTOPILOT1,
+            seq,
+            mavlink.MAV_FRAME_GLOBAL,
+            mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+            0,
+            1,
+            count,
+            0,
+            0,
+            0,
+            round(lat * 1e7),
+            round(lon * 1e7),
+            0,
+            mavlink.MAV_MISSION_TYPE_FENCE,
+        )
+
+    def change_speed(self, speed: float) -> None:
+        """MAV_CMD_DO_CHANGE_SPEED: airspeed (type 0) in m/s, throttle unchanged."""
+        self.command_long(mavlink.MAV_CMD_DO_CHANGE_SPEED, 0, speed, -1)
+
     def set_mode(self, custom_mode: int) -> None:
         """MAV_CMD_DO_SET_MODE with a custom mode (PX4: main and sub mode split into params 2 and 3)."""
         if self.state.px4:
@@ -260,6 +387,7 @@ class VehicleLink:
         self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
     def close(self) -> None:
-        self._conn.close()
+        with contextlib.suppress(OSError, AttributeError):  # pymavlink's TCP link after a failed reconnect
+            self._conn.close()
         if self._tlog:
             self._tlog.close()

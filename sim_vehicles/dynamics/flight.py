@@ -1,49 +1,90 @@
-"""Eq. 2 for the whole fleet: constant speed, bounded turn, altitude slewed to its target.
+"""The fleet's motion: constant speed, bounded turns, altitude slewed to its target.
 
-The guidance of every vehicle expresses its wish as a *turn per sampling step* dT (radians, CCW
-positive), the quantity of the paper. The flight models turn it into motion:
+Guidance asks every vehicle either for a bank angle (ArduPlane's laws: heading holds, L1
+navigation and loiters), with a bank limit of the command's own (a heading hold's param3), or for a
+turn rate (the simulator's direct turn-rate command); angles and rates are counter-clockwise
+positive. The flight models turn that into motion:
 
-- `ContinuousFlight` integrates eq. 2 with `arc_advance` at the physics rate, with turn rate
-  `turn / dT` limited to the vehicle's turn limit per dT.
-- `GridFlight` reproduces `Kinematics.advance` exactly: at each step boundary it quantises the
-  turn to a multiple of 45 degrees within the limit, computes the next cell with the core's own
-  `advance`, and moves linearly from cell centre to cell centre during the step.
+- `KinematicFlight` (continuous kinematics, `sim.dynamics = "kinematic"`): eq. 2 integrated with
+  `arc_advance` at the physics rate; a bank is flown as the ideal coordinated turn g tan(bank) / v,
+  every rate clipped to the turn limit per step dT.
+- `BankedFlight` (continuous kinematics, `sim.dynamics = "arduplane"`): the roll follows its demand
+  (clipped to the bank limits) as a first-order lag of time constant `ROLL_TCONST`, at most
+  `ROLL_RATE_MAX`, and the vehicle turns at TURN_EFFICIENCY g tan(roll) / v, as ArduPlane SITL's
+  plane flies (measured: docs/simulator.md). A turn-rate demand is flown with the roll that gives
+  that rate.
+- `GridFlight` (grid kinematics): `Kinematics.advance` exactly: at each step boundary the turn
+  rate times dT is quantised to a multiple of 45 degrees within the limit, the next cell comes from
+  the core's own `advance`, and the vehicle moves linearly from cell centre to cell centre.
 
-Both tick at `substeps` physics ticks per step, so step boundaries fall exactly on ticks.
+All tick at `substeps` physics ticks per step, so step boundaries fall exactly on ticks.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from companion.core.geometry import FloatArray
 from companion.core.kinematics import Kinematics, arc_advance, wrap_angle
+from sim_vehicles.dynamics.navigation import GRAVITY
 
 CLIMB_RATE = 3.0  # m/s, the rate altitude changes are flown at
+ROLL_TCONST = 0.5  # s: the roll's response to its demand (ArduPlane SITL, measured)
+ROLL_RATE_MAX = math.radians(90.0)  # rad/s (plane.parm's RLL2SRV_RMAX)
+TURN_EFFICIENCY = 0.7  # heading rate / (g tan(roll) / v) of ArduPlane SITL's plane (measured)
 _EIGHTH = math.pi / 4
 
 
-class Flight:
-    """Fleet state shared by both models: pose, velocity and altitude arrays."""
+@dataclass
+class Demand:
+    """What the fleet's guidance asks for this tick, one entry per vehicle."""
 
-    def __init__(self, poses: FloatArray, alt: float, step: float, substeps: int) -> None:
+    by_bank: FloatArray  # 1: fly `bank`; 0: fly `rate`
+    bank: FloatArray  # bank angle (rad, CCW positive)
+    rate: FloatArray  # turn rate (rad/s, CCW positive)
+    bank_limit: FloatArray  # the command's own bank limit (rad)
+    moving: FloatArray  # 1 armed (flying), 0 frozen
+    speed: FloatArray  # m/s
+    turn_limit: FloatArray  # rad per step (kinematic and grid models)
+    roll_limit: FloatArray  # rad (banked model)
+
+    @classmethod
+    def empty(cls, n: int) -> Demand:
+        return cls(*(np.zeros(n) for _ in range(8)))
+
+    def ideal_rate(self) -> FloatArray:
+        """The turn rate asked for, a bank read as the ideal coordinated turn g tan(bank) / v."""
+        banked = GRAVITY * np.tan(self.bank) / np.maximum(self.speed, 1.0)
+        return np.where(self.by_bank > 0, banked, self.rate)
+
+
+class Flight:
+    """Fleet state shared by the models: pose, velocity, turn rate, roll and altitude arrays."""
+
+    def __init__(self, poses: FloatArray, alt: FloatArray, step: float, substeps: int) -> None:
         n = poses.shape[0]
         self.x, self.y = poses[:, 0].astype(float), poses[:, 1].astype(float)
         self.heading = wrap_angle(poses[:, 2])
-        self.alt, self.alt_target = np.full(n, alt), np.full(n, alt)
-        self.vx, self.vy, self.vz, self.omega = (np.zeros(n) for _ in range(4))
+        self.alt, self.alt_target = np.array(alt, dtype=float), np.array(alt, dtype=float)
+        self.vx, self.vy, self.vz, self.omega, self.roll = (np.zeros(n) for _ in range(5))
         self.step, self.substeps = step, substeps
         self.dt = step / substeps
 
     def needs_demand(self) -> bool:
-        """Whether this tick uses the guidance's turn demands."""
+        """Whether this tick uses the guidance's demands."""
         return True
 
-    def tick(self, turn: FloatArray, moving: FloatArray, speed: FloatArray, limit: FloatArray) -> None:
-        """Advance one physics tick; `limit` is each vehicle's turn limit per step (rad)."""
+    def tick(self, d: Demand) -> None:
         raise NotImplementedError
+
+    def _advance(self, w: FloatArray, v: FloatArray) -> None:
+        x1, y1, h1 = arc_advance(self.x, self.y, self.heading, w, v, self.dt)  # type: ignore[arg-type]
+        self.vx, self.vy = (x1 - self.x) / self.dt, (y1 - self.y) / self.dt
+        self.x, self.y, self.heading, self.omega = x1, y1, wrap_angle(h1), w
+        self._climb()
 
     def _climb(self) -> None:
         d = np.clip(self.alt_target - self.alt, -CLIMB_RATE * self.dt, CLIMB_RATE * self.dt)
@@ -51,23 +92,34 @@ class Flight:
         self.vz = d / self.dt
 
 
-class ContinuousFlight(Flight):
-    """Eq. 2 integrated with `arc_advance` at the physics rate."""
+class KinematicFlight(Flight):
+    """Eq. 2 integrated with `arc_advance` at the physics rate: instant turns within the limit."""
 
-    def tick(self, turn: FloatArray, moving: FloatArray, speed: FloatArray, limit: FloatArray) -> None:
-        w = np.clip(turn, -limit, limit) / self.step * moving
-        v = speed * moving
-        x1, y1, h1 = arc_advance(self.x, self.y, self.heading, w, v, self.dt)  # type: ignore[arg-type]
-        self.vx, self.vy = (x1 - self.x) / self.dt, (y1 - self.y) / self.dt
-        self.x, self.y, self.heading, self.omega = x1, y1, wrap_angle(h1), w
-        self._climb()
+    def tick(self, d: Demand) -> None:
+        w = np.clip(d.ideal_rate(), -d.turn_limit / self.step, d.turn_limit / self.step) * d.moving
+        self.roll = np.arctan(w * d.speed / GRAVITY)
+        self._advance(w, d.speed * d.moving)
+
+
+class BankedFlight(Flight):
+    """Coordinated turns with a lagged, rate-limited roll (ArduPlane-like)."""
+
+    def tick(self, d: Demand) -> None:
+        v = np.maximum(d.speed, 1.0)
+        limit = np.minimum(d.bank_limit, d.roll_limit)
+        for_rate = np.arctan(d.rate * v / (GRAVITY * TURN_EFFICIENCY))
+        want = np.clip(np.where(d.by_bank > 0, d.bank, for_rate), -limit, limit)
+        change = np.clip((want - self.roll) * min(self.dt / ROLL_TCONST, 1.0), -ROLL_RATE_MAX * self.dt,
+                         ROLL_RATE_MAX * self.dt)
+        self.roll = (self.roll + change) * d.moving
+        self._advance(TURN_EFFICIENCY * GRAVITY * np.tan(self.roll) / v, d.speed * d.moving)
 
 
 class GridFlight(Flight):
     """One cell per step exactly as `Kinematics.advance`, interpolated linearly within the step."""
 
     def __init__(
-        self, poses: FloatArray, alt: float, step: float, substeps: int, kinematics: Kinematics
+        self, poses: FloatArray, alt: FloatArray, step: float, substeps: int, kinematics: Kinematics
     ) -> None:
         super().__init__(poses, alt, step, substeps)
         self.kinematics = kinematics
@@ -78,16 +130,17 @@ class GridFlight(Flight):
     def needs_demand(self) -> bool:
         return self.j == 0
 
-    def tick(self, turn: FloatArray, moving: FloatArray, speed: FloatArray, limit: FloatArray) -> None:
+    def tick(self, d: Demand) -> None:
         if self.j == 0:
-            k = np.floor(limit / _EIGHTH + 1e-9)
-            q = np.clip(np.round(turn / _EIGHTH), -k, k) * _EIGHTH
+            k = np.floor(d.turn_limit / _EIGHTH + 1e-9)
+            q = np.clip(np.round(d.ideal_rate() * self.step / _EIGHTH), -k, k) * _EIGHTH
             x1, y1, h1 = self.kinematics.advance(self.x, self.y, self.heading, q)
-            go = moving > 0
+            go = d.moving > 0
             self.x0, self.y0 = self.x.copy(), self.y.copy()
             self.x1, self.y1 = np.where(go, x1, self.x), np.where(go, y1, self.y)
             self.heading = np.where(go, h1, self.heading)
             self.omega = np.where(go, q / self.step, 0.0)
+            self.roll = np.arctan(self.omega * self.kinematics.speed / GRAVITY)
             self.vx, self.vy = (self.x1 - self.x0) / self.step, (self.y1 - self.y0) / self.step
         self.j += 1
         if self.j == self.substeps:

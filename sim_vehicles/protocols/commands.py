@@ -109,7 +109,7 @@ def _reposition(hv: HostedVehicle, c: Command, addr: Address, follow: list[int])
     ok, up = hv.altitude(alt, c.frame)
     if not ok:
         return M.MAV_RESULT_DENIED
-    radius = abs(c.p[2]) if math.isfinite(c.p[2]) else 0.0
+    radius = c.p[2] if math.isfinite(c.p[2]) else 0.0
     flags = int(c.p[1]) if math.isfinite(c.p[1]) else 0
     change_mode = bool(flags & M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE)
     return hv.vehicle.reposition(x, y, target, up, radius, change_mode)
@@ -118,12 +118,34 @@ def _reposition(hv: HostedVehicle, c: Command, addr: Address, follow: list[int])
 def _change_heading(hv: HostedVehicle, c: Command, addr: Address, follow: list[int]) -> int:
     if hv.vehicle.flavour.name != "ardupilot":
         return M.MAV_RESULT_UNSUPPORTED
-    kind, deg = c.p[0], c.p[1]
+    kind, deg, accel = c.p[0], c.p[1], c.p[2]
     if kind not in (0.0, 1.0, 2.0) or (kind != 2.0 and not (math.isfinite(deg) and 0 <= deg <= 360)):
         return M.MAV_RESULT_DENIED
     x, y, _, _ = hv.position()
     heading = yaw_to_heading(math.radians(deg)) if kind != 2.0 else 0.0
-    return hv.vehicle.change_heading(hv.t, x, y, int(kind), heading)
+    accel = accel if math.isfinite(accel) else 0.0
+    return hv.vehicle.change_heading(hv.t, x, y, int(kind), heading, accel)
+
+
+def _change_altitude(hv: HostedVehicle, c: Command, addr: Address, follow: list[int]) -> int:
+    if hv.vehicle.flavour.name != "ardupilot":
+        return M.MAV_RESULT_UNSUPPORTED
+    ok, up = hv.altitude(c.p[6], c.frame)
+    if not ok or up is None:
+        return M.MAV_RESULT_DENIED
+    return hv.vehicle.change_altitude(up)
+
+
+def _fence_enable(hv: HostedVehicle, c: Command, addr: Address, follow: list[int]) -> int:
+    store = hv.vehicle.params
+    index = store.index_of("FENCE_ENABLE") if hv.vehicle.flavour.name == "ardupilot" else None
+    if index is None:
+        return M.MAV_RESULT_UNSUPPORTED
+    if c.p[0] not in (0.0, 1.0):
+        return M.MAV_RESULT_DENIED
+    hv.vehicle.set_param(index, c.p[0])
+    hv.broadcast(store.message(index))
+    return M.MAV_RESULT_ACCEPTED
 
 
 def _change_speed(hv: HostedVehicle, c: Command, addr: Address, follow: list[int]) -> int:
@@ -177,6 +199,8 @@ HANDLERS: dict[int, Handler] = {
     M.MAV_CMD_MISSION_START: _mission_start,
     M.MAV_CMD_DO_REPOSITION: _reposition,
     M.MAV_CMD_GUIDED_CHANGE_HEADING: _change_heading,
+    M.MAV_CMD_GUIDED_CHANGE_ALTITUDE: _change_altitude,
+    M.MAV_CMD_DO_FENCE_ENABLE: _fence_enable,
     M.MAV_CMD_DO_CHANGE_SPEED: _change_speed,
     M.MAV_CMD_GUIDED_CHANGE_SPEED: _guided_change_speed,
     M.MAV_CMD_REQUEST_MESSAGE: _request_message,

@@ -1,9 +1,12 @@
-"""The MAVLink mission protocol: upload, download, clear, set current; fence and rally empty.
+"""The MAVLink mission protocol: upload, download, clear, set current, for missions and fences.
 
 ArduPilot flavour keeps home as item 0 (an "empty" mission downloads as one item, home, and an
-uploaded item 0 is replaced by home); PX4 flavour has no such item. Fence and rally lists are
-always empty: downloads report 0 items, uploads of items are refused with MAV_MISSION_UNSUPPORTED.
-The vehicle drives uploads (MISSION_REQUEST_INT per item); the client retries lost messages.
+uploaded item 0 is replaced by home); PX4 flavour has no such item. The ArduPilot flavour stores a
+fence (mission type FENCE): its inclusion polygons (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
+items, param1 = the polygon's vertex count) are what the vehicle enforces; other fence items are
+stored and downloaded but not enforced. Rally lists (and PX4's fences) are always empty: downloads
+report 0 items, uploads of items are refused with MAV_MISSION_UNSUPPORTED. The vehicle drives
+uploads (MISSION_REQUEST_INT per item); the client retries lost messages.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.core.geometry import ConvexPolygon
 from sim_vehicles.vehicle import Waypoint
 
 if TYPE_CHECKING:
@@ -25,6 +29,11 @@ MAX_ITEMS = 500
 POSITION_COMMANDS = (
     M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_UNLIM, M.MAV_CMD_NAV_LOITER_TURNS,
     M.MAV_CMD_NAV_LOITER_TIME,
+)
+FENCE_COMMANDS = (
+    M.MAV_CMD_NAV_FENCE_RETURN_POINT, M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+    M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
+    M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION,
 )
 GLOBAL_FRAMES = (
     M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
@@ -50,13 +59,15 @@ class Upload:
     addr: Address
     count: int
     items: list[Item]
+    mission_type: int
 
 
 class MissionProtocol:
-    """One vehicle's stored mission and the transfer in progress."""
+    """One vehicle's stored mission and fence, and the transfer in progress."""
 
     def __init__(self) -> None:
         self.items: list[Item] = []
+        self.fence: list[Item] = []
         self.upload: Upload | None = None
 
     # ---- dispatch -----------------------------------------------------------------------
@@ -73,8 +84,8 @@ class MissionProtocol:
         elif kind in ("MISSION_ITEM_INT", "MISSION_ITEM"):
             self._receive_item(hv, msg, addr)
         elif kind == "MISSION_CLEAR_ALL":
-            if mission_type == M.MAV_MISSION_TYPE_MISSION:
-                self._commit(hv, [])
+            if mission_type in (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE):
+                self._commit(hv, [], mission_type)
             self._ack(hv, msg, addr, M.MAV_MISSION_ACCEPTED)
         elif kind == "MISSION_SET_CURRENT":
             if hv.vehicle.set_current(msg.seq):
@@ -85,6 +96,8 @@ class MissionProtocol:
 
     # ---- download -----------------------------------------------------------------------
     def _download(self, hv: HostedVehicle, mission_type: int) -> list[Item]:
+        if mission_type == M.MAV_MISSION_TYPE_FENCE:
+            return self.fence
         if mission_type != M.MAV_MISSION_TYPE_MISSION:
             return []
         if not hv.vehicle.flavour.home_is_item0:
@@ -119,20 +132,24 @@ class MissionProtocol:
     # ---- upload -------------------------------------------------------------------------
     def _start_upload(self, hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address) -> None:
         self.upload = None
+        kind = msg.mission_type
         known = (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE, M.MAV_MISSION_TYPE_RALLY)
-        if msg.mission_type not in known:
+        stored = (M.MAV_MISSION_TYPE_MISSION,) + (
+            (M.MAV_MISSION_TYPE_FENCE,) if hv.vehicle.flavour.name == "ardupilot" else ()
+        )
+        if kind not in known:
             self._ack(hv, msg, addr, M.MAV_MISSION_UNSUPPORTED)
         elif msg.count == 0:
-            if msg.mission_type == M.MAV_MISSION_TYPE_MISSION:
-                self._commit(hv, [])
+            if kind in stored:
+                self._commit(hv, [], kind)
             self._ack(hv, msg, addr, M.MAV_MISSION_ACCEPTED)
-        elif msg.mission_type != M.MAV_MISSION_TYPE_MISSION:
+        elif kind not in stored:
             self._ack(hv, msg, addr, M.MAV_MISSION_UNSUPPORTED)
         elif msg.count > MAX_ITEMS:
             hv.stats.rejected += 1
             self._ack(hv, msg, addr, M.MAV_MISSION_NO_SPACE)
         else:
-            self.upload = Upload(addr, msg.count, [])
+            self.upload = Upload(addr, msg.count, [], kind)
             self._request(hv, msg, addr, 0)
 
     def _receive_item(self, hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address) -> None:
@@ -140,7 +157,7 @@ class MissionProtocol:
             self._guided_waypoint(hv, msg, addr)
             return
         up = self.upload
-        if up is None or addr != up.addr or msg.mission_type != M.MAV_MISSION_TYPE_MISSION:
+        if up is None or addr != up.addr or msg.mission_type != up.mission_type:
             hv.stats.unhandled += 1
             return
         expected = len(up.items)
@@ -160,10 +177,14 @@ class MissionProtocol:
         up.items.append(item)
         if len(up.items) < up.count:
             self._request(hv, msg, addr, len(up.items))
-        else:
-            self.upload = None
-            self._commit(hv, up.items)
-            self._ack(hv, msg, addr, M.MAV_MISSION_ACCEPTED)
+            return
+        self.upload = None
+        if up.mission_type == M.MAV_MISSION_TYPE_FENCE and _polygons(hv, up.items) is None:
+            hv.stats.rejected += 1
+            self._ack(hv, msg, addr, M.MAV_MISSION_INVALID)
+            return
+        self._commit(hv, up.items, up.mission_type)
+        self._ack(hv, msg, addr, M.MAV_MISSION_ACCEPTED)
 
     def _guided_waypoint(self, hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address) -> None:
         item, error = _validate(msg)
@@ -178,7 +199,11 @@ class MissionProtocol:
             result = error
         self._ack(hv, msg, addr, result)
 
-    def _commit(self, hv: HostedVehicle, items: list[Item]) -> None:
+    def _commit(self, hv: HostedVehicle, items: list[Item], mission_type: int) -> None:
+        if mission_type == M.MAV_MISSION_TYPE_FENCE:
+            self.fence = list(items)
+            hv.vehicle.set_fence(_polygons(hv, items) or [])
+            return
         self.items = list(items)
         first = 1 if hv.vehicle.flavour.home_is_item0 else 0
         waypoints = []
@@ -192,7 +217,7 @@ class MissionProtocol:
         hv.vehicle.set_mission(waypoints)
 
     def _request(self, hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address, seq: int) -> None:
-        hv.reply(M.MAVLink_mission_request_int_message(*_target(msg), seq, M.MAV_MISSION_TYPE_MISSION), addr)
+        hv.reply(M.MAVLink_mission_request_int_message(*_target(msg), seq, msg.mission_type), addr)
 
     def _ack(self, hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address, result: int) -> None:
         mission_type = getattr(msg, "mission_type", M.MAV_MISSION_TYPE_MISSION)
@@ -212,7 +237,7 @@ def _validate(msg: mavlink.MAVLink_message) -> tuple[Item | None, int]:
         if not (math.isfinite(msg.x) and math.isfinite(msg.y)):
             return None, M.MAV_MISSION_INVALID_PARAM5_X
         x, y = round(msg.x * 1e7), round(msg.y * 1e7)
-    if msg.command in POSITION_COMMANDS:
+    if msg.command in POSITION_COMMANDS + FENCE_COMMANDS:
         if msg.frame not in GLOBAL_FRAMES:
             return None, M.MAV_MISSION_UNSUPPORTED_FRAME
         if not -90e7 <= x <= 90e7:
@@ -223,3 +248,26 @@ def _validate(msg: mavlink.MAVLink_message) -> tuple[Item | None, int]:
         return None, M.MAV_MISSION_INVALID_PARAM7
     params = (msg.param1, msg.param2, msg.param3, msg.param4)
     return Item(msg.frame, msg.command, msg.autocontinue, params, x, y, msg.z), M.MAV_MISSION_ACCEPTED
+
+
+def _polygons(hv: HostedVehicle, items: list[Item]) -> list[ConvexPolygon] | None:
+    """The inclusion polygons of a fence (local frame); None if a polygon is malformed (vertex
+    counts that disagree, fewer than 3 vertices, or not convex)."""
+    out, i = [], 0
+    while i < len(items):
+        it = items[i]
+        if it.command != M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION:
+            i += 1
+            continue
+        n = int(it.params[0])
+        group = items[i:i + n]
+        if n < 3 or len(group) < n or any(
+            g.command != it.command or int(g.params[0]) != n for g in group
+        ):
+            return None
+        polygon = ConvexPolygon.from_vertices([hv.frame.to_local(g.x * 1e-7, g.y * 1e-7) for g in group])
+        if not all(polygon.contains(*v) for v in polygon.vertices):
+            return None
+        out.append(polygon)
+        i += n
+    return out

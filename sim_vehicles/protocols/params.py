@@ -14,14 +14,17 @@ if TYPE_CHECKING:
     from sim_vehicles.host import HostedVehicle
     from sim_vehicles.mavlink_endpoint import Address
 
+ROLL_LIMIT_DEG = 45.0  # ArduPlane's default bank limit
+
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter: internal key, its name in each flavour, default and accepted range."""
+    """One parameter: internal key, its name in each flavour (None: the flavour has none), default
+    and accepted range."""
 
     key: str
     ardupilot: str
-    px4: str
+    px4: str | None
     default: float
     lo: float
     hi: float
@@ -35,14 +38,20 @@ def param_specs(mission: Mission) -> tuple[ParamSpec, ...]:
     grid = k.mode == "grid"
     return (
         ParamSpec("cruise_speed", "AIRSPEED_CRUISE", "FW_AIRSPD_TRIM", k.speed, 1.0, 100.0, True),
+        ParamSpec("airspeed_min", "AIRSPEED_MIN", "FW_AIRSPD_MIN", round(0.5 * k.speed, 1), 1.0, 100.0),
+        ParamSpec("airspeed_max", "AIRSPEED_MAX", "FW_AIRSPD_MAX", round(1.5 * k.speed, 1), 1.0, 100.0),
         ParamSpec("turn_limit", "SIM_TURN_LIMIT", "SIM_TURN_LIMIT", k.turn_limit_deg,
                   45.0 if grid else 1.0, 180.0),
+        ParamSpec("roll_limit", "ROLL_LIMIT_DEG", "FW_R_LIM", ROLL_LIMIT_DEG, 5.0, 85.0),
         ParamSpec("guided_timeout", "SIM_GUIDED_TMO", "COM_OF_LOSS_T", mission.sim.guided_timeout,
                   0.1, 600.0),
         ParamSpec("wp_radius", "WP_RADIUS", "NAV_ACC_RAD",
                   round(max(mission.region.cell_size, 30.0), 1), 1.0, 1000.0),
         ParamSpec("loiter_radius", "WP_LOITER_RAD", "NAV_LOITER_RAD",
                   round(max(60.0, 1.5 * turn_radius), 1), 10.0, 5000.0),
+        ParamSpec("fence_enable", "FENCE_ENABLE", None, 0.0, 0.0, 1.0),
+        ParamSpec("fence_action", "FENCE_ACTION", None, 1.0, 0.0, 1.0),
+        ParamSpec("fence_type", "FENCE_TYPE", None, 4.0, 0.0, 15.0),
     )
 
 
@@ -50,12 +59,15 @@ class ParamStore:
     """Current parameter values of one vehicle, addressed by flavour name or index."""
 
     def __init__(self, specs: tuple[ParamSpec, ...], flavour: str, grid: bool) -> None:
-        self.specs = specs
-        self.names = [s.px4 if flavour == "px4" else s.ardupilot for s in specs]
-        self.values = {s.key: float(s.default) for s in specs}
+        self.specs = tuple(s for s in specs if flavour != "px4" or s.px4 is not None)
+        self.names = [str(s.px4 if flavour == "px4" else s.ardupilot) for s in self.specs]
+        self.values = {s.key: float(s.default) for s in self.specs}
         self.grid = grid
 
-    def value(self, key: str) -> float:
+    def value(self, key: str, default: float | None = None) -> float:
+        """The value of `key`; `default` if the flavour does not have it (KeyError without one)."""
+        if default is not None and key not in self.values:
+            return default
         return self.values[key]
 
     def index_of(self, name: str) -> int | None:

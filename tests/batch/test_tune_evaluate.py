@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import multiprocessing
 import subprocess
 import sys
 import tomllib
@@ -14,7 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from companion.batch.executors import LocalPool
 from companion.batch.generate import Family, generate
+from companion.batch.montecarlo import RunSpec, run_specs
 from companion.batch.paired import apply_weights, load_weights
 from companion.batch.stats import mean_ci, wilson
 from companion.batch.tune import (
@@ -164,7 +167,7 @@ def test_tune_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
         m for m, _ in generate(3, 8, Family(uavs=(2, 3), across=(800, 1200), targets=(5, 6), steps=30))
     ]
     setup = Setup("proposed", 1, 30, 24, 8, confirm=2)
-    result = tune(missions, select(SPACE, "proposed", None), setup, again, workers=1)
+    result = tune(missions, select(SPACE, "proposed", None), setup, again, LocalPool(1))
     for key in ("objective", "weights", "confirmation_objective"):
         assert [t[key] for t in result["history"]] == [t[key] for t in trials]
 
@@ -259,10 +262,11 @@ def test_an_unwritable_output_folder_is_a_clear_error() -> None:
 
 def test_tune_a_space_file_on_a_folder_of_missions(tmp_path: Path) -> None:
     """A weight the default space lacks (an integer one, n_g) is tuned from a --space file, on the
-    mission files of a folder (the three scenarios, which share n_g = 50)."""
+    mission files of a folder (the scenario files, which share n_g = 50)."""
     space = tmp_path / "space.toml"
     space.write_text("[n_g]\nlow = 10\nhigh = 90\n")
     out = tmp_path / "tune"
+    budget = str(3 * len(list((ROOT / "mission_files").glob("*.toml"))))  # 3 trials
     args = (
         "--mission-dir",
         "mission_files",
@@ -271,7 +275,7 @@ def test_tune_a_space_file_on_a_folder_of_missions(tmp_path: Path) -> None:
         "--steps",
         "15",
         "--budget",
-        "9",
+        budget,
         "--confirm",
         "0",
     )
@@ -284,3 +288,22 @@ def test_tune_a_space_file_on_a_folder_of_missions(tmp_path: Path) -> None:
     table = load_weights(out / "weights.toml")
     assert set(table) == {"n_g"} and isinstance(table["n_g"], int)
     assert not (out / "missions").exists()  # a folder's missions are not copied
+
+
+def test_a_kept_local_pool_serves_every_map_and_leaves_no_process() -> None:
+    """`LocalPool(keep=True)` (a tune's trials): the same worker processes run every map, the
+    results are those of a fresh pool, and `close` ends them."""
+    specs = [RunSpec(SCENARIO, 1, r, 4) for r in range(4)]
+    before = {p.pid for p in multiprocessing.active_children()}
+    pool = LocalPool(2, keep=True)
+    first = [r.uncertainty for r in run_specs(specs, executor=pool)]
+    workers = {p.pid for p in multiprocessing.active_children()} - before
+    second = [r.uncertainty for r in run_specs(specs, executor=pool)]
+    assert len(workers) == 2
+    assert {p.pid for p in multiprocessing.active_children()} - before == workers
+    fresh = [r.uncertainty for r in run_specs(specs, executor=LocalPool(2))]
+    for a, b, c in zip(first, second, fresh, strict=True):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
+    pool.close()
+    assert not {p.pid for p in multiprocessing.active_children()} - before

@@ -81,6 +81,23 @@ def test_first_step_bids_then_auction(scenario1) -> None:
     assert all(t >= 0 for t in tasks) and len(set(tasks)) == len(tasks)
 
 
+def test_a_task_holder_is_a_greedy_bidder(scenario1) -> None:
+    """Algorithm 2: UAVs holding a task bid too, only for tasks worth more than the one they hold,
+    and take a better task they win. Here UAV 0's task is made worthless (its cells seen, not yet
+    counted as covered): it bids for others and switches."""
+    gen = run_agents(scenario1, 6)
+    for k, world, agents, outs in gen:
+        if k == 2:
+            held = agents[0].task
+            assert held >= 0
+            agents[0].eta[world.tessellation.labels == held] = 1e-6
+        if k == 3:  # the bids of step 3: zero for the held task, positive for others
+            bids = next(m for m in outs[0][1] if isinstance(m, BidsMsg))
+            assert bids.rewards[held] == 0.0 and max(bids.rewards) > 0
+        if k == 4:  # the auction of step 4 gave it another task
+            assert outs[0][0].task not in (-1, held)
+
+
 def test_agent_eta_never_rises_and_agents_share_no_state(scenario1) -> None:
     prev = None
     for _, _, agents, _ in run_agents(scenario1, 15):

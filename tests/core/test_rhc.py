@@ -12,13 +12,13 @@ from hypothesis import strategies as st
 from companion.core.geometry import ConvexPolygon, Grid
 from companion.core.kinematics import Kinematics, PathTree
 from companion.core.rhc import (
-    choose_grid_path,
-    choose_path,
     grid_path_cells,
     path_expense,
+    rank_candidates,
+    rank_grid_candidates,
+    rank_paths,
     region_key,
     search_benefit,
-    select_path,
     soft_exp,
 )
 
@@ -113,29 +113,33 @@ def test_region_key_is_the_prefix_inside_and_the_distance_back_outside() -> None
 
 
 def select(scores: list[float], prefix: list[int], allowed: list[int] | None = None) -> int:
-    ok = np.ones(len(scores), dtype=np.int64) if allowed is None else np.array(allowed, dtype=np.int64)
-    return select_path(np.array(scores, dtype=float), np.array(prefix, dtype=float), ok)
+    """The path the safety layer takes: the first in `rank_paths` order that it allows."""
+    order = rank_paths(np.array(scores, dtype=float), np.array(prefix, dtype=float))
+    assert sorted(order.tolist()) == list(range(len(scores)))
+    return next((int(i) for i in order if allowed is None or allowed[i]), -1)
 
 
-def test_select_path_prefers_the_longest_in_region_prefix() -> None:
+def test_paths_rank_by_the_longest_in_region_prefix_then_score() -> None:
     # paths 0, 2, 3 stay in for all 3 steps; among them path 2 scores best
     assert select([1.0, 5.0, 4.0, 3.0], [3, 2, 3, 3]) == 2
+    assert rank_paths(np.array([1.0, 5.0, 4.0, 3.0]), np.array([3.0, 2.0, 3.0, 3.0])).tolist() == [2, 3, 0, 1]
     # a great score does not buy leaving the region earlier
     assert select([1.0, 100.0], [3, 2]) == 0
     # when none stays in for all steps, the longest prefix wins
     assert select([9.0, 1.0, 2.0], [0, 1, 1]) == 2
 
 
-def test_select_path_only_among_the_paths_the_safety_layer_allows() -> None:
-    assert select([1.0, 5.0, 4.0], [3, 3, 3], [1, 0, -1]) == 2
+def test_the_first_path_the_safety_layer_allows() -> None:
+    assert select([1.0, 5.0, 4.0], [3, 3, 3], [1, 0, 1]) == 2
     # the region prefix counts among the allowed paths only
     assert select([1.0, 9.0, 2.0], [3, 2, 3], [0, 1, 0]) == 1
     assert select([1.0, 9.0, 2.0], [3, 2, 3], [0, 0, 0]) == -1
 
 
-def test_select_path_ties_go_to_the_first() -> None:
+def test_ties_go_to_the_first_path() -> None:
     assert select([2.0, 2.0, 2.0], [3, 3, 3]) == 0
     assert select([1.0, 2.0, 2.0], [3, 3, 3]) == 1
+    assert rank_paths(np.array([2.0, 2.0, 2.0]), np.array([3.0, 3.0, 3.0])).tolist() == [0, 1, 2]
 
 
 @pytest.fixture(scope="module")
@@ -179,7 +183,7 @@ def test_chosen_path_stays_in_the_region(scenario_grid: Grid, col: int, row: int
     inside = np.asarray(g.region.contains(pts[..., 0], pts[..., 1]))
     assert np.array_equal(prefix, np.cumprod(inside, axis=1).sum(axis=1))
     scores = np.random.default_rng(seed).normal(size=len(pts))
-    best = select_path(scores, prefix.astype(float), np.ones(len(pts), dtype=np.int64))
+    best = int(rank_paths(scores, prefix.astype(float))[0])
     assert prefix[best] == prefix.max()
     if prefix.max() == 3:
         assert inside[best].all()
@@ -189,10 +193,11 @@ def test_chosen_path_stays_in_the_region(scenario_grid: Grid, col: int, row: int
 @given(
     st.integers(-2, 51), st.integers(-2, 51), st.integers(0, 7), st.integers(-1, 9), st.integers(0, 2**32 - 1)
 )
-def test_grid_path_choice_in_one_call_matches_its_parts(
+def test_grid_path_ranking_in_one_call_matches_its_parts(
     scenario_grid: Grid, col: int, row: int, h8: int, task: int, seed: int
 ) -> None:
-    """`choose_grid_path` = `PathTree.expand` + `grid_path_cells` + the task labels + `choose_path`,
+    """`rank_grid_candidates` = `PathTree.expand` + `grid_path_cells` + the task labels +
+    `rank_candidates`,
     from anywhere on or just off the grid, with or without a task and a neighbour."""
     g = scenario_grid
     rng = np.random.default_rng(seed)
@@ -202,16 +207,14 @@ def test_grid_path_choice_in_one_call_matches_its_parts(
     cell_labels = np.append(rng.integers(0, 10, g.n_cells), -1)
     n_nbrs = int(rng.integers(0, 3))
     tracks = np.array([x, y]) + rng.normal(0, 150, (n_nbrs, 4, 2))
-    allowed = rng.integers(-1, 2, len(tree.sequences))
-    rest = (task, np.array([x + 100.0, y - 50.0]), 200.0, (1.0, 0.5), (1.0, 0.01), tracks, allowed)
+    rest = (task, np.array([x + 100.0, y - 50.0]), 200.0, (1.0, 0.5), (1.0, 0.01), tracks)
     rest += ((500.0, 400.0, 60.0, 100.0),)
     rest += (g.region.normals, g.region.offsets, g.cell_size)
-    best, path = choose_grid_path(
+    order, path_points = rank_grid_candidates(
         x, y, tree.offsets_from(heading), g.x0, g.y0, g.lattice, g.fov_table, values, cell_labels, *rest
     )
     pts = tree.expand(x, y, heading)
     cells, fov, prefix = grid_path_cells(pts, g.x0, g.y0, g.cell_size, g.lattice, g.fov_table)
     labels = np.where(cells >= 0, cell_labels[cells], -1)
-    assert best == choose_path(pts, fov, prefix, values, labels, *rest)
-    assert np.array_equal(path, pts[max(best, 0)])
-    assert (best == -1) == (not allowed.any()) and (best < 0 or allowed[best] != 0)
+    assert np.array_equal(order, rank_candidates(pts, fov, prefix, values, labels, *rest))
+    assert np.array_equal(path_points, pts)

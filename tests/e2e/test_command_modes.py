@@ -1,5 +1,8 @@
 """The waypoint and heading command modes fly real (simulated) autopilots: `reposition` and
 `heading` an ArduPlane-flavour vehicle in GUIDED, `position-target` a PX4-flavour one in OFFBOARD.
+The simulator flies them as ArduPlane does (bank-limited turns with a roll lag), so the vehicle
+flies most, not all, of each planned turn: it must end each step closer to the planned point
+than straight on, and on average within `LAGGING` of straight on's distance.
 
 `uavsearch run` starts the simulator and one companion per UAV (with --takeover); from the
 companions' step logs we check that they steered and that each vehicle, one step after a command,
@@ -17,6 +20,7 @@ import pytest
 from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, read_csv
 
 STEPS = 40
+LAGGING = 0.85
 
 
 @pytest.mark.parametrize(
@@ -57,5 +61,5 @@ def test_command_mode_flies_the_vehicle(
     for i in range(mission.n):
         rows = read_csv(out / f"uav{i}.csv")
         assert len(rows) >= STEPS - 2, f"uav{i}: {len(rows)} steps logged\n{run.text()}"
-        assert_follows(rows, k.speed, k.step, f"{mode} ({flavour}) uav{i}")
+        assert_follows(rows, k.speed, k.step, f"{mode} ({flavour}) uav{i}", ratio=LAGGING)
     assert f"{flavour}, speedup 10" in (out / "sim.log").read_text()

@@ -43,7 +43,7 @@ def test_mavproxy_attached_while_the_companion_flies(make_mission, procs: Procs,
         ],
         cwd=gcs_dir,
     )
-    proxy.wait_for_text("Received 5 parameters")
+    proxy.wait_for_text("Received 11 parameters")
     proxy.wait_for_text("Mode GUIDED")
     attached = int(read_csv(csv_path)[-1]["step"])
     wait_rows(csv_path, WITH_GCS_STEPS, comp, cond=lambda r: r["step"] > attached)

@@ -2,8 +2,9 @@
 
 The other three carry on; they forget the dead UAV within a few steps (their `peers` count drops
 from 3 to 2), so its task is no longer held by anyone in their views and goes back to the auction;
-its vehicle, without guidance, falls back to LOITER (seen on our own MAVLink connection); and the
-mission still ends with a report.
+its vehicle, without guidance, goes back to circling its guided point (where the takeover put it
+in GUIDED, its start) once the turn-rate command expires, as ArduPlane does (seen on our own
+MAVLink connection); and the mission still ends with a report.
 """
 
 from __future__ import annotations
@@ -15,31 +16,13 @@ import signal
 import time
 from pathlib import Path
 
-from tests.e2e.conftest import LOITER, PY, STARTUP_S, Proc, Procs, read_csv, wait_rows
+from companion.node.frames import LocalFrame
+from tests.e2e.conftest import GUIDED, PY, STARTUP_S, Procs, companion_pid, read_csv, wait_rows
+from tests.sim.conftest import distance_m
 
 STEPS = 80
 KILL_AFTER = 15  # steps logged by the victim before it is killed
 VICTIM = 2
-
-
-def _companion_pid(run: Proc, uav: int) -> int:
-    """The PID of the launcher's companion process for `uav` (from /proc: its command line)."""
-    deadline = time.monotonic() + STARTUP_S
-    while True:
-        run.refresh()
-        for pid in run.descendants:
-            try:
-                argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if (
-                b"companion" in argv
-                and b"--uav" in argv
-                and argv[argv.index(b"--uav") + 1] == str(uav).encode()
-            ):
-                return pid
-        assert run.alive() and time.monotonic() < deadline, f"no companion {uav}:\n{run.text()}"
-        time.sleep(0.2)
 
 
 def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_path: Path) -> None:
@@ -64,7 +47,7 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
             "--keep-going",
         ],
     )
-    victim_pid = _companion_pid(run, VICTIM)
+    victim_pid = companion_pid(run, VICTIM)
     deadline = time.monotonic() + STARTUP_S
     while "vehicle 3 sysid" not in ((out / "sim.log").read_text() if (out / "sim.log").exists() else ""):
         assert run.alive() and time.monotonic() < deadline, run.text()
@@ -76,16 +59,17 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
     os.kill(victim_pid, signal.SIGKILL)
     kill_step = int(max(r["step"] for r in read_csv(out / f"uav{VICTIM}.csv")))
 
-    # its vehicle: no more guidance, so the autopilot's guidance timeout puts it in LOITER
-    texts: list[str] = []
-
-    def loiter(msg: object) -> bool:
-        if msg.get_type() == "STATUSTEXT":
-            texts.append(msg.text)
-            return False
-        return msg.get_srcComponent() == 1 and msg.custom_mode == LOITER
-
-    assert gcs.wait(["HEARTBEAT", "STATUSTEXT"], loiter, timeout=60), f"no LOITER; texts {texts}"
+    # its vehicle: no more guidance, so after the guidance timeout it flies back to its guided
+    # point (its start, where the takeover switched to GUIDED) and circles it, still in GUIDED
+    start = mission.mission.vehicles[VICTIM]
+    lat0, lon0, _ = LocalFrame(m.region.origin).to_geodetic(start.x, start.y)
+    g = gcs.wait("GLOBAL_POSITION_INT")
+    assert distance_m(g.lat * 1e-7, g.lon * 1e-7, lat0, lon0) > 200, "killed too close to its start"
+    back = gcs.wait(
+        "GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, lat0, lon0) < 150, timeout=90
+    )
+    assert back is not None, "the victim's vehicle did not go back to circle its guided point"
+    assert gcs.wait("HEARTBEAT", lambda h: h.get_srcComponent() == 1).custom_mode == GUIDED
 
     rc = run.wait(timeout=STARTUP_S + 120)
     assert rc in (0, 1), run.text()  # 1: pass criteria not met in so short a mission

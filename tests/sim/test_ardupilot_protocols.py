@@ -5,13 +5,13 @@ vehicle per test so the tests do not disturb each other."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import pytest
 
-from tests.sim.conftest import M, Mav, SimProcess, distance_m, offset, write_mission
+from tests.sim.conftest import ARRIVED_M, M, Mav, SimProcess, distance_m, offset, write_mission
 
-N = 7
+N = 8
 
 
 @pytest.fixture(scope="module")
@@ -98,8 +98,12 @@ def test_arm_and_modes(mav: Mav, sim: tuple[SimProcess, list[int]]) -> None:
 @pytest.mark.parametrize("mav", [2], indirect=True)
 def test_parameters_change_behaviour(mav: Mav) -> None:
     mav.mav.param_request_list_send(mav.sysid, 1)
-    names = {mav.need("PARAM_VALUE").param_id for _ in range(5)}
-    assert {"AIRSPEED_CRUISE", "SIM_TURN_LIMIT", "SIM_GUIDED_TMO", "WP_RADIUS", "WP_LOITER_RAD"} == names
+    first = mav.need("PARAM_VALUE")
+    names = {first.param_id} | {mav.need("PARAM_VALUE").param_id for _ in range(first.param_count - 1)}
+    assert names == {
+        "AIRSPEED_CRUISE", "AIRSPEED_MIN", "AIRSPEED_MAX", "SIM_TURN_LIMIT", "ROLL_LIMIT_DEG",
+        "SIM_GUIDED_TMO", "WP_RADIUS", "WP_LOITER_RAD", "FENCE_ENABLE", "FENCE_ACTION", "FENCE_TYPE",
+    }
     mav.mav.param_request_read_send(mav.sysid, 1, b"WP_RADIUS", -1)
     assert mav.need("PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == 40.0
     mav.mav.param_request_read_send(mav.sysid, 1, b"", 0)
@@ -124,7 +128,7 @@ def test_reposition_flies_there_and_loiters(mav: Mav) -> None:
     assert mav.command_int(M.MAV_CMD_DO_REPOSITION, 3, -1, 95.0, 0, 0, 95.0, tlon, 100) == M.MAV_RESULT_DENIED
     assert mav.command_int(M.MAV_CMD_DO_REPOSITION, 3, -1, 1, 0, 0, tlat, tlon, 120) == 0
     mav.need("HEARTBEAT", lambda m: m.custom_mode == 15)
-    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < 45,
+    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < ARRIVED_M,
              timeout=60)
     t0 = mav.sim_time()
     while mav.sim_time() < t0 + 40:  # then it loiters around the point
@@ -135,22 +139,38 @@ def test_reposition_flies_there_and_loiters(mav: Mav) -> None:
     blat, blon = offset(tlat, tlon, -400.0, 0.0)
     mav.mav.command_long_send(mav.sysid, 1, M.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, blat, blon, 100)
     assert mav.need("COMMAND_ACK", lambda m: m.command == M.MAV_CMD_DO_REPOSITION).result == 0
-    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, blat, blon) < 45,
+    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, blat, blon) < ARRIVED_M,
              timeout=60)
     assert mav.command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH) == 0
     mav.need("HEARTBEAT", lambda m: m.custom_mode == 11)
 
 
 @pytest.mark.parametrize("mav", [4], indirect=True)
-def test_heading_altitude_turn_rate_and_guided_timeout(mav: Mav) -> None:
+def test_heading_hold_param3_and_altitude(mav: Mav) -> None:
+    """GUIDED_CHANGE_HEADING as ArduPlane flies it: param3 is the largest centripetal acceleration
+    (0 means it does not turn), the hold does not expire; altitude from GUIDED_CHANGE_ALTITUDE
+    and from SET_POSITION_TARGET_GLOBAL_INT (its lat/lon ignored)."""
     assert mav.command(M.MAV_CMD_GUIDED_CHANGE_HEADING, 1, 270, 5) == M.MAV_RESULT_FAILED  # not GUIDED
-    mav.mav.param_set_send(mav.sysid, 1, b"SIM_GUIDED_TMO", 120.0, M.MAV_PARAM_TYPE_REAL32)
-    mav.need("PARAM_VALUE", lambda m: m.param_value == 120.0)
     _guided_armed(mav)
     assert mav.command(M.MAV_CMD_GUIDED_CHANGE_HEADING, 1, 400, 5) == M.MAV_RESULT_DENIED
+    yaw0 = math.degrees(mav.need("ATTITUDE").yaw)
+    assert mav.command(M.MAV_CMD_GUIDED_CHANGE_HEADING, 1, 270, 0) == 0  # clamped to 0.05 m/s^2
+    t0 = mav.sim_time()
+    while mav.sim_time() < t0 + 10:
+        assert abs(math.degrees(mav.need("ATTITUDE").yaw) - yaw0) < 5, "turned with param3 = 0"
     assert mav.command(M.MAV_CMD_GUIDED_CHANGE_HEADING, 1, 270, 5) == 0
-    mav.need("ATTITUDE", lambda a: abs(math.degrees(a.yaw) + 90) < 2, timeout=30)
-    # SET_POSITION_TARGET_GLOBAL_INT changes only the altitude (ArduPlane); lat/lon ignored
+    limit = math.degrees(math.atan(5 / 9.80665))  # 27 degrees of bank
+    rolls = []
+    while abs(math.degrees((a := mav.need("ATTITUDE")).yaw) + 90) > 2:
+        rolls.append(abs(math.degrees(a.roll)))
+        assert len(rolls) < 400, "no heading of 270 within 100 s"
+    assert limit - 2 < max(rolls) <= limit + 0.1
+    t_hold = mav.sim_time()
+    while mav.sim_time() < t_hold + 10:  # no guidance timeout for a heading (SIM_GUIDED_TMO is 3 s)
+        assert abs(math.degrees(mav.need("ATTITUDE").yaw) + 90) < 2
+    mav.need("HEARTBEAT", lambda m: m.custom_mode == 15)
+    assert mav.command_int(M.MAV_CMD_GUIDED_CHANGE_ALTITUDE, 3, 0, 0, 0, 0, 0, 0, 125) == 0
+    mav.need("GLOBAL_POSITION_INT", lambda g: abs(g.relative_alt / 1000 - 125) < 0.5, timeout=30)
     lat, lon, _ = mav.position()
     flat, flon = offset(lat, lon, 5000.0, 5000.0)
     mav.mav.set_position_target_global_int_send(
@@ -159,23 +179,35 @@ def test_heading_altitude_turn_rate_and_guided_timeout(mav: Mav) -> None:
     mav.need("GLOBAL_POSITION_INT", lambda g: abs(g.relative_alt / 1000 - 130) < 0.5, timeout=30)
     assert abs(math.degrees(mav.need("ATTITUDE").yaw) + 90) < 2
     assert mav.command(M.MAV_CMD_GUIDED_CHANGE_SPEED, 0, 18) == 0
-    # the direct turn-rate command: body yaw rate, clockwise positive
+
+
+@pytest.mark.parametrize("mav", [7], indirect=True)
+def test_turn_rate_bank_limit_and_guidance_timeout(mav: Mav) -> None:
+    """The simulator's turn-rate command (SET_ATTITUDE_TARGET body yaw rate, clockwise positive):
+    flown once the roll has settled, limited by the bank limit; SIM_GUIDED_TMO after the last one
+    the vehicle goes back to circling its guided point, still in GUIDED (as ArduPlane does when a
+    SET_ATTITUDE_TARGET expires)."""
+    _guided_armed(mav)
     rate = 0.15
-    for _ in range(8):
-        mav.mav.set_attitude_target_send(0, mav.sysid, 1, 195, [1, 0, 0, 0], 0, 0, rate, 0)
-        att = mav.need("ATTITUDE")
-    assert abs(att.yawspeed - rate) < 1e-3
-    too_fast = math.radians(45.0) / 2.0 * 1.5  # more than the turn limit
-    mav.mav.set_attitude_target_send(0, mav.sysid, 1, 195, [1, 0, 0, 0], 0, 0, too_fast, 0)
-    mav.need("ATTITUDE", lambda a: abs(a.yawspeed - math.radians(45.0) / 2.0) < 1e-3)
-    mav.mav.param_set_send(mav.sysid, 1, b"SIM_GUIDED_TMO", 3.0, M.MAV_PARAM_TYPE_REAL32)
-    mav.need("PARAM_VALUE", lambda m: m.param_value == 3.0)
-    mav.mav.set_attitude_target_send(0, mav.sysid, 1, 195, [1, 0, 0, 0], 0, 0, rate, 0)
-    t_last = mav.sim_time()
-    text = mav.need("STATUSTEXT", lambda s: "no guidance" in s.text, timeout=30)
-    assert "LOITER" in text.text
-    mav.need("HEARTBEAT", lambda m: m.custom_mode == 12)
+
+    def turning(expected: float) -> Callable[[object], bool]:
+        def check(a: object) -> bool:
+            mav.mav.set_attitude_target_send(0, mav.sysid, 1, 195, [1, 0, 0, 0], 0, 0, rate_sent, 0)
+            return abs(a.yawspeed - expected) < 1e-3
+        return check
+
+    rate_sent = rate
+    mav.need("ATTITUDE", turning(rate), timeout=30)
+    rate_sent = 1.0  # more than a 45 degree bank gives at 20 m/s
+    bank_limited = 0.7 * 9.80665 * math.tan(math.radians(45)) / 20.0  # TURN_EFFICIENCY g tan(45) / v
+    att = mav.need("ATTITUDE", turning(bank_limited), timeout=30)
+    assert abs(math.degrees(att.roll) - 45) < 0.1
+    rate_sent = rate
+    mav.need("ATTITUDE", turning(rate), timeout=30)
+    t_last = mav.sim_time()  # the last command was sent just before this
+    att = mav.need("ATTITUDE", lambda a: abs(a.yawspeed - rate) > 0.02, timeout=30)
     assert mav.sim_time() >= t_last + 3.0
+    assert mav.need("HEARTBEAT").custom_mode == 15
 
 
 @pytest.mark.parametrize("mav", [5], indirect=True)
@@ -186,8 +218,8 @@ def test_mission_upload_download_fly(mav: Mav) -> None:
         mav.mav.mission_request_list_send(mav.sysid, 1, mission_type)
         reply = mav.need("MISSION_COUNT", lambda m, t=mission_type: m.mission_type == t)
         assert reply.count == 0
-        mav.mav.mission_count_send(mav.sysid, 1, 1, mission_type)
-        assert mav.need("MISSION_ACK").type == M.MAV_MISSION_UNSUPPORTED
+    mav.mav.mission_count_send(mav.sysid, 1, 1, M.MAV_MISSION_TYPE_RALLY)
+    assert mav.need("MISSION_ACK").type == M.MAV_MISSION_UNSUPPORTED
     lat, lon, _ = mav.position()
     points = [(lat, lon), offset(lat, lon, 500.0, 0.0), offset(lat, lon, 500.0, 500.0)]
     mav.mav.mission_count_send(mav.sysid, 1, len(points), M.MAV_MISSION_TYPE_MISSION)

@@ -9,7 +9,7 @@ import threading
 import time
 from pathlib import Path
 
-from tests.sim.conftest import Mav, distance_m, offset, write_mission
+from tests.sim.conftest import ARRIVED_M, Mav, distance_m, offset, write_mission
 
 
 def test_mavproxy_guided(tmp_path: Path, start_sim) -> None:
@@ -28,7 +28,7 @@ def test_mavproxy_guided(tmp_path: Path, start_sim) -> None:
         assert proxy.stdin is not None and proxy.stdout is not None
         threading.Thread(target=lambda: out.extend(proxy.stdout), daemon=True).start()
         deadline = time.monotonic() + 60
-        while not any("Received 5 parameters" in line for line in out):
+        while not any("Received 11 parameters" in line for line in out):
             assert time.monotonic() < deadline, "".join(out)
             time.sleep(0.2)
         for command in ("wp list", "arm throttle", "mode GUIDED", f"guided {tlat:.7f} {tlon:.7f} 100"):
@@ -37,7 +37,7 @@ def test_mavproxy_guided(tmp_path: Path, start_sim) -> None:
             time.sleep(1.0)
         assert monitor.wait("HEARTBEAT", lambda m: m.custom_mode == 15, timeout=30), "".join(out)
         monitor.need("GLOBAL_POSITION_INT",
-                     lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < 45, timeout=60)
+                     lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < ARRIVED_M, timeout=60)
     finally:
         proxy.terminate()
         try:

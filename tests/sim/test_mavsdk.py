@@ -10,7 +10,7 @@ from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
-from tests.sim.conftest import distance_m, offset, write_mission
+from tests.sim.conftest import ARRIVED_M, distance_m, offset, write_mission
 
 
 async def _fly(port: int) -> None:
@@ -40,7 +40,7 @@ async def _fly(port: int) -> None:
         lat, lon = offset(position.latitude_deg, position.longitude_deg, 500.0, 300.0)
         await action.goto_location(lat, lon, position.absolute_altitude_m, 0.0)
         async for p in telemetry.subscribe_position():
-            if distance_m(p.latitude_deg, p.longitude_deg, lat, lon) < 45.0:
+            if distance_m(p.latitude_deg, p.longitude_deg, lat, lon) < ARRIVED_M:
                 break
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from tests.sim.conftest import M, Mav, distance_m, offset, write_mission
+from tests.sim.conftest import ARRIVED_M, M, Mav, distance_m, offset, write_mission
 
 HOLD = (4 << 16) | (3 << 24)
 OFFBOARD = 6 << 16
@@ -46,7 +46,7 @@ def test_px4_surface(tmp_path: Path, start_sim) -> None:
     while True:
         _stream(mav, tlat, tlon, 0.5)
         g = mav.need("GLOBAL_POSITION_INT")
-        if distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < 45:
+        if distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < ARRIVED_M:
             break
         assert time.monotonic() < end, "offboard position setpoint not reached"
     # the stream stops: after COM_OF_LOSS_T the vehicle holds
@@ -55,7 +55,7 @@ def test_px4_surface(tmp_path: Path, start_sim) -> None:
     # DO_REPOSITION in Hold flies to the new point
     blat, blon = offset(tlat, tlon, -300.0, 300.0)
     assert mav.command_int(M.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, blat, blon, 684) == 0
-    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, blat, blon) < 45,
+    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, blat, blon) < ARRIVED_M,
              timeout=60)
     other = Mav(ports[1], 2)
     assert other.command(M.MAV_CMD_DO_REPOSITION, -1, 0, 0, 0, blat, blon, 100) == M.MAV_RESULT_FAILED

@@ -1,0 +1,118 @@
+"""The region plus its safety margin: as a polygon, as a way back inside, and as the autopilot's fence.
+
+The fence is the region's convex polygon with every edge pushed out by the margin: the half-planes
+`normals @ p <= offsets + margin` of `companion.core.geometry.ConvexPolygon`. The margin is
+`mission.safety.margin` when the mission has one, else `DEFAULT_MARGIN_M`.
+
+`upload_fence` sends the fence to the autopilot with the MAVLink mission protocol (mission type
+FENCE, one MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION item per vertex) and enables it
+(FENCE_TYPE gains the polygon bit, FENCE_ACTION "report only" becomes RTL, MAV_CMD_DO_FENCE_ENABLE),
+so the autopilot itself keeps the aircraft in the area if the companion fails.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.core.geometry import ConvexPolygon, FloatArray
+from companion.mission import Mission
+from companion.node.frames import LocalFrame
+from companion.node.vehicle_link import VehicleLink
+
+log = logging.getLogger("companion")
+
+DEFAULT_MARGIN_M = 100.0
+FENCE_TYPE_POLYGON = 4
+FENCE_ACTION_REPORT, FENCE_ACTION_RTL = 0, 1
+UPLOAD_TRIES = 3
+REPLY_TIMEOUT_S = 2.0
+
+
+def fence_margin(mission: Mission) -> float:
+    """The safety margin around the region (m): `mission.safety.margin`, else the default."""
+    margin = getattr(getattr(mission, "safety", None), "margin", None)
+    return DEFAULT_MARGIN_M if margin is None else float(margin)
+
+
+def offset_polygon(polygon: ConvexPolygon, distance: float) -> FloatArray:
+    """Vertices (counter-clockwise) of `polygon` with every edge moved `distance` outwards (inwards
+    if negative): vertex i is where the moved edges i-1 and i meet."""
+    n, o = polygon.normals, polygon.offsets + distance
+    out = np.empty_like(polygon.vertices)
+    for i in range(len(n)):
+        out[i] = np.linalg.solve(np.array([n[i - 1], n[i]]), np.array([o[i - 1], o[i]]))
+    return out
+
+
+def fence_polygon(mission: Mission, margin: float | None = None) -> ConvexPolygon:
+    """The region plus the margin (default `fence_margin(mission)`)."""
+    region = ConvexPolygon.from_vertices(mission.region.polygon)
+    return ConvexPolygon.from_vertices(
+        offset_polygon(region, fence_margin(mission) if margin is None else margin)
+    )
+
+
+def nearest_inside(region: ConvexPolygon, x: float, y: float, depth: float) -> tuple[float, float]:
+    """The point nearest (x, y) at least `depth` metres inside `region` (its centroid when the
+    region is too small for that depth)."""
+    shrunk = offset_polygon(region, -depth)
+    inner = ConvexPolygon.from_vertices(shrunk)
+    if not np.all(region.normals @ shrunk.T <= region.offsets[:, None] - depth + 1e-6) or inner.area <= 0:
+        c = region.vertices.mean(axis=0)
+        return float(c[0]), float(c[1])
+    if inner.contains(x, y):
+        return x, y
+    p = np.array([x, y])
+    a, b = inner.vertices, np.roll(inner.vertices, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.einsum("ij,ij->i", ab, ab), 0.0, 1.0)
+    q = a + t[:, None] * ab
+    best = q[np.argmin(np.sum((q - p) ** 2, axis=1))]
+    return float(best[0]), float(best[1])
+
+
+def upload_fence(link: VehicleLink, frame: LocalFrame, polygon: ConvexPolygon) -> str | None:
+    """Upload `polygon` as the autopilot's inclusion fence and enable it; the reason on failure."""
+    vertices = [frame.to_geodetic(float(x), float(y))[:2] for x, y in polygon.vertices]
+    error = _send_items(link, vertices)
+    if error:
+        return error
+    params = link.read_params(["FENCE_TYPE", "FENCE_ACTION"])
+    if "FENCE_TYPE" in params and not int(params["FENCE_TYPE"]) & FENCE_TYPE_POLYGON:
+        link.set_param("FENCE_TYPE", float(int(params["FENCE_TYPE"]) | FENCE_TYPE_POLYGON))
+    if params.get("FENCE_ACTION") == FENCE_ACTION_REPORT:
+        log.info("fence: FENCE_ACTION was 'report only'; setting RTL")
+        link.set_param("FENCE_ACTION", FENCE_ACTION_RTL)
+    result = link.command_ack(mavlink.MAV_CMD_DO_FENCE_ENABLE, 1)
+    if result != mavlink.MAV_RESULT_ACCEPTED and not link.set_param("FENCE_ENABLE", 1.0):
+        return (
+            f"the autopilot did not enable the fence (DO_FENCE_ENABLE result {result}, FENCE_ENABLE not set)"
+        )
+    return None
+
+
+def _send_items(link: VehicleLink, vertices: list[tuple[float, float]]) -> str | None:
+    """The mission protocol's upload, driven by the autopilot's MISSION_REQUEST(_INT)s."""
+    fence, count = mavlink.MAV_MISSION_TYPE_FENCE, len(vertices)
+
+    def reply(m: mavlink.MAVLink_message) -> bool:
+        return (
+            m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK")
+            and m.mission_type == fence
+        )
+
+    for _ in range(UPLOAD_TRIES):
+        link.mission_count(count, fence)
+        while (msg := link.await_reply(reply, REPLY_TIMEOUT_S)) is not None:
+            if msg.get_type() == "MISSION_ACK":
+                if msg.type == mavlink.MAV_MISSION_ACCEPTED:
+                    return None
+                return f"the autopilot refused the fence (MISSION_ACK {msg.type})"
+            if not 0 <= msg.seq < count:
+                return f"the autopilot asked for fence item {msg.seq} of {count}"
+            lat, lon = vertices[msg.seq]
+            link.fence_vertex(msg.seq, count, lat, lon)
+    return "no answer to the fence upload"

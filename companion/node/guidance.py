@@ -1,0 +1,110 @@
+"""The Agent's command as MAVLink guidance, in one of four command modes, at the UAV's altitude layer.
+
+| mode | MAVLink |
+|---|---|
+| `turn-rate` | SET_ATTITUDE_TARGET body yaw rate (the bundled simulator's direct steering) |
+| `heading` | MAV_CMD_GUIDED_CHANGE_HEADING with the mission's turn as the centripetal acceleration |
+| `reposition` | MAV_CMD_DO_REPOSITION to a point ahead on the commanded heading |
+| `position-target` | SET_POSITION_TARGET_GLOBAL_INT to that point, streamed (PX4 OFFBOARD) |
+
+Whenever steering (re)starts, and every `REASSERT_STEPS` steps, it also asserts the UAV's altitude
+(`mission.altitude_of(uav)`; MAV_CMD_GUIDED_CHANGE_ALTITUDE in the modes whose command has no
+altitude) and, if the autopilot cruises at another speed, the mission's speed (DO_CHANGE_SPEED).
+"""
+
+from __future__ import annotations
+
+import math
+
+from companion.core.agent import Command
+from companion.mission import Mission
+from companion.node.airframe import turn_accel
+from companion.node.frames import LocalFrame, heading_to_yaw
+from companion.node.vehicle_link import VehicleLink
+
+COMMAND_MODES = ("turn-rate", "heading", "reposition", "position-target")
+# Guidance is streamed (vehicle seconds between repeats of the current command) so that the
+# autopilot's guidance timeout never fires between steps; PX4 OFFBOARD needs more than 2 Hz.
+STREAM_PERIOD_S = {"turn-rate": 0.5, "heading": 0.5, "position-target": 0.2}
+LEAD_STEPS, LEAD_MIN_M = 5, 200.0  # waypoint modes fly to a point this far ahead (see lead_point)
+REASSERT_STEPS = 10
+WITHOUT_ALTITUDE = ("turn-rate", "heading")
+
+
+class Guidance:
+    """One UAV's guidance in one command mode."""
+
+    def __init__(self, link: VehicleLink, frame: LocalFrame, mission: Mission, uav: int, mode: str) -> None:
+        if mode not in COMMAND_MODES:
+            raise ValueError(f"unknown command mode {mode!r} (one of {', '.join(COMMAND_MODES)})")
+        k = mission.kinematics
+        self.link, self.frame, self.mode = link, frame, mode
+        self.altitude = mission.altitude_of(uav)
+        self.speed = k.speed
+        self.accel = turn_accel(k)
+        self.lead = max(LEAD_STEPS * k.speed * k.step, LEAD_MIN_M)
+        self.set_speed = False  # the autopilot cruises at another speed: command the mission's
+        self.last_send = -math.inf  # vehicle time of the latest guidance
+        self.last: tuple[Command, tuple[float, float]] | None = None
+        self._since_assert: int | None = None  # steps since the altitude and speed were asserted
+
+    def step(self, command: Command, position: tuple[float, float]) -> None:
+        """Send step `command`, planned from `position` (the UAV's position at the step)."""
+        if self._since_assert is None or self._since_assert >= REASSERT_STEPS:
+            self.assert_flight()
+        self._since_assert = (self._since_assert or 0) + 1
+        self.last = (command, position)
+        self._send(command, position)
+
+    def paused(self) -> None:
+        """Not steering this step: assert altitude and speed again when steering restarts."""
+        self._since_assert = None
+
+    def due(self, now: float) -> bool:
+        """Whether the current command should be repeated at vehicle time `now` (streamed modes)."""
+        period = STREAM_PERIOD_S.get(self.mode)
+        return period is not None and self.last is not None and now - self.last_send >= period
+
+    def repeat(self) -> None:
+        if self.last is not None:
+            self._send(*self.last)
+
+    def assert_flight(self) -> None:
+        if self.mode in WITHOUT_ALTITUDE:
+            self.link.change_altitude(self.altitude)
+        if self.set_speed:
+            self.link.change_speed(self.speed)
+
+    def go_to(self, x: float, y: float) -> None:
+        """DO_REPOSITION to local (x, y) at the UAV's altitude: the autopilot flies there and circles."""
+        lat, lon, _ = self.frame.to_geodetic(x, y)
+        self.link.reposition(lat, lon, self.altitude)
+        self.last_send = self.link.state.time_s
+
+    def hold(self, x: float, y: float) -> None:
+        """A position setpoint at (x, y) (what PX4 needs streamed before it accepts OFFBOARD)."""
+        lat, lon, _ = self.frame.to_geodetic(x, y)
+        self.link.position_target(lat, lon, self.altitude)
+        self.last_send = self.link.state.time_s
+
+    def _send(self, command: Command, position: tuple[float, float]) -> None:
+        if self.mode == "turn-rate":
+            self.link.turn_rate(-command.heading_rate)  # MAVLink yaw rate is clockwise-positive
+        elif self.mode == "heading":
+            self.link.change_heading(math.degrees(heading_to_yaw(command.heading)), self.accel)
+        elif self.mode == "reposition":
+            self.go_to(*self.lead_point(command, position))
+        else:
+            self.hold(*self.lead_point(command, position))
+        self.last_send = self.link.state.time_s
+
+    def lead_point(self, command: Command, position: tuple[float, float]) -> tuple[float, float]:
+        """Where the waypoint modes fly: ahead of the step's position on the commanded heading.
+
+        The next planned path point is one step (v dT) away, inside the acceptance radius of an
+        autopilot (WP_RADIUS, NAV_ACC_RAD): it would count as reached at once and the vehicle
+        would loiter around it. A point LEAD_STEPS steps (at least LEAD_MIN_M) out on the heading
+        the plan reaches after its first step turns the vehicle onto that heading now.
+        """
+        x, y = position
+        return x + self.lead * math.cos(command.heading), y + self.lead * math.sin(command.heading)

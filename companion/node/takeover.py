@@ -1,0 +1,102 @@
+"""`--takeover`: put the vehicle into its guided mode, armed, and airborne if it is on the ground.
+
+Without `--takeover` the companion never arms the vehicle or changes its mode. With it:
+
+- an ArduPilot vehicle that is disarmed on the ground (relative altitude below `ON_GROUND_M`) takes
+  off first: TKOFF_ALT = the UAV's altitude, mode TAKEOFF, arm (retried until the pre-arm checks
+  pass), climb until `CLIMBED` of that altitude;
+- then the guided mode (ArduPilot GUIDED; PX4 OFFBOARD, or Hold for `reposition`) and arming,
+  retried every second until the HEARTBEAT shows both. PX4 refuses OFFBOARD without a setpoint
+  stream, so for OFFBOARD the current position is streamed first and while waiting.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+
+from companion.node.guidance import STREAM_PERIOD_S, Guidance
+from companion.node.vehicle_link import (
+    ARDUPILOT_GUIDED,
+    ARDUPILOT_TAKEOFF,
+    PX4_HOLD,
+    PX4_OFFBOARD,
+    VehicleLink,
+)
+
+log = logging.getLogger("companion")
+
+TAKEOVER_TIMEOUT_S = 30.0  # wall seconds to get the guided mode and arming once airborne
+TAKEOFF_TIMEOUT_S = 300.0  # wall seconds for a take-off (GPS, EKF and pre-arm checks first)
+ON_GROUND_M = 10.0
+CLIMBED = 0.8
+
+
+def guided_mode(link: VehicleLink, command_mode: str) -> int:
+    """The custom mode the companion steers in."""
+    if link.state.px4:
+        return PX4_HOLD if command_mode == "reposition" else PX4_OFFBOARD
+    return ARDUPILOT_GUIDED
+
+
+def steerable(link: VehicleLink, command_mode: str) -> bool:
+    """Whether the vehicle is in a mode the companion may steer in."""
+    s = link.state
+    if s.px4 and command_mode == "reposition":
+        return s.custom_mode in (PX4_HOLD, PX4_OFFBOARD)
+    return s.custom_mode == guided_mode(link, command_mode)
+
+
+def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.Event) -> bool:
+    """Airborne (if needed), guided and armed; False if it did not happen in time."""
+    s = link.state
+    if not s.px4 and not s.armed and s.up < ON_GROUND_M and not take_off(link, guidance.altitude, uav, stop):
+        return False
+    mode = guidance.mode
+    want = guided_mode(link, mode)
+    offboard = want == PX4_OFFBOARD
+    deadline = time.monotonic() + TAKEOVER_TIMEOUT_S
+    sent, last_wall, last_try = 0, -math.inf, -math.inf
+    while not stop.is_set() and not (steerable(link, mode) and s.armed):
+        now = time.monotonic()
+        if now > deadline:
+            log.warning("uav %d: takeover failed: not in the guided mode and armed", uav)
+            return False
+        period = STREAM_PERIOD_S["position-target"]
+        if offboard and (s.time_s - guidance.last_send >= period or now - last_wall >= period):
+            guidance.hold(s.x, s.y)
+            last_wall, sent = now, sent + 1
+        if (not offboard or sent >= 3) and now - last_try >= 1.0:
+            link.set_mode(want)
+            link.arm()
+            last_try = now
+        link.poll(0.02)
+    return not stop.is_set()
+
+
+def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event) -> bool:
+    """ArduPilot: TAKEOFF mode to `altitude` metres above home; True once it has climbed."""
+    s = link.state
+    log.info("uav %d: on the ground: taking off to %.0f m", uav, altitude)
+    if not link.set_param("TKOFF_ALT", altitude):
+        log.warning("uav %d: TKOFF_ALT not confirmed; taking off anyway", uav)
+    deadline = time.monotonic() + TAKEOFF_TIMEOUT_S
+    last_try = -math.inf
+    while not stop.is_set() and not (s.armed and s.custom_mode == ARDUPILOT_TAKEOFF):
+        if time.monotonic() > deadline:
+            log.warning("uav %d: take-off failed: GPS fix %d, pre-arm checks %s", uav, s.gps_fix, s.prearm_ok)
+            return False
+        if s.gps_fix >= 3 and s.prearm_ok and time.monotonic() - last_try >= 1.0:
+            link.set_mode(ARDUPILOT_TAKEOFF)
+            link.arm()
+            last_try = time.monotonic()
+        link.poll(0.1)
+    while not stop.is_set() and not s.up >= CLIMBED * altitude:
+        if time.monotonic() > deadline or not s.armed:
+            log.warning("uav %d: take-off failed at %.0f m (armed %s)", uav, s.up, s.armed)
+            return False
+        link.poll(0.1)
+    log.info("uav %d: airborne at %.0f m", uav, s.up)
+    return not stop.is_set()

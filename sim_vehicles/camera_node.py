@@ -1,0 +1,146 @@
+"""A stand-alone simulated camera for vehicles the simulator does not host (ArduPlane SITL, ...).
+
+It reads each vehicle's position over MAVLink (one link per vehicle, e.g. SITL's SERIAL0) and, at
+`sim.camera_hz` of each vehicle's own time, publishes that vehicle's CameraFrame on its Zenoh camera
+key with the detections of the mission's ground truth, built by the bundled simulator's camera
+(`camera.Camera.frame`): a flight on external vehicles is searched and scored like a bundled one.
+The ground truth leaves only through `--truth FILE`.
+
+`uavsearch camera --mission FILE --vehicles URL,URL,... [--seed S] [--truth FILE]`
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.mission import Mission, load_mission
+from companion.node.frames import LocalFrame
+from companion.node.vehicle_link import LinkError, VehicleLink
+from sim_vehicles import camera as cam
+
+log = logging.getLogger("camera")
+
+CONNECT_TIMEOUT_S = 120.0
+POSITION_HZ = 10.0
+
+
+def _connect(url: str, frame: LocalFrame, stop: threading.Event) -> VehicleLink | None:
+    """A link to `url`, retried while the vehicle is not listening yet (SITL starting up)."""
+    deadline = time.monotonic() + CONNECT_TIMEOUT_S
+    while not stop.is_set():
+        try:
+            return VehicleLink(url, frame, component=mavlink.MAV_COMP_ID_CAMERA)
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.5)
+    return None
+
+
+class CameraNode:
+    """Every vehicle's camera, one thread per vehicle link."""
+
+    def __init__(self, mission: Mission, urls: list[str], seed: int, bus: cam.CameraBus) -> None:
+        if len(urls) != mission.n_uavs:
+            raise ValueError(f"--vehicles: {len(urls)} links for the mission's {mission.n_uavs} vehicles")
+        self.mission, self.urls, self.bus = mission, urls, bus
+        self.frame = LocalFrame(mission.region.origin)
+        self.grid, self.targets = cam.draw_truth(mission, seed)
+        rng = cam.instance_rng(seed, 0, cam.Stream.CAMERA)
+        self.camera = cam.Camera(mission, self.grid, self.targets, rng, self.frame)
+        self.published = 0
+        self.errors: list[str] = []
+        self._lock = threading.Lock()
+
+    def run(self, stop: threading.Event) -> None:
+        threads = [
+            threading.Thread(target=self._vehicle, args=(i, url, stop), daemon=True)
+            for i, url in enumerate(self.urls)
+        ]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+
+    def _vehicle(self, uav: int, url: str, stop: threading.Event) -> None:
+        try:
+            link = _connect(url, self.frame, stop)
+            if link is None:
+                return
+            link.wait_heartbeat(CONNECT_TIMEOUT_S, stop.is_set)
+        except (OSError, LinkError) as exc:
+            self.errors.append(f"vehicle {uav} at {url}: {exc}")
+            stop.set()
+            return
+        link.request_streams({mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: POSITION_HZ})
+        print(f"camera: vehicle {uav} up at {url}", flush=True)
+        period = 1.0 / self.mission.sim.camera_hz
+        s, alt0 = link.state, self.mission.region.origin.alt
+        next_t, beat = -1.0, 0.0
+        try:
+            while not stop.is_set():
+                link.poll(0.1)
+                if time.monotonic() - beat >= 1.0:
+                    link.send_heartbeat()
+                    beat = time.monotonic()
+                if not s.has_pose or s.time_s < next_t:
+                    continue
+                lat, lon, _ = self.frame.to_geodetic(s.x, s.y)
+                usec, geo = round(s.time_s * 1e6), (lat, lon, alt0 + s.up)
+                with self._lock:
+                    self.bus.publish(self.camera.frame(uav, usec, (s.x, s.y), geo, s.heading))
+                    self.published += 1
+                next_t = (int(s.time_s / period) + 1) * period
+        finally:
+            link.close()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mission", required=True, type=Path, help="mission file (TOML)")
+    parser.add_argument("--vehicles", required=True, help="pymavlink URLs of the vehicles, comma-separated")
+    parser.add_argument("--seed", type=int, default=None, help="target seed (default: the mission's)")
+    parser.add_argument("--truth", type=Path, default=None, help="write the ground truth (JSON) here")
+    parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT")
+    parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Publish frames until SIGINT/SIGTERM; 0 on a clean stop, 1 if a vehicle failed, 2 on bad input."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    mission = load_mission(args.mission)
+    seed = mission.seed if args.seed is None else args.seed
+    mesh = mission.mesh
+    connect = args.zenoh_connect or [mesh.seed_endpoint if mesh.mode == "peer" else mesh.router]
+    urls = [u.strip() for u in args.vehicles.split(",") if u.strip()]
+    stop = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        bus = cam.CameraBus(mission, args.zenoh_listen or ["tcp/127.0.0.1:0"], connect)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        node = CameraNode(mission, urls, seed, bus)
+        if args.truth is not None:
+            cam.write_truth(args.truth, cam.truth_record(mission, seed, node.grid, node.targets, node.frame))
+        print(f"camera: mission {mission.name}, {len(urls)} vehicles, seed {seed}", flush=True)
+        node.run(stop)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        bus.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    for error in node.errors:
+        print(f"error: {error}", file=sys.stderr)
+    print(f"camera: {node.published} frames published", flush=True)
+    return 1 if node.errors else 0

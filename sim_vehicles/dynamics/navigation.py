@@ -1,0 +1,95 @@
+"""ArduPlane's lateral guidance laws as the simulator imitates them, in the local frame.
+
+Every law returns a lateral acceleration demand in m/s^2, positive turning counter-clockwise (left,
+the core's sense), which ArduPlane flies as the bank angle atan(a / g) (its nav_roll).
+
+- `heading_hold` (GUIDED_CHANGE_HEADING): bank proportional to the heading error (ArduPlane's
+  GUIDED_P, 5000 centidegrees per radian), limited to atan(accel / g) where accel is the command's
+  param3 (clamped to at least 0.05 m/s^2, as ArduPlane does) and to the bank limit.
+- `track` (AUTO legs): L1 navigation after Park, Deyst and How (2004), as ArduPilot's AP_L1 uses it:
+  a = 4 zeta^2 v^2 / L1 sin(eta), L1 = zeta T v / pi, eta the angle from the velocity to a point
+  L1 ahead on the leg (|eta| <= 90 degrees).
+- `loiter` (GUIDED points, LOITER, RTL): capture with the L1 law towards the centre, then circle
+  tracking: feed-forward v_t^2 / R plus PD on the radial error and velocity (natural frequency
+  2 pi / T, damping zeta), switching to circle tracking where it turns harder in the loiter sense.
+
+T and zeta are plane.parm's NAVL1_PERIOD = 15 s and NAVL1_DAMPING = 0.75.
+"""
+
+from __future__ import annotations
+
+import math
+
+GRAVITY = 9.80665
+GUIDED_P = 50.0  # bank degrees per radian of heading error (ArduPlane GUIDED_P = 5000 cd/rad)
+MIN_HEADING_ACCEL = 0.05  # m/s^2: ArduPlane's lower clamp of GUIDED_CHANGE_HEADING's param3
+L1_PERIOD, L1_DAMPING = 15.0, 0.75
+_K_L1 = 4.0 * L1_DAMPING**2
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def l1_distance(v: float) -> float:
+    return L1_DAMPING * L1_PERIOD * max(v, 1.0) / math.pi
+
+
+def heading_bank_limit(accel: float) -> float:
+    """The bank limit (rad) of a heading hold with centripetal acceleration `accel` (param3)."""
+    return math.atan(max(accel, MIN_HEADING_ACCEL) / GRAVITY)
+
+
+def heading_hold(heading: float, target: float, accel: float) -> float:
+    """Bank angle (rad, positive turning counter-clockwise) holding `target` heading (rad CCW from east)."""
+    limit = heading_bank_limit(accel)
+    return max(-limit, min(limit, math.radians(GUIDED_P) * _wrap(target - heading)))
+
+
+def _l1_towards(x: float, y: float, heading: float, v: float, tx: float, ty: float) -> float:
+    eta = _wrap(math.atan2(ty - y, tx - x) - heading)
+    eta = max(-math.pi / 2, min(math.pi / 2, eta))
+    return _K_L1 * v * v / l1_distance(v) * math.sin(eta)
+
+
+def track(
+    x: float, y: float, heading: float, v: float, a: tuple[float, float], b: tuple[float, float]
+) -> float:
+    """Lateral acceleration following the leg from `a` to `b`."""
+    l1 = l1_distance(v)
+    ux, uy = b[0] - a[0], b[1] - a[1]
+    length = math.hypot(ux, uy)
+    if length < 1e-6:
+        return _l1_towards(x, y, heading, v, *b)
+    ux, uy = ux / length, uy / length
+    px, py = x - a[0], y - a[1]
+    along, cross = px * ux + py * uy, ux * py - uy * px
+    if along < 0 and math.hypot(px, py) > l1:  # well behind the start of the leg: go to it first
+        return _l1_towards(x, y, heading, v, *a)
+    ahead = math.sqrt(max(l1 * l1 - cross * cross, 0.0))
+    return _l1_towards(x, y, heading, v, a[0] + ux * (along + ahead), a[1] + uy * (along + ahead))
+
+
+def loiter(x: float, y: float, heading: float, v: float, centre: tuple[float, float], radius: float) -> float:
+    """Lateral acceleration circling `centre`; `radius` > 0 clockwise (ArduPlane's default), < 0
+    counter-clockwise."""
+    sense = -1.0 if radius > 0 else 1.0  # +1: counter-clockwise
+    r = max(abs(radius), 1.0)
+    dx, dy = x - centre[0], y - centre[1]
+    d = math.hypot(dx, dy)
+    if d > 0.1:
+        ox, oy = dx / d, dy / d
+    else:  # on the centre: as if on the circle, flying along it
+        ox, oy = math.cos(heading - sense * math.pi / 2), math.sin(heading - sense * math.pi / 2)
+    vx, vy = v * math.cos(heading), v * math.sin(heading)
+    outward = vx * ox + vy * oy
+    tangential = sense * (ox * vy - oy * vx)  # speed along the circle in the loiter sense
+    omega = 2 * math.pi / L1_PERIOD
+    pd = (d - r) * omega * omega + outward * 2 * L1_DAMPING * omega  # > 0: towards the centre
+    if outward > 0 and tangential < 0:  # flying outwards the wrong way round: do not turn away
+        pd = max(pd, 0.0)
+    circle = sense * (pd + tangential * tangential / max(0.5 * r, d))
+    capture = _l1_towards(x, y, heading, v, *centre)
+    if d > r and sense * capture < sense * circle:
+        return capture
+    return circle

@@ -1,0 +1,99 @@
+"""The companion's pure pieces for real flight: the fence polygon, the way back inside, plan versus
+flight, the region guard, and the airframe check (what ArduPlane can fly)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+
+from companion.core.geometry import ConvexPolygon
+from companion.mission import load_mission
+from companion.node.airframe import Airframe, bank_for, check_mission, refusal, turn_accel
+from companion.node.fence import DEFAULT_MARGIN_M, fence_margin, fence_polygon, nearest_inside, offset_polygon
+from companion.node.tracking import Guard, PlanTracker, RegionGuard
+
+ROOT = Path(__file__).resolve().parents[2]
+CONTINUOUS = load_mission(ROOT / "mission_files" / "scenario1_continuous.toml")
+SQUARE = ConvexPolygon.from_vertices(CONTINUOUS.region.polygon)  # +-1000 m
+
+
+def test_fence_is_the_region_with_its_edges_pushed_out() -> None:
+    assert fence_margin(CONTINUOUS) == DEFAULT_MARGIN_M
+    fence = fence_polygon(CONTINUOUS)
+    assert np.allclose(np.sort(np.abs(fence.vertices).ravel()), 1100.0)
+    assert np.allclose(fence.offsets, SQUARE.offsets + DEFAULT_MARGIN_M)
+    assert np.allclose(np.abs(offset_polygon(SQUARE, -100.0)), 900.0)
+    triangle = ConvexPolygon.from_vertices([(0, 0), (100, 0), (0, 100)])
+    moved = ConvexPolygon.from_vertices(offset_polygon(triangle, 10.0))
+    assert np.allclose(moved.offsets, triangle.offsets + 10.0)  # every edge 10 m out, parallel
+
+
+def test_nearest_point_inside() -> None:
+    assert nearest_inside(SQUARE, 1200.0, 30.0, 100.0) == pytest.approx((900.0, 30.0))
+    assert nearest_inside(SQUARE, 1200.0, 1300.0, 100.0) == pytest.approx((900.0, 900.0))
+    assert nearest_inside(SQUARE, 10.0, -20.0, 100.0) == (10.0, -20.0)
+    assert nearest_inside(SQUARE, 1200.0, 0.0, 5000.0) == pytest.approx((0.0, 0.0))  # too deep: centre
+
+
+def test_plan_versus_flight() -> None:
+    tracker = PlanTracker(0, speed=20.0, dt=2.0, bound_m=40.0, warn_steps=3)
+    tracker.expect(1, 40.0, 0.0, 0.0)
+    assert tracker.measure(1.9, 0.0, 0.0, 0.0) is None  # the plan's time has not come
+    e = tracker.measure(2.1, 45.0, 3.0, math.radians(10.0))  # 0.1 s late: the plan moved on 2 m
+    assert e is not None and e.position_m == pytest.approx(math.hypot(3.0, 3.0))
+    assert e.heading_deg == pytest.approx(10.0)
+    tracker.expect(2, 80.0, 0.0, 0.0)
+    assert tracker.measure(5.5, 80.0, 0.0, 0.0) is None and tracker.missed == 1  # telemetry too late
+    for k in range(3, 6):
+        tracker.expect(k, 0.0, 0.0, 0.0)
+        tracker.measure(2.0 * k, 100.0, 0.0, 0.0)
+    assert tracker.warnings == 1
+    summary = tracker.summary()
+    assert summary["steps"] == 4 and summary["position_m"]["max"] == pytest.approx(100.0)
+
+
+def test_region_guard_repositions_then_releases() -> None:
+    guard = RegionGuard(0, SQUARE, fence_polygon(CONTINUOUS), depth=100.0, step_length=40.0, patience=30)
+    assert guard.check(0, 1050.0, 0.0) is None and guard.state is Guard.INSIDE  # within the margin
+    assert guard.check(1, 1150.0, 0.0) == pytest.approx((900.0, 0.0))
+    assert guard.state is Guard.RETURNING
+    assert guard.check(2, 1050.0, 0.0) is None and guard.state is Guard.RETURNING  # not in the region yet
+    assert guard.check(3, 990.0, 0.0) is None and guard.state is Guard.INSIDE
+    assert guard.check(4, 0.0, 1200.0) == pytest.approx((0.0, 900.0))  # 300 m back: 8 steps
+    guard.check(4 + 8 + 29, 0.0, 1200.0)
+    assert guard.state is Guard.RETURNING
+    guard.check(4 + 8 + 30, 0.0, 1200.0)
+    assert guard.state is Guard.RELEASED and guard.exits == 2
+
+
+def test_airframe_check_names_the_fields() -> None:
+    assert turn_accel(CONTINUOUS.kinematics) == pytest.approx(20.0 * math.radians(45.0) / 2.0)
+    assert bank_for(CONTINUOUS.kinematics) == pytest.approx(38.69, abs=0.01)
+    plane = {"AIRSPEED_CRUISE": 22.0, "AIRSPEED_MIN": 10.0, "AIRSPEED_MAX": 30.0, "ROLL_LIMIT_DEG": 65.0}
+    assert check_mission(CONTINUOUS, Airframe.from_params("ardupilot", plane)) == []
+    tight = Airframe.from_params("ardupilot", {**plane, "ROLL_LIMIT_DEG": 30.0, "AIRSPEED_MAX": 18.0})
+    warnings = check_mission(CONTINUOUS, tight)
+    assert any("kinematics.speed" in w and "AIRSPEED_MIN..AIRSPEED_MAX" in w for w in warnings)
+    assert any("kinematics.turn_limit_deg" in w and "ROLL_LIMIT_DEG = 30" in w for w in warnings)
+    px4 = Airframe.from_params("px4", {"FW_AIRSPD_TRIM": 18.0})
+    assert any("FW_AIRSPD_MIN, FW_AIRSPD_MAX, FW_R_LIM" in w for w in check_mission(CONTINUOUS, px4))
+
+
+def test_what_a_real_autopilot_cannot_fly_is_refused() -> None:
+    real = Airframe.from_params("ardupilot", {"AIRSPEED_CRUISE": 22.0})
+    bundled = Airframe.from_params("ardupilot", {"AIRSPEED_CRUISE": 20.0, "SIM_TURN_LIMIT": 45.0})
+    grid = msgspec.structs.replace(
+        CONTINUOUS, kinematics=msgspec.structs.replace(CONTINUOUS.kinematics, mode="grid")
+    )
+    assert refusal(CONTINUOUS, real, "heading") is None
+    assert refusal(CONTINUOUS, real, "reposition") is None
+    assert "use --command-mode heading or reposition" in str(refusal(CONTINUOUS, real, "turn-rate"))
+    assert 'kinematics.mode = "continuous"' in str(refusal(grid, real, "heading"))
+    assert refusal(grid, bundled, "turn-rate") is None
+    assert "ArduPlane takes only the altitude" in str(refusal(CONTINUOUS, bundled, "position-target"))
+    px4 = Airframe.from_params("px4", {})
+    assert "no MAV_CMD_GUIDED_CHANGE_HEADING" in str(refusal(CONTINUOUS, px4, "heading"))

@@ -1,0 +1,189 @@
+"""ArduPlane SITL for the tests: the real autopilot, found from ARDUPLANE_SITL or ../shared/sitl.
+
+Without the binary the tests are skipped, except under CI=true, where a missing binary fails them.
+Missions are scenario1_continuous on free loopback ports (each SITL instance uses its vehicle's port
+P for SERIAL0, P + 2 and P + 3 for SERIAL1 and SERIAL2, P + 5 for RC input) and a key space of
+their own. Processes are started and stopped by PID (tests.e2e.conftest.Proc).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.app import sitl
+from companion.mission import Mission, load_mission
+from companion.node.frames import LocalFrame
+from companion.node.takeover import take_off
+from companion.node.vehicle_link import ARDUPILOT_GUIDED, VehicleLink
+from tests.e2e.conftest import ROOT, Proc
+
+CONTINUOUS = ROOT / "mission_files" / "scenario1_continuous.toml"
+GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: the tests' ground station
+
+
+@pytest.fixture(scope="session")
+def sitl_binary() -> Path:
+    try:
+        return sitl.find_binary()
+    except sitl.SitlError as exc:
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"CI=true needs ArduPlane SITL: {exc}")
+        pytest.skip(str(exc))
+
+
+def _all_free(base: int) -> bool:
+    for port in range(base, base + 6):
+        for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
+            with socket.socket(socket.AF_INET, kind) as s:
+                try:
+                    s.bind(("127.0.0.1", port))
+                except OSError:
+                    return False
+    return True
+
+
+def free_bases(n: int) -> list[int]:
+    """n port blocks P..P+5, each free for TCP and UDP on 127.0.0.1, 10 apart."""
+    start = 20000 + (os.getpid() * 97 + uuid.uuid4().int) % 30000
+    bases: list[int] = []
+    base = start - start % 10
+    while len(bases) < n:
+        if _all_free(base):
+            bases.append(base)
+        base += 10
+        assert base < 60000, "no free port blocks"
+    return bases
+
+
+@dataclass(frozen=True)
+class SitlMission:
+    path: Path
+    mission: Mission
+
+    def ports(self, i: int) -> sitl.SitlPorts:
+        return sitl.sitl_ports(self.mission, i)
+
+
+def write_mission(
+    directory: Path, n: int, starts: list[tuple[float, float]] | None = None, grid: bool = False
+) -> SitlMission:
+    """scenario1_continuous with its first n vehicles (or vehicles at `starts`, heading north)."""
+    text = CONTINUOUS.read_text(encoding="utf-8")
+    head, *vehicles = text.split("[[vehicles]]")
+    vehicles[-1] = vehicles[-1].split("[pass_criteria]")[0]
+    if grid:
+        head = head.replace('mode = "continuous"', 'mode = "grid"')
+    bodies = [f"\nx = {x}\ny = {y}\nheading_deg = 90.0\n" for x, y in starts] if starts else vehicles[:n]
+    prefix = f"sitl{uuid.uuid4().hex[:12]}"
+    bases = free_bases(len(bodies) + 1)
+    out = head.replace('name = "scenario1_continuous"', f'name = "{prefix}"')
+    for body, port in zip(bodies, bases, strict=False):
+        out += "[[vehicles]]" + body.rstrip() + f"\nmavlink_port = {port}\n\n"
+    mesh = bases[-1]
+    out += f'[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{mesh}"\n'
+    out += f'router = "tcp/127.0.0.1:{mesh + 1}"\n\n[pass_criteria]\nmin_targets_found = 0\n'
+    path = directory / f"{prefix}.toml"
+    path.write_text(out, encoding="utf-8")
+    return SitlMission(path, load_mission(path))
+
+
+def start_sitl(binary: Path, mission: SitlMission, i: int, speedup: float, directory: Path) -> Proc:
+    home = directory / f"sitl{i}"
+    home.mkdir(parents=True, exist_ok=True)
+    defaults = sitl.find_defaults(binary)
+    return Proc(
+        f"sitl{i}", sitl.sitl_argv(binary, defaults, mission.mission, i, speedup), home / "out.log", cwd=home
+    )
+
+
+class Airborne:
+    """One SITL instance flying in GUIDED, with the tests' ground station on its SERIAL0.
+
+    SITL stalls when a client's TCP buffer fills up, so a thread keeps reading the ground station's
+    link whenever a test is not using it (`use()`).
+    """
+
+    def __init__(self, binary: Path, mission: SitlMission, speedup: float, directory: Path) -> None:
+        self.mission = mission
+        self.frame = LocalFrame(mission.mission.region.origin)
+        self.proc = start_sitl(binary, mission, 0, speedup, directory)
+        url = mission.ports(0).url(mission.ports(0).serial0)
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                self.link = VehicleLink(url, self.frame, component=GCS_COMPONENT)
+                break
+            except OSError:
+                assert self.proc.alive() and time.monotonic() < deadline, self.proc.text()
+                time.sleep(0.2)
+        self.link.wait_heartbeat(60)
+        self.link.request_streams()
+        while not self.link.state.has_pose:
+            self.link.poll(0.2)
+        stop = threading.Event()
+        assert take_off(self.link, mission.mission.altitude_of(0), 0, stop), "SITL did not take off"
+        self.guided()
+        self._lock, self._stop = threading.Lock(), threading.Event()
+        self._reader = threading.Thread(target=self._drain, daemon=True)
+        self._reader.start()
+
+    def _drain(self) -> None:
+        while not self._stop.is_set():
+            with self._lock:
+                self.link.poll(0.05)
+            time.sleep(0.005)
+
+    @contextlib.contextmanager
+    def use(self) -> Iterator[VehicleLink]:
+        """The ground station's link, for the test alone while the block runs."""
+        with self._lock:
+            yield self.link
+
+    def guided(self) -> None:
+        s = self.link.state
+        deadline = time.monotonic() + 30
+        while s.custom_mode != ARDUPILOT_GUIDED:
+            assert time.monotonic() < deadline, "SITL did not take GUIDED"
+            self.link.set_mode(ARDUPILOT_GUIDED)
+            self.link.poll(1.0)
+
+    def fly_to(self, x: float, y: float, within: float = 250.0, timeout: float = 120.0) -> None:
+        """Fence off (a companion may have enabled it), GUIDED, DO_REPOSITION to (x, y) at the
+        mission altitude; returns once within `within` m (call it inside `use()`)."""
+        assert self.link.command_ack(mavlink.MAV_CMD_DO_FENCE_ENABLE, 0) == mavlink.MAV_RESULT_ACCEPTED
+        self.guided()
+        lat, lon, _ = self.frame.to_geodetic(x, y)
+        s = self.link.state
+        deadline = time.monotonic() + timeout
+        while (s.x - x) ** 2 + (s.y - y) ** 2 > within**2:
+            assert time.monotonic() < deadline, f"SITL did not reach ({x}, {y}): at ({s.x:.0f}, {s.y:.0f})"
+            self.link.reposition(lat, lon, self.mission.mission.altitude_of(0))
+            self.link.poll(1.0)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._reader.join(timeout=5)
+        self.link.close()
+        self.proc.stop()
+
+
+@pytest.fixture(scope="module")
+def airborne(sitl_binary: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Airborne]:
+    """A module's SITL instance, airborne in GUIDED near the region's centre (speedup 8)."""
+    directory = tmp_path_factory.mktemp("sitl")
+    plane = Airborne(sitl_binary, write_mission(directory, 1, starts=[(0.0, -600.0)]), 8.0, directory)
+    try:
+        yield plane
+    finally:
+        plane.close()

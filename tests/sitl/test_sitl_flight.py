@@ -1,0 +1,191 @@
+"""The companion and the simulator against a real ArduPlane (SITL), one instance airborne in GUIDED.
+
+- Each command mode a real ArduPlane flies (heading, reposition) turns the aircraft as planned:
+  the companion steers, the aircraft ends each step closer to the planned point than straight on,
+  and the plan-versus-flight errors stay small.
+- What ArduPlane cannot fly is refused with a clear message: the turn-rate command mode, and grid
+  kinematics (by the companion on connecting, and by `uavsearch run --autopilot ardupilot-sitl`).
+- Conformance: one scripted command sequence (two heading holds with different param3, then a
+  DO_REPOSITION flown to and circled) on SITL and on the bundled simulator; the flown tracks,
+  relative to each vehicle's pose at the start, agree within the tolerances below.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.node.guidance import Guidance
+from companion.node.takeover import take_over
+from companion.node.vehicle_link import VehicleLink
+from tests.e2e.conftest import PY, ROOT, Proc, assert_follows, read_csv
+from tests.sitl.conftest import Airborne
+
+STEPS = 25
+LAGGING = 0.85  # ArduPlane banks into each turn with a lag: it flies most, not all, of it
+MEDIAN_POSITION_M, MEDIAN_HEADING_DEG = 15.0, 35.0
+# conformance tolerances (relative tracks, metres and degrees)
+HEADING_PHASE_M, WHOLE_SCRIPT_M, SETTLED_DEG, LOITER_RADIUS = 40.0, 80.0, 8.0, 0.1
+SCRIPT_TARGET = (500.0, 300.0)  # the DO_REPOSITION point: ahead, left of the start pose
+
+
+def _companion(airborne: Airborne, out: Path, *args: str, mission: Path | None = None) -> Proc:
+    ports = airborne.mission.ports(0)
+    argv = [PY, "-m", "companion.app.cli", "companion", "--mission", str(mission or airborne.mission.path)]
+    argv += ["--uav", "0", "--vehicle", ports.url(ports.serial1), "--out", str(out), *args]
+    out.mkdir(parents=True, exist_ok=True)
+    return Proc("companion", argv, out / "companion.log")
+
+
+@pytest.mark.parametrize("mode", ["heading", "reposition"])
+def test_command_mode_turns_the_aircraft_as_planned(mode: str, airborne: Airborne, tmp_path: Path) -> None:
+    with airborne.use():
+        airborne.fly_to(0.0, -300.0)
+    out = tmp_path / "out"
+    proc = _companion(airborne, out, "--takeover", "--command-mode", mode, "--steps", str(STEPS))
+    try:
+        assert proc.wait(timeout=240) == 0, proc.text()
+    finally:
+        proc.stop()
+    k = airborne.mission.mission.kinematics
+    rows = read_csv(out / "uav0.csv")
+    assert len(rows) == STEPS
+    assert_follows(rows, k.speed, k.step, f"{mode} on ArduPlane SITL", ratio=LAGGING)
+    report = json.loads((out / "uav0.json").read_text())
+    plan = report["plan_vs_flight"]
+    assert plan["steps"] >= STEPS - 3, plan
+    assert plan["position_m"]["median"] < MEDIAN_POSITION_M, plan
+    assert plan["heading_deg"]["median"] < MEDIAN_HEADING_DEG, plan
+    assert report["fence_uploaded"] and report["airframe_warnings"] == []
+
+
+def test_what_arduplane_cannot_fly_is_refused(airborne: Airborne, tmp_path: Path) -> None:
+    proc = _companion(airborne, tmp_path / "turn-rate", "--command-mode", "turn-rate", "--steps", "3")
+    try:
+        assert proc.wait(timeout=120) == 2, proc.text()
+    finally:
+        proc.stop()
+    assert "use --command-mode heading or reposition" in proc.text()
+    grid = tmp_path / "grid.toml"
+    grid.write_text(airborne.mission.path.read_text().replace('mode = "continuous"', 'mode = "grid"'))
+    proc = _companion(airborne, tmp_path / "grid", "--command-mode", "heading", "--steps", "3", mission=grid)
+    try:
+        assert proc.wait(timeout=120) == 2, proc.text()
+    finally:
+        proc.stop()
+    assert 'use kinematics.mode = "continuous"' in proc.text()
+    run = subprocess.run(
+        [
+            PY,
+            "-m",
+            "companion.app.cli",
+            "run",
+            str(grid),
+            "--autopilot",
+            "ardupilot-sitl",
+            "--out",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert run.returncode == 2 and 'use kinematics.mode = "continuous"' in run.stderr, run.stderr
+
+
+# -- conformance -----------------------------------------------------------------------------------
+def _hold(link: VehicleLink, yaw_deg: float, accel: float, seconds: float, log) -> None:
+    s = link.state
+    end, last = s.time_s + seconds, -math.inf
+    while s.time_s < end:
+        if s.time_s - last >= 0.5:
+            link.change_heading(yaw_deg, accel)
+            last = s.time_s
+        link.poll(0.02)
+        log()
+
+
+def _fly_script(link: VehicleLink) -> tuple[np.ndarray, float]:
+    """The scripted sequence from straight flight north; (t, ahead, left, heading change) rows
+    every 0.5 s relative to the pose at its start, and the ground speed before it."""
+    s = link.state
+    _hold(link, 0.0, 9.8, 25.0, lambda: None)
+    t0, x0, y0 = s.time_s, s.x, s.y
+    _hold(link, 0.0, 9.8, 10.0, lambda: None)
+    speed = math.hypot(s.x - x0, s.y - y0) / (s.time_s - t0)
+    t0, x0, y0, h0 = s.time_s, s.x, s.y, s.heading
+    c, sn = math.cos(h0), math.sin(h0)
+    rows: list[tuple[float, float, float, float]] = []
+
+    def log() -> None:
+        if not rows or s.time_s - t0 - rows[-1][0] >= 0.5 - 1e-6:
+            dx, dy = s.x - x0, s.y - y0
+            rows.append(
+                (s.time_s - t0, c * dx + sn * dy, -sn * dx + c * dy, math.remainder(s.heading - h0, math.tau))
+            )
+
+    _hold(link, 90.0, 2.0, 25.0, log)  # right, gently: bank atan(2 / g) = 11.5 deg
+    _hold(link, 330.0, 8.0, 25.0, log)  # left, hard: bank 39 deg
+    ahead, left = SCRIPT_TARGET
+    lat, lon, _ = link.frame.to_geodetic(x0 + c * ahead - sn * left, y0 + sn * ahead + c * left)
+    link.reposition(lat, lon, 100.0)
+    end = s.time_s + 80.0
+    while s.time_s < end:
+        link.poll(0.02)
+        log()
+    return np.array(rows), speed
+
+
+def test_simulator_flies_a_command_script_like_arduplane(airborne: Airborne, tmp_path: Path) -> None:
+    with airborne.use() as link:
+        airborne.fly_to(0.0, -900.0)  # the script flies about 1.7 km north
+        link.change_speed(22.0)  # plane.parm's AIRSPEED_CRUISE, whatever a companion set before
+        sitl, speed = _fly_script(link)
+    assert 18.0 < speed < 28.0, speed
+
+    ports = airborne.mission.ports(0)
+    sim = Proc(
+        "sim",
+        [PY, "-m", "sim_vehicles", "--mission", str(airborne.mission.path), "--speedup", "8", "--no-camera"],
+        tmp_path / "sim.log",
+    )
+    try:
+        sim.wait_for_text("vehicle 0 sysid")
+        bundled = VehicleLink(f"udpout:127.0.0.1:{ports.serial0}", airborne.frame)
+        bundled.wait_heartbeat(60)
+        bundled.request_streams()
+        for name, value in (("AIRSPEED_CRUISE", speed), ("ROLL_LIMIT_DEG", 65.0), ("WP_LOITER_RAD", 80.0)):
+            assert bundled.set_param(name, value), name  # plane.parm's, and SITL's ground speed
+        while not bundled.state.has_pose:
+            bundled.poll(0.2)
+        guidance = Guidance(bundled, airborne.frame, airborne.mission.mission, 0, "heading")
+        assert take_over(bundled, guidance, 0, threading.Event())
+        ours, _ = _fly_script(bundled)
+        bundled.close()
+    finally:
+        sim.stop()
+
+    (tmp_path / "tracks.json").write_text(json.dumps({"sitl": sitl.tolist(), "bundled": ours.tolist()}))
+    times = sitl[:, 0]
+    at = np.array([ours[np.argmin(np.abs(ours[:, 0] - t))] for t in times])
+    gap = np.hypot(sitl[:, 1] - at[:, 1], sitl[:, 2] - at[:, 2])
+    turns = times <= 50.0
+    assert gap[turns].max() < HEADING_PHASE_M, f"heading holds: {gap[turns].max():.0f} m apart"
+    assert gap.max() < WHOLE_SCRIPT_M, f"{gap.max():.0f} m apart at t = {times[gap.argmax()]:.1f} s"
+    for t in (25.0, 50.0):  # the end of each heading hold
+        i = np.argmin(np.abs(times - t))
+        turned = math.degrees(abs(math.remainder(sitl[i, 3] - at[i, 3], math.tau)))
+        assert turned < SETTLED_DEG, f"heading {turned:.1f} deg apart at t = {t}"
+    circling = times >= times[-1] - 30.0
+    radius = [
+        float(np.mean(np.hypot(tr[circling, 1] - SCRIPT_TARGET[0], tr[circling, 2] - SCRIPT_TARGET[1])))
+        for tr in (sitl, at)
+    ]
+    assert abs(radius[1] - radius[0]) < LOITER_RADIUS * radius[0], f"loiter radii {radius}"
