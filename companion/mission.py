@@ -386,6 +386,19 @@ def parse_mission(text: str, source: str = "<mission>") -> Mission:
     return mission
 
 
+def validate(mission: Mission | dict, source: str = "<mission>") -> Mission:
+    """Check a mission built in code (a copy with other start poses or weights, say; as a Mission or
+    as the tables of a mission file) exactly as a mission file is checked; returns it."""
+    raw = mission if isinstance(mission, dict) else msgspec.to_builtins(mission)
+    try:
+        checked = msgspec.convert(raw, Mission)
+    except msgspec.ValidationError as exc:
+        field, reason = _field_from_msgspec(str(exc))
+        raise MissionError(source, field, reason) from None
+    _validate(checked, source)
+    return checked
+
+
 def load_mission(path: str | Path) -> Mission:
     """Read and validate a mission file."""
     p = Path(path)
