@@ -83,8 +83,9 @@ def _peaks(
     return np.round(weights * hi, 6)
 
 
-def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict:
-    """One candidate mission as a TOML-ready dict (validated by the caller)."""
+def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict | None:
+    """One candidate mission as a TOML-ready dict (validated by the caller), or None when the start
+    layout could not place every UAV."""
     verts = _polygon(rng, fam)
     poly = ConvexPolygon.from_vertices(verts)
     mode = str(rng.choice(fam.modes))
@@ -92,6 +93,8 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict:
     layout = str(rng.choice(fam.layouts))
     r_c, buffer = 1000.0, 5.0
     poses = start_layout(rng, poly, n, layout, mode == "grid", fam.cell_size, r_c - buffer)
+    if len(poses) < n:
+        return None
     across = float(np.max(np.linalg.norm(verts[:, None] - verts[None], axis=-1)))
     k = int(rng.integers(fam.centres[0], fam.centres[1] + 1))
     lo, hi = verts.min(axis=0), verts.max(axis=0)
@@ -148,7 +151,10 @@ def generate(count: int, seed: int, family: Family | None = None) -> list[tuple[
     for i in range(count):
         rng = np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(i,)))
         for _ in range(ATTEMPTS):
-            text = tomli_w.dumps(_draw(rng, family, f"generated-{seed}-{i:03d}", seed * 1000 + i))
+            drawn = _draw(rng, family, f"generated-{seed}-{i:03d}", seed * 1000 + i)
+            if drawn is None:
+                continue
+            text = tomli_w.dumps(drawn)
             try:
                 out.append((parse_mission(text, f"generated mission {i}"), text))
                 break
