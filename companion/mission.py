@@ -196,6 +196,23 @@ class Mesh(_Base, kw_only=True):
     max_bundle_bytes: Annotated[int, msgspec.Meta(ge=1024)] = 1 << 20
 
 
+class NetworkFault(_Base, kw_only=True):
+    """Injected mesh faults over the steps [start, end): the companions drop the messages between
+    UAVs of different `groups` (a partition: UAVs in no group hear only themselves), and any other
+    message with probability `loss` (docs/reliability.md, "Fault matrix")."""
+
+    start: Annotated[int, msgspec.Meta(ge=0)]
+    end: Annotated[int, msgspec.Meta(ge=1)]
+    groups: list[list[Annotated[int, msgspec.Meta(ge=0)]]] = []
+    loss: Probability = 0.0
+
+
+class Faults(_Base, kw_only=True):
+    """Faults the companions inject into themselves (for the fault matrix)."""
+
+    network: list[NetworkFault] = []
+
+
 class PassCriteria(_Base, kw_only=True):
     """What a scripted mission must achieve to pass."""
 
@@ -219,6 +236,7 @@ class Mission(_Base, kw_only=True):
     vehicles: list[Vehicle]
     sim: Sim = Sim()
     mesh: Mesh = Mesh()
+    faults: Faults = Faults()
     pass_criteria: PassCriteria = PassCriteria()
 
     @property
@@ -327,6 +345,13 @@ def _validate(m: Mission, source: str) -> None:
         fail("vehicles", f"two vehicles share a MAVLink port: {ports}")
     if math.isclose(m.region.cell_size, 0):
         fail("region.cell_size", "must be positive")
+    for i, f in enumerate(m.faults.network):
+        where = f"faults.network[{i}]"
+        if f.end <= f.start:
+            fail(f"{where}.end", f"must be after start ({f.start}), got {f.end}")
+        members = [u for g in f.groups for u in g]
+        if any(u >= m.n_uavs for u in members) or len(set(members)) != len(members):
+            fail(f"{where}.groups", f"UAVs 0..{m.n_uavs - 1}, each in at most one group")
     _validate_start(m, fail)
 
 

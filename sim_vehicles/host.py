@@ -29,6 +29,8 @@ from sim_vehicles.protocols import ftp
 from sim_vehicles.protocols.commands import MAX_RANGE_M, handle_command
 from sim_vehicles.protocols.mission import MissionProtocol
 from sim_vehicles.protocols.params import ParamStore, handle_param, param_specs
+from sim_vehicles.resume import load_state, save_state
+from sim_vehicles.separation import SeparationLog
 from sim_vehicles.telemetry import Pose, Streams, TelemetryBuilder
 from sim_vehicles.vehicle import Vehicle
 
@@ -58,6 +60,8 @@ class HostOptions:
     zenoh_connect: tuple[str, ...] | None = None  # None: the mission's seed endpoint / router
     truth: Path | None = None
     host: str | None = None  # None: the mission's sim.host
+    state: Path | None = None  # save the state every step; resume from it if it exists (resume.py)
+    separation: Path | None = None  # the flown closest approach of each step (separation.py)
 
 
 @dataclass
@@ -277,6 +281,9 @@ class Host:
         self.wakeup_w.setblocking(False)
         self.selector.register(self.wakeup_r, selectors.EVENT_READ, None)
         self.bus: cam.CameraBus | None = None
+        self.separation: SeparationLog | None = None
+        self.resumed = False
+        self._saved_tick = -1
         self.stopping = False
         self.stats = RunStats()
         try:
@@ -299,6 +306,13 @@ class Host:
                 cam.write_truth(options.truth, record)
             rng = cam.instance_rng(self.seed, 0, cam.Stream.CAMERA)
             self.camera = cam.Camera(mission, self.grid, self.targets, rng, self.frame)
+            self.next_camera = 0.0
+            if options.state is not None and options.state.exists():
+                load_state(self, options.state)
+                self.resumed = True
+                self._saved_tick = self.tick
+            if options.separation is not None:
+                self.separation = SeparationLog(options.separation, self.substeps)
             if options.camera:
                 connect = options.zenoh_connect
                 if connect is None:
@@ -342,7 +356,6 @@ class Host:
         if isinstance(self.clock, RealTimeClock):
             self.clock.wall_start = wall0
         next_second = wall0
-        self.next_camera = 0.0
         while not self.stopping:
             now = time.monotonic()
             target = self.clock.target(now)
@@ -350,6 +363,7 @@ class Host:
             while self.tick < target and budget:
                 self._tick()
                 budget -= 1
+            self._save_state()
             if isinstance(self.clock, LockstepClock) and self.tick == target:
                 if self.clock.step != self.snapshot_step:
                     self.snapshot_step = self.clock.step
@@ -368,6 +382,13 @@ class Host:
         for hv in self.hosted:
             self.stats.input.add(hv.stats)
         return self.stats
+
+    def _save_state(self) -> None:
+        """At each step boundary, the state a restarted simulator resumes from (`--state`)."""
+        path = self.options.state
+        if path is not None and self.tick % self.substeps == 0 and self.tick != self._saved_tick:
+            save_state(self, path)
+            self._saved_tick = self.tick
 
     def _serve(self, timeout: float) -> None:
         for key, _ in self.selector.select(timeout):
@@ -402,6 +423,8 @@ class Host:
                 fl.alt_target[i] = v.alt_target
                 if v.texts or v.reached:
                     hv.flush()
+        if self.separation is not None:
+            self.separation.observe(self.tick, fl.x, fl.y)
         fl.tick(self._demand)
         self.tick += 1
         t = self.t
@@ -433,6 +456,9 @@ class Host:
         self.stats.frames_published += 1
 
     def close(self) -> None:
+        if self.separation is not None:
+            self.separation.close()
+            self.separation = None
         if self.bus is not None:
             self.bus.close()
             self.bus = None

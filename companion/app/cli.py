@@ -381,6 +381,12 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--steps", type=int, default=None)
     co.add_argument("--seed", type=int, default=None)
     co.add_argument("--out", default=None, help="directory for the step log, the report and the .tlog")
+    co.add_argument(
+        "--journal",
+        default=None,
+        help="journal file: every step is kept there, and a companion started again on it goes on "
+        "where it stopped (docs/reliability.md)",
+    )
     co.set_defaults(func=_companion)
 
     ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")

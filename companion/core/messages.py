@@ -60,7 +60,9 @@ class StateMsg(_Header, tag="state"):
 
 
 class CoverageMsg(_Header, tag="coverage"):
-    """Cells in the sender's FOV at `stamp` (eq. 11 looks) and the target cells its camera detected."""
+    """Cells in the sender's FOV at `stamp` (eq. 11 looks) and every target cell it knows of (its camera's
+    detections and those it heard of): each step re-announces them all, so a UAV that joins or
+    restarts late learns every earlier detection from any neighbour."""
 
     cells: tuple[int, ...]
     detections: tuple[int, ...] = ()
