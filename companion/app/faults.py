@@ -79,9 +79,8 @@ def _no_none(value: object) -> object:
 def loopback_mission(
     base: Mission, directory: Path, steps: int, network: list[NetworkFault] | None = None
 ) -> tuple[Path, Mission]:
-    """`base` on free loopback ports and its own mesh key space, with `steps` steps, a slack autopilot
-    guidance timeout (20 s: a vehicle without guidance holds its last turn for the faults' few
-    steps) and the injected mesh faults; written into `directory`."""
+    """`base` on free loopback ports and its own mesh key space, with `steps` steps and the injected
+    mesh faults; written into `directory`."""
     ports = _free_ports(socket.SOCK_DGRAM, base.n_uavs)
     seed, router = _free_ports(socket.SOCK_STREAM, 2)
     s = msgspec.structs.replace
@@ -89,7 +88,7 @@ def loopback_mission(
         base,
         steps=steps,
         vehicles=[s(v, mavlink_port=p) for v, p in zip(base.vehicles, ports, strict=True)],
-        sim=s(base.sim, host="127.0.0.1", guided_timeout=20.0),
+        sim=s(base.sim, host="127.0.0.1"),
         mesh=s(
             base.mesh,
             key_prefix=f"faults{uuid.uuid4().hex[:12]}",
@@ -217,14 +216,14 @@ def last_step(path: Path) -> int:
     return -1
 
 
-def journal_found(path: Path) -> set[int]:
-    """The target cells a companion's journal holds."""
-    records, _ = read_records(path.read_bytes())
+def journal_found(path: Path, until: int | None = None) -> set[int]:
+    """The target cells a companion's journal holds, as of step `until` (default: its last)."""
+    records, _ = read_records(path.read_bytes()) if path.exists() else ([], 0)
     found: set[int] = set()
     for r in records:
-        if isinstance(r, Checkpoint):
+        if isinstance(r, Checkpoint) and (until is None or r.state.step <= until):
             found |= set(r.state.found)
-        elif isinstance(r, Delta):
+        elif isinstance(r, Delta) and (until is None or r.delta.step <= until):
             found |= set(r.delta.found)
     return found
 
@@ -470,10 +469,12 @@ def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) 
         fail("a companion wrote no end-of-run report")
         return
     found = [set(r["found_cells"]) for r in reports]
-    union = set().union(*found, before)
+    # a target first known at the last step has no step left to be told in (one step of latency)
+    told = set().union(before, *(journal_found(out / f"uav{i}.journal", outcome.steps - 2) for i in range(n)))
     outcome.targets_known = [len(f) for f in found]
-    outcome.detections = len(union)
-    outcome.lost_detections = sorted(union - set.intersection(*found))
+    outcome.detections = len(set().union(told, *found))
+    outcome.notes["known_only_at_the_last_step"] = sorted(set().union(*found) - told)
+    outcome.lost_detections = sorted(told - set.intersection(*found))
     if outcome.lost_detections:
         fail(f"detections not known to every UAV: {outcome.lost_detections}")
     truth = json.loads((out / "truth.json").read_text())
@@ -490,6 +491,7 @@ def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) 
     outcome.notes.update(final_peers=peers, final_tasks=[int(r["task"]) for r in rows])
     outcome.notes["fault_dropped"] = [r.get("fault_dropped", 0) for r in reports]
     outcome.converged = not outcome.lost_detections and all(p == n - 1 for p in peers)
+    outcome.converged &= all(f >= told for f in found)
     outcome.converged &= len(tasks) == len(set(tasks))
     if not outcome.converged:
         fail(f"knowledge did not converge: peers known {peers}, tasks {outcome.notes['final_tasks']}")
