@@ -3,7 +3,8 @@
 Every physics tick the simulator hands in all vehicles' horizontal positions; the recorder keeps,
 for the current sampling step (dT), each pair's smallest distance, and when the step ends it
 appends to a CSV file one row per pair that came within `report_within` metres (and always the
-step's closest pair): `step,i,j,distance_m`. The flown mission's evaluation reads it
+step's closest pair): `step,i,j,distance_m`; a simulator resumed from its state file appends. The
+flown mission's evaluation and the fault matrix read it
 (`companion.app.evaluation.read_approach`). Altitude layers are ignored on purpose: the safety
 layer's separation is horizontal.
 """
@@ -27,9 +28,11 @@ class ApproachRecorder:
         self.step = -1
         self.minimum = np.full(len(self.pairs[0]), math.inf)
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = path.open("w", encoding="utf-8")
-        self._file.write("step,i,j,distance_m\n")
-        self._file.flush()
+        fresh = not path.exists() or path.stat().st_size == 0
+        self._file = path.open("a", encoding="utf-8")  # a resumed simulator (`--state`) appends
+        if fresh:
+            self._file.write("step,i,j,distance_m\n")
+            self._file.flush()
 
     def update(self, t: float, x: FloatArray, y: FloatArray) -> None:
         """Positions at vehicle time `t` (seconds): the tick belongs to step floor(t / dT)."""

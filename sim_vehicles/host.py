@@ -30,6 +30,7 @@ from sim_vehicles.protocols import ftp
 from sim_vehicles.protocols.commands import MAX_RANGE_M, handle_command
 from sim_vehicles.protocols.mission import MissionProtocol
 from sim_vehicles.protocols.params import ParamStore, handle_param, param_specs
+from sim_vehicles.resume import load_state, save_state
 from sim_vehicles.telemetry import Pose, Streams, TelemetryBuilder
 from sim_vehicles.vehicle import Vehicle
 
@@ -60,6 +61,7 @@ class HostOptions:
     truth: Path | None = None
     approach: Path | None = None  # the physics-rate closest approaches (sim_vehicles.approach)
     host: str | None = None  # None: the mission's sim.host
+    state: Path | None = None  # save the state every step; resume from it if it exists (resume.py)
 
 
 @dataclass
@@ -279,6 +281,8 @@ class Host:
         self.wakeup_w.setblocking(False)
         self.selector.register(self.wakeup_r, selectors.EVENT_READ, None)
         self.bus: cam.CameraBus | None = None
+        self.resumed = False
+        self._saved_tick = -1
         self.stopping = False
         self.stats = RunStats()
         self.approach = (
@@ -306,6 +310,11 @@ class Host:
                 cam.write_truth(options.truth, record)
             rng = cam.instance_rng(self.seed, 0, cam.Stream.CAMERA)
             self.camera = cam.Camera(mission, self.grid, self.targets, rng, self.frame)
+            self.next_camera = 0.0
+            if options.state is not None and options.state.exists():
+                load_state(self, options.state)
+                self.resumed = True
+                self._saved_tick = self.tick
             if options.camera:
                 connect = options.zenoh_connect
                 if connect is None:
@@ -349,7 +358,6 @@ class Host:
         if isinstance(self.clock, RealTimeClock):
             self.clock.wall_start = wall0
         next_second = wall0
-        self.next_camera = 0.0
         while not self.stopping:
             now = time.monotonic()
             target = self.clock.target(now)
@@ -357,6 +365,7 @@ class Host:
             while self.tick < target and budget:
                 self._tick()
                 budget -= 1
+            self._save_state()
             if isinstance(self.clock, LockstepClock) and self.tick == target:
                 if self.clock.step != self.snapshot_step:
                     self.snapshot_step = self.clock.step
@@ -375,6 +384,13 @@ class Host:
         for hv in self.hosted:
             self.stats.input.add(hv.stats)
         return self.stats
+
+    def _save_state(self) -> None:
+        """At each step boundary, the state a restarted simulator resumes from (`--state`)."""
+        path = self.options.state
+        if path is not None and self.tick % self.substeps == 0 and self.tick != self._saved_tick:
+            save_state(self, path)
+            self._saved_tick = self.tick
 
     def _serve(self, timeout: float) -> None:
         for key, _ in self.selector.select(timeout):

@@ -343,6 +343,50 @@ def _print_evaluation(result: dict) -> None:
     console.print(table)
 
 
+def _faults(args: argparse.Namespace) -> int:
+    from companion.app.faults import ROWS, Plan, run_row
+
+    rows = ROWS if args.row == "all" else (args.row,)
+    if not 0 < args.at < args.at + args.outage < args.steps:
+        raise ValueError(f"--at {args.at} --outage {args.outage} must fit within --steps {args.steps}")
+    mission = load_mission(args.mission)
+    plan = Plan(args.steps, args.at, args.outage, args.victim % mission.n_uavs)
+    failed = 0
+    for row in rows:
+        o = run_row(row, mission, Path(args.out) / row, plan)
+        failed += bool(o.failures)
+        print(
+            f"{row}: {'FAILED: ' + '; '.join(o.failures) if o.failures else 'kept everything'}; "
+            f"{o.uavs} UAVs, {o.steps} steps, completed {o.completed}, detections {o.detections} "
+            f"(lost {len(o.lost_detections)}), closest approach {o.closest_approach_m:.1f} m "
+            f"({o.separation_losses} steps within R_s), converged {o.converged}, {o.seconds:.0f} s",
+            flush=True,
+        )
+    print(f"wrote {args.out}/<row>/outcome.json")
+    return 1 if failed else 0
+
+
+def _fuzz(args: argparse.Namespace) -> int:
+    from companion.app.fuzz import CAMPAIGNS, run_campaign
+
+    names = CAMPAIGNS if args.campaign == "all" else (args.campaign,)
+    failed = 0
+    for name in names:
+        c = run_campaign(name, args.count, args.seed)
+        failed += bool(c.failures)
+        reasons = ", ".join(f"{r} x{n}" for r, n in c.reasons.most_common(5))
+        print(
+            f"{name}: {c.inputs:,} inputs, {c.accepted:,} accepted, {c.rejected:,} rejected and counted, "
+            f"{len(c.failures)} failures, {c.seconds:.0f} s" + (f"; top reasons: {reasons}" * bool(reasons)),
+            flush=True,
+        )
+        for failure in c.failures[:10]:
+            print(f"  FAILURE {failure}", flush=True)
+        if c.notes:
+            print(f"  {json.dumps(c.notes, default=str)}", flush=True)
+    return 1 if failed else 0
+
+
 def _companion(args: argparse.Namespace) -> int:
     from companion.node.main import run_companion
 
@@ -565,6 +609,28 @@ def build_parser() -> argparse.ArgumentParser:
     _random_starts_option(tu)
     tu.set_defaults(func=_tune)
 
+
+    fz = sub.add_parser("fuzz", help="fuzzing campaigns: mesh, MAVLink, camera frames, mission files")
+    fz.add_argument("--campaign", default="all", choices=("all", "mesh", "mavlink", "camera", "mission"))
+    fz.add_argument(
+        "--count", type=int, default=None, help="inputs per campaign (default: 100,000 mesh, 10,000 others, "
+        "1,000 mission files)",
+    )
+    fz.add_argument("--seed", type=int, default=0)
+    fz.set_defaults(func=_fuzz)
+
+    fa = sub.add_parser("faults", help="the fault matrix on real processes (docs/reliability.md)")
+    fa.add_argument(
+        "--row", default="all", choices=("all", "restart", "sim-restart", "link-loss", "partition", "loss")
+    )
+    fa.add_argument("--mission", default="mission_files/scenario1.toml")
+    fa.add_argument("--steps", type=int, default=300, help="steps of each row's mission")
+    fa.add_argument("--at", type=int, default=60, help="the step the fault strikes at")
+    fa.add_argument("--outage", type=int, default=8, help="steps the fault lasts (link-loss: 10 s)")
+    fa.add_argument("--victim", type=int, default=1, help="the UAV a companion or link fault hits")
+    fa.add_argument("--out", default="out/faults")
+    fa.set_defaults(func=_faults)
+
     from companion.node.guidance import COMMAND_MODES
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
@@ -591,6 +657,12 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--steps", type=int, default=None)
     co.add_argument("--seed", type=int, default=None)
     co.add_argument("--out", default=None, help="directory for the step log, the report and the .tlog")
+    co.add_argument(
+        "--journal",
+        default=None,
+        help="journal file: every step is kept there, and a companion started again on it goes on "
+        "where it stopped (docs/reliability.md)",
+    )
     co.set_defaults(func=_companion)
 
     ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")

@@ -182,6 +182,8 @@ def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | 
         str(seed),
         "--out",
         str(opts.out),
+        "--journal",
+        str(opts.out / f"uav{i}.journal"),
         "--command-mode",
         opts.mode,
     ]

@@ -13,6 +13,7 @@ from companion.core.world import Stream, build_world, instance_rng
 from companion.mission import load_mission
 from companion.node.camera_feed import CameraFeed
 from companion.node.frames import LocalFrame
+from companion.node.journal import JournalError
 from companion.node.mesh import Mesh
 from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
 from companion.node.vehicle_link import LinkError, VehicleLink
@@ -37,6 +38,7 @@ def run_companion(args: argparse.Namespace) -> int:
         seed=args.seed,
         steps=args.steps,
         out=out,
+        journal=Path(args.journal) if args.journal else None,
     )
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
@@ -47,12 +49,18 @@ def run_companion(args: argparse.Namespace) -> int:
     frame = LocalFrame(mission.region.origin)
     loss_rng = instance_rng(seed, 1000 + args.uav, Stream.RADIO)
     link = VehicleLink(opts.vehicle_url, frame, out / f"uav{args.uav}.tlog" if out else None)
+    restarting = opts.journal is not None and opts.journal.exists() and opts.journal.stat().st_size > 0
     try:
-        with Mesh(mission, args.uav, world.grid.n_cells, n_tasks, loss_rng) as mesh:
+        with Mesh(mission, args.uav, world.grid.n_cells, n_tasks, loss_rng, join=not restarting) as mesh:
             camera = CameraFeed(
                 mesh.session, camera_key_of(mission, args.uav), args.uav, mission.n_uavs, frame
             )
-            companion = Companion(opts, link, mesh, camera)
+            try:
+                companion = Companion(opts, link, mesh, camera)
+            except JournalError as exc:
+                camera.close()
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
             try:
                 return companion.run(stop)
             except LinkError as exc:

@@ -98,7 +98,9 @@ class Mesh:
 
     `n_cells`/`n_tasks` size the validation of incoming messages (n_uavs is `mission.n_uavs`);
     `rng` draws the simulated loss and is required when `mission.comms.loss > 0`; `config`
-    overrides `MeshConfig.from_mission(mission)`.
+    overrides `MeshConfig.from_mission(mission)`. With `join=False` the peers see this UAV alive only
+    from `join()` on (a restarted companion joins once it can step: peers in lockstep wait for the
+    bundles of every UAV they see alive).
     """
 
     def __init__(
@@ -109,6 +111,7 @@ class Mesh:
         n_tasks: int,
         rng: np.random.Generator | None = None,
         config: MeshConfig | None = None,
+        join: bool = True,
     ) -> None:
         if not 0 <= uav < mission.n_uavs:
             raise ValueError(f"uav {uav} not in 0..{mission.n_uavs - 1}")
@@ -131,14 +134,28 @@ class Mesh:
             self._subscriber = self._session.declare_subscriber(
                 f"{base}/uav/*/msg", self._on_sample, allowed_origin=zenoh.Locality.REMOTE
             )
-            liveliness = self._session.liveliness()
-            self._alive_subscriber = liveliness.declare_subscriber(
+            self._alive_subscriber = self._session.liveliness().declare_subscriber(
                 f"{base}/alive/*", self._on_liveliness, history=True
             )
-            self._token = liveliness.declare_token(f"{base}/alive/{uav}")  # last: see docs/mesh.md
+            self._token_key = f"{base}/alive/{uav}"
+            self._token: zenoh.LivelinessToken | None = None
+            if join:
+                self.join()  # last: see docs/mesh.md
         except BaseException:
             self._session.close()
             raise
+
+    def join(self) -> None:
+        """Declare this UAV alive (its liveliness token); idempotent."""
+        if self._token is None:
+            self._token = self._session.liveliness().declare_token(self._token_key)
+
+    def leave(self) -> None:
+        """Withdraw the liveliness token (a companion that cannot steer): peers take this UAV as gone
+        until `join`; idempotent."""
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
 
     # -- lifecycle ---------------------------------------------------------------------------------
     def __enter__(self) -> Mesh:
@@ -252,11 +269,12 @@ class Mesh:
 
     def wait_for(self, step: int, peers: set[int], timeout: float) -> set[int]:
         """Block until bundles stamped `step` from all `peers` are held (call it before
-        `inbox(step + 1)` takes them) or `timeout` s pass; return the peers still missing."""
+        `inbox(step + 1)` takes them), or those missing have left, or `timeout` s pass; return the
+        peers still missing (and alive)."""
         deadline = time.monotonic() + timeout
         with self._cond:
             while True:
-                missing = {p for p in peers if step not in self._held.get(p, {})}
+                missing = {p for p in peers if step not in self._held.get(p, {}) and p in self._alive}
                 remaining = deadline - time.monotonic()
                 if not missing or remaining <= 0 or self._session.is_closed():
                     return missing

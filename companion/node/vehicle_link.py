@@ -80,7 +80,7 @@ class TlogWriter:
 
     def __init__(self, path: Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._f: BinaryIO = path.open("wb")
+        self._f: BinaryIO = path.open("ab")  # a restarted companion appends
 
     def write(self, buf: bytes) -> None:
         self._f.write(struct.pack(">Q", int(time.time() * 1e6)) + buf)
