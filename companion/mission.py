@@ -196,6 +196,16 @@ class Mesh(_Base, kw_only=True):
     max_bundle_bytes: Annotated[int, msgspec.Meta(ge=1024)] = 1 << 20
 
 
+class Security(_Base, kw_only=True):
+    """Authentication (docs/reliability.md): `keys` is the key directory written by `uavsearch keys`
+    (relative to the mission file); empty, the default, runs an insecure mesh and MAVLink link, and
+    every process says so. `mavlink_signing`: with keys, sign the companion-autopilot link with each
+    vehicle's secret (the bundled simulator then rejects unsigned commands)."""
+
+    keys: str = ""
+    mavlink_signing: bool = True
+
+
 class PassCriteria(_Base, kw_only=True):
     """What a scripted mission must achieve to pass."""
 
@@ -219,6 +229,7 @@ class Mission(_Base, kw_only=True):
     vehicles: list[Vehicle]
     sim: Sim = Sim()
     mesh: Mesh = Mesh()
+    security: Security = Security()
     pass_criteria: PassCriteria = PassCriteria()
 
     @property
@@ -243,6 +254,11 @@ class Mission(_Base, kw_only=True):
 
     def with_seed(self, seed: int) -> Mission:
         return msgspec.structs.replace(self, seed=seed)
+
+    @property
+    def secured(self) -> bool:
+        """True when the mission names a key directory (an authenticated mesh and MAVLink link)."""
+        return bool(self.security.keys)
 
 
 _PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
@@ -325,6 +341,10 @@ def _validate(m: Mission, source: str) -> None:
     ports = [m.vehicle_port(i) for i in range(m.n_uavs)]
     if len(set(ports)) != len(ports):
         fail("vehicles", f"two vehicles share a MAVLink port: {ports}")
+    if m.secured:
+        for name in ("router", "seed_endpoint", "listen"):
+            if not getattr(m.mesh, name).startswith(("tcp/", "tls/")):
+                fail(f"mesh.{name}", "a secured mesh (security.keys) runs over TLS: use tcp/ or tls/")
     if math.isclose(m.region.cell_size, 0):
         fail("region.cell_size", "must be positive")
     _validate_start(m, fail)
@@ -393,4 +413,9 @@ def load_mission(path: str | Path) -> Mission:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise MissionError(str(p), "(file)", exc.strerror or str(exc)) from None
-    return parse_mission(text, str(p))
+    mission = parse_mission(text, str(p))
+    keys = mission.security.keys
+    if keys and not Path(keys).is_absolute():  # relative to the mission file, wherever it is read from
+        security = msgspec.structs.replace(mission.security, keys=str(p.parent / keys))
+        mission = msgspec.structs.replace(mission, security=security)
+    return mission

@@ -23,6 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mission import Mission, load_mission
 from companion.node.frames import LocalFrame
+from companion.node.keys import for_mission
 from companion.node.vehicle_link import LinkError, VehicleLink
 from sim_vehicles import camera as cam
 
@@ -123,8 +124,9 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        bus = cam.CameraBus(mission, args.zenoh_listen or ["tcp/127.0.0.1:0"], connect)
-    except ValueError as exc:
+        keys = for_mission(mission, "camera")
+        bus = cam.CameraBus(mission, args.zenoh_listen or ["tcp/127.0.0.1:0"], connect, keys)
+    except ValueError as exc:  # KeyDirectoryError too
         print(f"error: {exc}", file=sys.stderr)
         return 2
     try:

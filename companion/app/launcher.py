@@ -35,6 +35,7 @@ from companion.core.world import World, build_world
 from companion.mission import Mission, load_mission
 from companion.node.airframe import Airframe, refusal
 from companion.node.frames import LocalFrame
+from companion.node.keys import ROLES, for_mission, insecure_warning, mavlink_secrets, uav_identity
 from sim_vehicles import camera as cam
 
 START_TIMEOUT_S = 120.0
@@ -263,6 +264,20 @@ def _stopped_early(children: Children) -> str | None:
     return None
 
 
+def security_summary(mission: Mission) -> str:
+    """What authenticates this run, after checking that every identity's keys load; the insecure
+    warning when nothing does."""
+    if not mission.secured:
+        return insecure_warning(mission)
+    for identity in [uav_identity(i) for i in range(mission.n_uavs)] + list(ROLES):
+        for_mission(mission, identity)
+    link = "MAVLink2-signed" if mavlink_secrets(mission) else "UNSIGNED ([security] mavlink_signing = false)"
+    return (
+        f"secured: mesh over mutually authenticated TLS with access control, every bundle signed; "
+        f"vehicle links {link}; keys in {mission.security.keys}"
+    )
+
+
 def run_mission(opts: RunOptions) -> int:
     """Fly the mission end to end; returns the process exit code."""
     mission = load_mission(opts.mission_file)
@@ -270,6 +285,8 @@ def run_mission(opts: RunOptions) -> int:
     if problem:
         print(f"error: {problem}", file=sys.stderr)
         return 2
+    security = security_summary(mission)  # raises KeyDirectoryError (a ValueError) for bad keys
+    print(security, flush=True)
     seed = mission.seed if opts.seed is None else opts.seed
     steps = opts.steps or mission.steps
     out = opts.out
@@ -393,4 +410,6 @@ def run_mission(opts: RunOptions) -> int:
         print("pass criteria FAILED: " + "; ".join(failures), file=sys.stderr)
         return 1
     print(f"pass criteria met; wrote {out}")
+    if not mission.secured:
+        print("this run was INSECURE (no [security] keys): see the warning at its start", flush=True)
     return 0
