@@ -416,6 +416,6 @@ def load_mission(path: str | Path) -> Mission:
     mission = parse_mission(text, str(p))
     keys = mission.security.keys
     if keys and not Path(keys).is_absolute():  # relative to the mission file, wherever it is read from
-        security = msgspec.structs.replace(mission.security, keys=str(p.parent / keys))
+        security = msgspec.structs.replace(mission.security, keys=str((p.parent / keys).absolute()))
         mission = msgspec.structs.replace(mission, security=security)
     return mission

@@ -333,6 +333,11 @@ class Host:
         return self.tick * self.tick_dt
 
     @property
+    def signed(self) -> bool:
+        """True when every vehicle requires signed MAVLink (the mission's [security] keys)."""
+        return all(hv.endpoint.signing for hv in self.hosted)
+
+    @property
     def endpoints(self) -> list[tuple[int, str, int]]:
         """(vehicle index, host, port) of every endpoint."""
         return [(hv.index, *hv.endpoint.sock.getsockname()) for hv in self.hosted]
