@@ -15,6 +15,7 @@ import pytest
 from companion.mission import Mission, load_mission
 from companion.node import keys
 from tests.e2e.conftest import MissionFile, make_mission, procs, write_mission  # noqa: F401 (fixtures)
+from tests.sim.conftest import start_sim  # noqa: F401 (fixture)
 
 
 @pytest.fixture
