@@ -15,16 +15,16 @@ from __future__ import annotations
 
 import contextlib
 import socket
-import time
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.node.vehicle_link import signing_timestamp
 
 PEER_TIMEOUT = 30.0  # wall seconds without traffic before a peer is forgotten
 MAX_PEERS = 16
 MAX_DATAGRAMS_PER_READ = 256
 _V2, _V1 = 0xFD, 0xFE
-SIGNING_EPOCH = 1420070400  # MAVLink signing timestamps: 10 us units since 2015-01-01 UTC
 UNSIGNED_ALLOWED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLINK_MSG_ID_RADIO})
 
 Address = tuple[str, int]
@@ -90,7 +90,7 @@ class MavlinkEndpoint:
             signing.secret_key = signing_secret
             signing.sign_outgoing = True
             signing.link_id = 0
-            signing.timestamp = int((time.time() - SIGNING_EPOCH) * 1e5)
+            signing.timestamp = signing_timestamp()
             signing.allow_unsigned_callback = lambda _mav, msg_id: msg_id in UNSIGNED_ALLOWED
 
     @property

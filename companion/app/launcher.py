@@ -187,9 +187,10 @@ def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | 
 
 
 def _start_camera(
-    children: Children, opts: RunOptions, links: list[str], seed: int, n: int
+    children: Children, opts: RunOptions, links: list[str], seed: int, n: int, setup_signing: bool = False
 ) -> subprocess.Popen:
-    """The stand-alone camera on `links`; returns once it has every vehicle's position stream."""
+    """The stand-alone camera on `links`; returns once it has every vehicle's position stream.
+    `setup_signing`: it gives each vehicle its MAVLink signing secret first (SITL's SERIAL0)."""
     out = opts.out
     camera = children.start(
         "camera",
@@ -206,6 +207,7 @@ def _start_camera(
             str(seed),
             "--truth",
             str(out / "truth.json"),
+            *(["--setup-signing"] if setup_signing else []),
         ],
         out / "camera.log",
     )
@@ -225,7 +227,8 @@ def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: in
         argv = sitl.sitl_argv(binary, defaults, mission, i, opts.speedup)
         children.start(f"sitl{i}", argv, opts.out / f"sitl{i}.log", cwd=home)
     ports = [sitl.sitl_ports(mission, i) for i in range(mission.n_uavs)]
-    _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs)
+    signing = mavlink_secrets(mission) is not None
+    _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs, signing)
     return [p.url(p.serial1) for p in ports]
 
 

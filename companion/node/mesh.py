@@ -32,7 +32,14 @@ from companion.core.wire import MsgpackCodec
 from companion.mission import Mission, MissionError, load_mission
 from companion.node.keys import KeyDirectoryError, SwarmKeys, for_mission, warn_if_insecure
 from companion.node.signing import Authenticator, Forged, Unauthenticated, decode_envelope
-from companion.node.zenoh_config import MeshConfig, MeshSecurity, key_base, open_session, router_config
+from companion.node.zenoh_config import (
+    MeshConfig,
+    MeshSecurity,
+    key_base,
+    open_session,
+    router_config,
+    secured_endpoint,
+)
 
 MAX_BUNDLE_MESSAGES = 32
 HELD_STAMPS = 8  # bundles kept per sender (bounds memory whatever peers send)
@@ -374,7 +381,8 @@ def run_router(
             previous[sig] = signal.signal(sig, on_signal)
     try:
         with zenoh.open(router_config(endpoint, security)):
-            print(f"router listening on {endpoint}{' (TLS, access control)' if security else ''}", flush=True)
+            shown = f"{secured_endpoint(endpoint)} (mutual TLS, access control)" if security else endpoint
+            print(f"router listening on {shown}", flush=True)
             stop.wait()
     finally:
         for sig, handler in previous.items():

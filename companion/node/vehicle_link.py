@@ -49,6 +49,11 @@ UNSIGNED_ALLOWED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLI
 REPLIES = frozenset({"COMMAND_ACK", "PARAM_VALUE", "MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK"})
 
 
+def signing_timestamp(now: float | None = None) -> int:
+    """A MAVLink signing timestamp: 10 us units since 2015-01-01 UTC."""
+    return int(((time.time() if now is None else now) - 1420070400) * 1e5)
+
+
 class LinkError(RuntimeError):
     """The vehicle could not be reached."""
 
@@ -412,6 +417,13 @@ class VehicleLink:
 
     def arm(self) -> None:
         self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+    def provision_signing(self, secret: bytes) -> None:
+        """SETUP_SIGNING: give the autopilot its signing secret (ArduPilot stores it and from then on
+        refuses unsigned commands on every link but its first, the USB one). The secret travels in
+        clear: only over a link that cannot be overheard (USB, or SITL on loopback)."""
+        autopilot = mavlink.MAV_COMP_ID_AUTOPILOT1
+        self._conn.mav.setup_signing_send(self.state.system, autopilot, secret, signing_timestamp())
 
     def close(self) -> None:
         with contextlib.suppress(OSError, AttributeError):  # pymavlink's TCP link after a failed reconnect

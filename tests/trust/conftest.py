@@ -16,6 +16,7 @@ from companion.mission import Mission, load_mission
 from companion.node import keys
 from tests.e2e.conftest import MissionFile, make_mission, procs, write_mission  # noqa: F401 (fixtures)
 from tests.sim.conftest import start_sim  # noqa: F401 (fixture)
+from tests.sitl.conftest import sitl_binary  # noqa: F401 (fixture)
 
 
 @pytest.fixture
