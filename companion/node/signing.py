@@ -9,10 +9,12 @@ words in another's mouth. The signed texts name the mission's key space, so noth
 mission is accepted by another. Detections and bids are first-hand only: the bundle's signature
 covers them.
 
-Signatures a receiver has checked are kept (bounded) so that a state relayed by several neighbours
-is verified once, and so that this UAV can relay it with its originator's signature. A state whose
-signature it does not hold (none ever arrived, or it came back from a restart journal) is not
-relayed. See docs/reliability.md.
+Signatures are kept (bounded) so that a state relayed by several neighbours is checked once, and
+so that this UAV can relay a state with its originator's signature. What a sender says about
+itself is vouched for by its bundle's signature, so the signature of its own state is only checked
+when that state is about to be relayed (one Ed25519 check per received bundle in the common case).
+A state whose signature is not held (none ever arrived, or the state came back from a restart
+journal) or does not check is not relayed. See docs/reliability.md.
 """
 
 from __future__ import annotations
@@ -70,6 +72,8 @@ class Authenticator:
 
     `public[i]` is UAV i's key; `base` the mission's key space (bound into every signed text).
     A listener without a key of its own (the live view) passes `signing=None`: it only checks.
+    A sender's signature of its own state is kept unchecked (the bundle's signature already
+    vouches for what the sender says about itself) and checked only if the state is to be relayed.
     """
 
     def __init__(
@@ -79,15 +83,17 @@ class Authenticator:
         self._bundle_domain = b"uavsearch bundle\0" + base.encode() + b"\0"
         self._state_domain = b"uavsearch state\0" + base.encode() + b"\0"
         self._lock = threading.Lock()
-        self._sigs: list[dict[bytes, bytes]] = [{} for _ in self.public]  # per UAV: state bytes -> sig
+        # per UAV: state bytes -> (its signature, checked)
+        self._sigs: list[dict[bytes, tuple[bytes, bool]]] = [{} for _ in self.public]
 
     # -- sending -------------------------------------------------------------------------------
     def relayable(self, messages: list[Message]) -> list[Message]:
-        """`messages` without the relayed states whose originator's signature we do not hold."""
+        """`messages` without the relayed states whose originator's signature we do not hold, or
+        which does not check."""
         out: list[Message] = []
         for msg in messages:
             if isinstance(msg, ClaimsMsg):
-                known = tuple(s for s in msg.known if self._held(s, _state_bytes(s)) is not None)
+                known = tuple(s for s in msg.known if self._relay_sig(s, _state_bytes(s)) is not None)
                 if not known:
                     continue
                 if len(known) != len(msg.known):
@@ -98,24 +104,25 @@ class Authenticator:
     def seal(self, body: bytes, messages: Sequence[Message]) -> bytes:
         """The envelope of an encoded bundle: signed, with the originators' state signatures.
 
-        Call `relayable` first: every relayed state must have a signature held here.
+        Call `relayable` first: every relayed state must have a checked signature held here.
         """
         if self.signing is None:
             raise ValueError("a listener without a signing key cannot send")
         sigs: list[bytes] = []
         for state in carried_states(messages):
             data = _state_bytes(state)
-            sig = self._held(state, data)
-            if sig is None:  # our own state: sign it, and keep it like any other
-                sig = self.signing.sign(self._state_domain + data)
-                self._keep(state.uav, data, sig)
-            sigs.append(sig)
+            held = self._held(state.uav, data)
+            if held is None:  # our own state: sign it, and keep it like any other
+                held = (self.signing.sign(self._state_domain + data), True)
+                self._keep(state.uav, data, held)
+            sigs.append(held[0])
         return encode_envelope(Envelope(body, self.signing.sign(self._bundle_domain + body), tuple(sigs)))
 
     # -- receiving -----------------------------------------------------------------------------
     def check(self, envelope: Envelope, sender: int, messages: Sequence[Message]) -> None:
         """Raise Unauthenticated unless `sender` signed the envelope's body, Forged unless every
-        carried state is signed by its own UAV; keep the states' signatures for relaying."""
+        carried state about another UAV is signed by that UAV; keep the states' signatures for
+        relaying (the sender's own unchecked)."""
         try:
             self.public[sender].verify(envelope.sig, self._bundle_domain + envelope.body)
         except InvalidSignature:
@@ -125,21 +132,44 @@ class Authenticator:
             raise Forged(f"{len(states)} states, {len(envelope.state_sigs)} signatures")
         for state, sig in zip(states, envelope.state_sigs, strict=True):
             data = _state_bytes(state)
-            if self._held(state, data) == sig:
+            held = self._held(state.uav, data)
+            if held is not None and held[0] == sig and (held[1] or state.uav == sender):
                 continue
-            try:
-                self.public[state.uav].verify(sig, self._state_domain + data)
-            except InvalidSignature:
-                raise Forged(f"state of uav {state.uav} (stamp {state.stamp}) not signed by it") from None
-            self._keep(state.uav, data, sig)
+            if state.uav == sender:
+                self._keep(state.uav, data, (sig, False))
+                continue
+            if not self._verify(state.uav, data, sig):
+                raise Forged(f"state of uav {state.uav} (stamp {state.stamp}) not signed by it")
+            self._keep(state.uav, data, (sig, True))
 
-    def _held(self, state: UavState, data: bytes) -> bytes | None:
+    # -- held signatures ---------------------------------------------------------------------------
+    def _relay_sig(self, state: UavState, data: bytes) -> bytes | None:
+        """The checked signature of a state to relay (checking it now if need be), else None."""
+        held = self._held(state.uav, data)
+        if held is None:
+            return None
+        if not held[1]:
+            if not self._verify(state.uav, data, held[0]):
+                with self._lock:
+                    self._sigs[state.uav].pop(data, None)
+                return None
+            self._keep(state.uav, data, (held[0], True))
+        return held[0]
+
+    def _verify(self, uav: int, data: bytes, sig: bytes) -> bool:
+        try:
+            self.public[uav].verify(sig, self._state_domain + data)
+        except InvalidSignature:
+            return False
+        return True
+
+    def _held(self, uav: int, data: bytes) -> tuple[bytes, bool] | None:
         with self._lock:
-            return self._sigs[state.uav].get(data)
+            return self._sigs[uav].get(data)
 
-    def _keep(self, uav: int, data: bytes, sig: bytes) -> None:
+    def _keep(self, uav: int, data: bytes, entry: tuple[bytes, bool]) -> None:
         with self._lock:
             held = self._sigs[uav]
-            held[data] = sig
+            held[data] = entry
             if len(held) > KEPT_PER_UAV:
                 del held[next(iter(held))]

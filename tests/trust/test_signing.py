@@ -67,6 +67,19 @@ def test_a_relay_cannot_alter_or_invent_a_state(key_dir: Path) -> None:
     assert not any(isinstance(m, ClaimsMsg) for m in msgs)
 
 
+def test_a_state_its_own_uav_signed_wrongly_is_believed_first_hand_but_never_relayed(key_dir: Path) -> None:
+    a0, a1, a2 = _auths(key_dir)[:3]
+    wire, msgs = _send(a0, _outbox(0, 5))
+    env = decode_envelope(wire)
+    bad = msgspec.structs.replace(env, state_sigs=(bytes(64),))
+    a1.check(bad, 0, msgs)  # the bundle is UAV 0's: what it says about itself stands
+    _, relayed = _send(a1, _outbox(1, 6, relayed=(_state(0, 5),)))
+    assert not any(isinstance(m, ClaimsMsg) for m in relayed), "a bad signature is not passed on"
+    a2.check(env, 0, msgs)  # the good one is, once checked
+    _, relayed = _send(a2, _outbox(2, 6, relayed=(_state(0, 5),)))
+    assert any(isinstance(m, ClaimsMsg) for m in relayed)
+
+
 def test_bundles_signed_by_another_uav_another_mission_or_nobody_are_refused(key_dir: Path) -> None:
     a0, a1, a2 = _auths(key_dir)[:3]
     wire, msgs = _send(a1, _outbox(1, 3))
