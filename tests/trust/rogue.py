@@ -7,8 +7,8 @@ and puts a bundle naming UAV 1 every 0.1 s, until SIGINT/SIGTERM.
 
 `python rogue.py insider MISSION ME VICTIM N`: UAV ME's mesh credentials and signing key (a
 compromised member) but no MAVLink secret. Once every companion's liveliness token is seen, it
-puts N bundles of each kind below, sends N unsigned and N wrongly signed MAVLink commands to every
-vehicle, and exits:
+puts N bundles of each kind below; once the simulator's camera publishes (the vehicles are up), it
+sends N unsigned and N wrongly signed MAVLink commands to every vehicle; then it exits:
   on_victim_key  naming VICTIM, on VICTIM's key, signed by ME   (access control drops them)
   spoofed        naming VICTIM, on ME's own key, signed by ME    (receivers count `spoofed`)
   forged         naming ME, relaying a state of VICTIM that ME signed (`forged`)
@@ -109,6 +109,7 @@ def insider(mission: Mission, me: int, victim: int, n: int) -> int:
     assert auth is not None
     alive: set[int] = set()
     cond = threading.Condition()
+    camera = threading.Event()
 
     def on_token(sample: zenoh.Sample) -> None:
         with cond:
@@ -119,6 +120,7 @@ def insider(mission: Mission, me: int, victim: int, n: int) -> int:
     cfg = peer_config(("tcp/127.0.0.1:0",), (mission.mesh.seed_endpoint,), MeshSecurity.of(creds, mission))
     with zenoh.open(cfg) as s:
         tokens = s.liveliness().declare_subscriber(f"{base}/alive/*", on_token, history=True)
+        frames = s.declare_subscriber(f"{base}/uav/*/camera", lambda _s: camera.set())
         with cond:
             cond.wait_for(lambda: len(alive) == mission.n_uavs, ALIVE_S)
         time.sleep(1.0)  # declarations behind the tokens settle
@@ -134,9 +136,10 @@ def insider(mission: Mission, me: int, victim: int, n: int) -> int:
             for j in range(n):
                 s.put(f"{base}/uav/{key_of}/msg", make(j))
             sent[name] = n
-        mavlink = _mavlink_attacks(mission, n)
         peers = len(s.info.peers_zid())
-        time.sleep(1.0)  # let the puts leave before the session closes
+        camera.wait(ALIVE_S)
+        mavlink = _mavlink_attacks(mission, n)
+        frames.undeclare()
         tokens.undeclare()
     _report(role="insider", sent=sent, mavlink=mavlink, peers=peers, alive=sorted(alive))
     return 0
