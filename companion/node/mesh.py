@@ -30,7 +30,7 @@ import zenoh
 from companion.core.messages import PROTOCOL_VERSION, Message, MessageError, check
 from companion.core.wire import MsgpackCodec
 from companion.mission import Mission, MissionError, load_mission
-from companion.node.keys import KeyDirectoryError, SwarmKeys, for_mission, warn_if_insecure
+from companion.node.keys import KeyDirectoryError, SwarmKeys, for_mission, uav_identity, warn_if_insecure
 from companion.node.signing import Authenticator, Forged, Unauthenticated, decode_envelope
 from companion.node.zenoh_config import (
     MeshConfig,
@@ -165,8 +165,8 @@ class Mesh:
         self.comm_range, self.loss, self.rng = mission.comms.range, mission.comms.loss, rng
         self.max_bundle_bytes = mission.mesh.max_bundle_bytes
         base = key_base(mission)
-        if keys is not None and keys.signing is None:
-            raise ValueError(f"{keys.identity} has no signing key: only a UAV's keys can join the mesh")
+        if keys is not None and keys.identity != uav_identity(uav):
+            raise ValueError(f"UAV {uav} cannot join the mesh with the keys of {keys.identity}")
         self._auth = mission_authenticator(mission, keys)
         self._cond = threading.Condition()
         self._stats = MeshStats()
