@@ -232,6 +232,16 @@ class Faults(_Base, kw_only=True):
     network: Annotated[list[NetworkFault], msgspec.Meta(max_length=1_000)] = []
 
 
+class Security(_Base, kw_only=True):
+    """Authentication (docs/reliability.md): `keys` is the key directory written by `uavsearch keys`
+    (relative to the mission file); empty, the default, runs an insecure mesh and MAVLink link, and
+    every process says so. `mavlink_signing`: with keys, sign the companion-autopilot link with each
+    vehicle's secret (the bundled simulator then rejects unsigned commands)."""
+
+    keys: str = ""
+    mavlink_signing: bool = True
+
+
 class PassCriteria(_Base, kw_only=True):
     """What a scripted mission must achieve to pass."""
 
@@ -256,6 +266,7 @@ class Mission(_Base, kw_only=True):
     sim: Sim = Sim()
     mesh: Mesh = Mesh()
     faults: Faults = Faults()
+    security: Security = Security()
     pass_criteria: PassCriteria = PassCriteria()
 
     @property
@@ -280,6 +291,11 @@ class Mission(_Base, kw_only=True):
 
     def with_seed(self, seed: int) -> Mission:
         return msgspec.structs.replace(self, seed=seed)
+
+    @property
+    def secured(self) -> bool:
+        """True when the mission names a key directory (an authenticated mesh and MAVLink link)."""
+        return bool(self.security.keys)
 
 
 _PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
@@ -362,6 +378,10 @@ def _validate(m: Mission, source: str) -> None:
     ports = [m.vehicle_port(i) for i in range(m.n_uavs)]
     if len(set(ports)) != len(ports):
         fail("vehicles", f"two vehicles share a MAVLink port: {ports}")
+    if m.secured:
+        for name in ("router", "seed_endpoint", "listen"):
+            if not getattr(m.mesh, name).startswith(("tcp/", "tls/")):
+                fail(f"mesh.{name}", "a secured mesh (security.keys) runs over TLS: use tcp/ or tls/")
     if math.isclose(m.region.cell_size, 0):
         fail("region.cell_size", "must be positive")
     _validate_sizes(m, region, fail)
@@ -495,4 +515,9 @@ def load_mission(path: str | Path) -> Mission:
     except UnicodeDecodeError as exc:
         reason = f"not UTF-8 text: byte 0x{exc.object[exc.start]:02x} at offset {exc.start}"
         raise MissionError(str(p), "(file)", reason) from None
-    return parse_mission(text, str(p))
+    mission = parse_mission(text, str(p))
+    keys = mission.security.keys
+    if keys and not Path(keys).is_absolute():  # relative to the mission file, wherever it is read from
+        security = msgspec.structs.replace(mission.security, keys=str((p.parent / keys).absolute()))
+        mission = msgspec.structs.replace(mission, security=security)
+    return mission

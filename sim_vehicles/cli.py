@@ -76,10 +76,11 @@ def run(args: argparse.Namespace) -> int:
         clock = "lockstep" if options.lockstep else f"speedup {options.speedup:g}"
         print(f"sim_vehicles: mission {mission.name}, {mission.n_uavs} vehicles, {flavour}, {clock}, "
               f"seed {host.seed}", flush=True)
+        signing = "requires MAVLink2-signed input" if host.signed else "UNSIGNED: accepts any sender"
         if host.resumed:
             print(f"sim_vehicles: resumed from {options.state} at t = {host.t:.3f} s", flush=True)
         for index, ip, port in host.endpoints:
-            print(f"vehicle {index} sysid {index + 1} mavlink udp {ip}:{port}", flush=True)
+            print(f"vehicle {index} sysid {index + 1} mavlink udp {ip}:{port} ({signing})", flush=True)
         stats = host.run()
     finally:
         host.close()

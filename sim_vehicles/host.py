@@ -20,6 +20,7 @@ import numpy as np
 from companion.core.kinematics import Kinematics
 from companion.mission import Mission
 from companion.node.frames import LocalFrame
+from companion.node.keys import for_mission, mavlink_secrets
 from sim_vehicles import camera as cam
 from sim_vehicles.approach import ApproachRecorder
 from sim_vehicles.clock import LockstepClock, RealTimeClock
@@ -85,7 +86,7 @@ class HostedVehicle:
         self.stats = endpoint.stats
         self._pose_tick = -1
         self._pose: Pose | None = None
-        self._stats_reported = (0, 0)
+        self._stats_reported = (0, 0, 0)
         self._stats_said = -math.inf
 
     @property
@@ -242,10 +243,13 @@ class HostedVehicle:
         v.reached.clear()
 
     def report_bad_input(self, wall: float) -> None:
-        counts = (self.stats.bad_frames, self.stats.rejected)
+        s = self.stats
+        counts = (s.bad_frames, s.rejected, s.unsigned + s.bad_signature)
         if counts != self._stats_reported and wall - self._stats_said >= STATS_TEXT_INTERVAL:
+            unsigned = f", {counts[2]} unsigned or badly signed" if self.endpoint.signing else ""
             self.vehicle.say(
-                f"Bad input: {counts[0]} bad frames, {counts[1]} rejected values", M.MAV_SEVERITY_NOTICE
+                f"Bad input: {counts[0]} bad frames, {counts[1]} rejected values{unsigned}",
+                M.MAV_SEVERITY_NOTICE,
             )
             self._stats_reported, self._stats_said = counts, wall
             self.flush()
@@ -292,6 +296,7 @@ class Host:
         )
         try:
             bind = options.host or mission.sim.host
+            secrets = mavlink_secrets(mission)
             for i, v in enumerate(mission.vehicles):
                 vehicle = Vehicle(
                     i,
@@ -301,7 +306,8 @@ class Host:
                     mission.altitude_of(i),
                     k.step,
                 )
-                endpoint = MavlinkEndpoint(bind, mission.vehicle_port(i), i + 1)
+                secret = secrets[i] if secrets else None
+                endpoint = MavlinkEndpoint(bind, mission.vehicle_port(i), i + 1, secret)
                 hv = HostedVehicle(self, i, vehicle, endpoint)
                 self.hosted.append(hv)
                 self.selector.register(endpoint, selectors.EVENT_READ, hv)
@@ -320,7 +326,8 @@ class Host:
                 if connect is None:
                     mesh = mission.mesh
                     connect = (mesh.seed_endpoint if mesh.mode == "peer" else mesh.router,)
-                self.bus = cam.CameraBus(mission, list(options.zenoh_listen), list(connect))
+                keys = for_mission(mission, "camera")
+                self.bus = cam.CameraBus(mission, list(options.zenoh_listen), list(connect), keys)
         except BaseException:
             self.close()
             raise
@@ -340,6 +347,11 @@ class Host:
     def t(self) -> float:
         """Simulated time (s)."""
         return self.tick * self.tick_dt
+
+    @property
+    def signed(self) -> bool:
+        """True when every vehicle requires signed MAVLink (the mission's [security] keys)."""
+        return all(hv.endpoint.signing for hv in self.hosted)
 
     @property
     def endpoints(self) -> list[tuple[int, str, int]]:

@@ -422,6 +422,29 @@ def _run(args: argparse.Namespace) -> int:
         return 1
 
 
+def _keys(args: argparse.Namespace) -> int:
+    from companion.node.keys import generate
+
+    mission = load_mission(args.mission) if args.mission else None
+    n_uavs = mission.n_uavs if mission else args.uavs
+    out = args.out or (mission.security.keys if mission else None)
+    if not n_uavs or n_uavs < 1 or not out:
+        print(
+            "error: give --mission FILE (with [security] keys or --out DIR), or --uavs N --out DIR",
+            file=sys.stderr,
+        )
+        return 2
+    if args.days < 1:
+        print("error: --days must be at least 1", file=sys.stderr)
+        return 2
+    generate(Path(out), n_uavs, args.days)
+    print(
+        f"wrote keys for {n_uavs} UAVs in {out}: each aircraft needs swarm.json, ca.pem and its "
+        "uav-N/ folder; keep ca.key off the aircraft"
+    )
+    return 0
+
+
 def _view(args: argparse.Namespace) -> int:
     from companion.app.view.main import run_view
 
@@ -663,7 +686,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="journal file: every step is kept there, and a companion started again on it goes on "
         "where it stopped (docs/reliability.md)",
     )
+    co.add_argument(
+        "--mavlink-key",
+        default=None,
+        help="sign the MAVLink link with this secret file (64 hex digits; default: the vehicle's in the "
+        "mission's key directory when [security] mavlink_signing is on)",
+    )
     co.set_defaults(func=_companion)
+
+    ke = sub.add_parser("keys", help="generate a swarm's keys and certificates (docs/reliability.md)")
+    ke.add_argument("--mission", default=None, help="the mission: its UAV count, and its key directory")
+    ke.add_argument("--uavs", type=int, default=None, help="the UAV count (without --mission)")
+    ke.add_argument("--out", default=None, help="the key directory (default: the mission's security.keys)")
+    ke.add_argument("--days", type=int, default=365, help="how long the certificates are valid")
+    ke.set_defaults(func=_keys)
 
     ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")
     ru.add_argument("mission")

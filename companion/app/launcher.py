@@ -42,6 +42,7 @@ from companion.core.world import World, build_world
 from companion.mission import Mission, load_mission
 from companion.node.airframe import Airframe, refusal
 from companion.node.frames import LocalFrame
+from companion.node.keys import ROLES, for_mission, insecure_warning, mavlink_secrets, uav_identity
 from sim_vehicles import camera as cam
 
 START_TIMEOUT_S = 120.0
@@ -195,9 +196,10 @@ def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | 
 
 
 def _start_camera(
-    children: Children, opts: RunOptions, links: list[str], seed: int, n: int
+    children: Children, opts: RunOptions, links: list[str], seed: int, n: int, setup_signing: bool = False
 ) -> subprocess.Popen:
-    """The stand-alone camera on `links`; returns once it has every vehicle's position stream."""
+    """The stand-alone camera on `links`; returns once it has every vehicle's position stream.
+    `setup_signing`: it gives each vehicle its MAVLink signing secret first (SITL's SERIAL0)."""
     out = opts.out
     camera = children.start(
         "camera",
@@ -214,6 +216,7 @@ def _start_camera(
             str(seed),
             "--truth",
             str(out / "truth.json"),
+            *(["--setup-signing"] if setup_signing else []),
         ],
         out / "camera.log",
     )
@@ -233,7 +236,8 @@ def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: in
         argv = sitl.sitl_argv(binary, defaults, mission, i, opts.speedup)
         children.start(f"sitl{i}", argv, opts.out / f"sitl{i}.log", cwd=home)
     ports = [sitl.sitl_ports(mission, i) for i in range(mission.n_uavs)]
-    _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs)
+    signing = mavlink_secrets(mission) is not None
+    _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs, signing)
     return [p.url(p.serial1) for p in ports]
 
 
@@ -274,6 +278,20 @@ def _stopped_early(children: Children) -> str | None:
     return None
 
 
+def security_summary(mission: Mission) -> str:
+    """What authenticates this run, after checking that every identity's keys load; the insecure
+    warning when nothing does."""
+    if not mission.secured:
+        return insecure_warning(mission)
+    for identity in [uav_identity(i) for i in range(mission.n_uavs)] + list(ROLES):
+        for_mission(mission, identity)
+    link = "MAVLink2-signed" if mavlink_secrets(mission) else "UNSIGNED ([security] mavlink_signing = false)"
+    return (
+        f"secured: mesh over mutually authenticated TLS with access control, every bundle signed; "
+        f"vehicle links {link}; keys in {mission.security.keys}"
+    )
+
+
 def run_mission(opts: RunOptions) -> int:
     """Fly the mission end to end; returns the process exit code."""
     mission = load_mission(opts.mission_file)
@@ -281,6 +299,8 @@ def run_mission(opts: RunOptions) -> int:
     if problem:
         print(f"error: {problem}", file=sys.stderr)
         return 2
+    security = security_summary(mission)  # raises KeyDirectoryError (a ValueError) for bad keys
+    print(security, flush=True)
     seed = mission.seed if opts.seed is None else opts.seed
     steps = opts.steps or mission.steps
     out = opts.out
@@ -412,4 +432,6 @@ def run_mission(opts: RunOptions) -> int:
         print("pass criteria FAILED: " + "; ".join(failures), file=sys.stderr)
         return 1
     print(f"pass criteria met; wrote {out}")
+    if not mission.secured:
+        print("this run was INSECURE (no [security] keys): see the warning at its start", flush=True)
     return 0

@@ -15,7 +15,7 @@ import msgspec
 from companion.core.trajectory import Trajectory
 from companion.core.wire import MsgpackCodec
 
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 MAX_PLAN = 16
 
 

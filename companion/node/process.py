@@ -484,6 +484,8 @@ class Companion:
             "found_cells": sorted(int(c) for c in self.agent.found),
             "task": self.agent.task,
             "rejected_mavlink": self.link.rejected,
+            "mavlink_signed": self.link.signed,
+            "mavlink_unauthenticated": self.link.unauthenticated,
             "rejected_camera": self.camera.rejected,
             "mesh": asdict(self.mesh.stats),
             "plan_vs_flight": self.tracker.summary(),
