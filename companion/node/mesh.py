@@ -137,6 +137,15 @@ class MeshStats:
     stale: int = 0
     duplicates: int = 0
 
+    @property
+    def samples(self) -> int:
+        """Samples taken or rejected: every sample that reached the subscriber is in one counter
+        (stale also counts evictions of held bundles)."""
+        return (
+            self.received + self.malformed + self.spoofed + self.unauthenticated + self.forged
+            + self.stale + self.duplicates
+        )  # fmt: skip
+
 
 class Mesh:
     """UAV `uav`'s mesh adapter: a context manager holding one Zenoh session.

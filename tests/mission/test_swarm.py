@@ -71,7 +71,10 @@ def test_scripted_mission_scenario1_sped_up_passes_its_criteria(tmp_path: Path, 
     assert json.loads((out / "criteria.json").read_text()) == {"passed": True, "failures": []}
     # separation between sampling moments too, from the simulator's physics-rate record
     approach = read_approach(out / "approach.csv")
-    assert len(approach) >= 250 and min(approach.values()) > m.comms.safety + m.safety.buffer
+    with (out / "trajectories.csv").open() as f:
+        logged = {int(row["step"]) for row in csv.DictReader(f)}
+    assert set(range(min(logged), max(logged))) <= set(approach), "the record covers every step flown"
+    assert min(approach.values()) > m.comms.safety + m.safety.buffer
     assert "closest approach along the flown tracks" in proc.stdout
     for png in ("prior_cvt.png", "trajectories.png", "uncertainty.png", "targets_found.png", "links.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"

@@ -123,7 +123,10 @@ def insider(mission: Mission, me: int, victim: int, n: int) -> int:
         frames = s.declare_subscriber(f"{base}/uav/*/camera", lambda _s: camera.set())
         with cond:
             cond.wait_for(lambda: len(alive) == mission.n_uavs, ALIVE_S)
-        time.sleep(1.0)  # declarations behind the tokens settle
+        deadline = time.monotonic() + ALIVE_S  # gossip links us to every companion, not only the seed
+        while len(s.info.peers_zid()) < mission.n_uavs and time.monotonic() < deadline:
+            time.sleep(0.2)
+        time.sleep(1.0)  # declarations behind the links settle
         victim_state = _messages(victim, STAMP)[0].state  # type: ignore[union-attr]
         attacks = {
             "on_victim_key": (victim, lambda j: _sealed(auth, _bundle(victim, STAMP + j))),
