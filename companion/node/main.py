@@ -15,7 +15,7 @@ from companion.node.camera_feed import CameraFeed
 from companion.node.frames import LocalFrame
 from companion.node.mesh import Mesh
 from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
-from companion.node.vehicle_link import LinkError, VehicleLink
+from companion.node.vehicle_link import COMPANION_SYSTEM, LinkError, VehicleLink
 
 
 def run_companion(args: argparse.Namespace) -> int:
@@ -33,6 +33,7 @@ def run_companion(args: argparse.Namespace) -> int:
         command_mode=args.command_mode,
         takeover=args.takeover,
         fence=args.fence,
+        failsafe=args.failsafe,
         lockstep=args.lockstep,
         seed=args.seed,
         steps=args.steps,
@@ -46,7 +47,8 @@ def run_companion(args: argparse.Namespace) -> int:
     n_tasks = world.tessellation.n_tasks if world.tessellation else 0
     frame = LocalFrame(mission.region.origin)
     loss_rng = instance_rng(seed, 1000 + args.uav, Stream.RADIO)
-    link = VehicleLink(opts.vehicle_url, frame, out / f"uav{args.uav}.tlog" if out else None)
+    tlog = out / f"uav{args.uav}.tlog" if out else None
+    link = VehicleLink(opts.vehicle_url, frame, tlog, system=COMPANION_SYSTEM, heartbeat=True)
     try:
         with Mesh(mission, args.uav, world.grid.n_cells, n_tasks, loss_rng) as mesh:
             camera = CameraFeed(
