@@ -8,7 +8,8 @@ The ground truth leaves only through `--truth FILE`.
 
 With `--approach FILE` it also keeps the simulator's separation record (`sim_vehicles.approach`)
 for these vehicles: every position sample (GLOBAL_POSITION_INT, POSITION_HZ per vehicle) updates
-every pair's closest approach with each vehicle's latest position, at the newest vehicle time seen.
+every pair's closest approach with each vehicle's latest position (once it has a 3D GPS fix), at
+the newest vehicle time seen.
 
 `uavsearch camera --mission FILE --vehicles URL,URL,... [--seed S] [--truth FILE] [--approach FILE]`
 """
@@ -125,7 +126,7 @@ class CameraNode:
                 if time.monotonic() - beat >= 1.0:
                     link.send_heartbeat()
                     beat = time.monotonic()
-                if self.positions is not None and s.has_pose and s.time_s != sampled:
+                if self.positions is not None and s.has_pose and s.gps_fix >= 3 and s.time_s != sampled:
                     self.positions.sample(uav, s.time_s, s.x, s.y)
                     sampled = s.time_s
                 if not s.has_pose or s.time_s < next_t:
