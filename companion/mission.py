@@ -125,13 +125,16 @@ class Safety(_Base, kw_only=True):
     `margin`: the operating margin (m): the fence is the region with every edge pushed out by it;
     UAVs search inside the region and may turn outside it, never beyond the fence.
     `buffer`: metres added to R_s (and taken from R_c) in every check, for tracking error.
+    `failsafe_timeout`: seconds without the companion's HEARTBEAT before the autopilot's failsafe
+    makes the aircraft loiter where it is (the companion sets ArduPlane's FS_LONG_TIMEOUT to it;
+    `companion.node.failsafe`).
     `failsafe_reach`: how far (m) from its last report a UAV whose companion fell silent may fly
-    before its autopilot's failsafe holds it (default: from the simulator's guidance timeout and
-    loiter radius, see `companion.core.world.failsafe_reach`).
+    (default: from that failsafe, see `companion.core.world.failsafe_reach`).
     """
 
     margin: NonNegative = 100.0
     buffer: NonNegative = 5.0
+    failsafe_timeout: Annotated[float, msgspec.Meta(ge=1, le=300)] = 5.0
     failsafe_reach: NonNegative | None = None
 
 

@@ -6,7 +6,12 @@ key with the detections of the mission's ground truth, built by the bundled simu
 (`camera.Camera.frame`): a flight on external vehicles is searched and scored like a bundled one.
 The ground truth leaves only through `--truth FILE`.
 
-`uavsearch camera --mission FILE --vehicles URL,URL,... [--seed S] [--truth FILE]`
+With `--approach FILE` it also keeps the simulator's separation record (`sim_vehicles.approach`)
+for these vehicles: every position sample (GLOBAL_POSITION_INT, POSITION_HZ per vehicle) updates
+every pair's closest approach with each vehicle's latest position (once it has a 3D GPS fix), at
+the newest vehicle time seen.
+
+`uavsearch camera --mission FILE --vehicles URL,URL,... [--seed S] [--truth FILE] [--approach FILE]`
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mission import Mission, load_mission
@@ -26,11 +32,33 @@ from companion.node.frames import LocalFrame
 from companion.node.keys import for_mission, mavlink_secrets
 from companion.node.vehicle_link import LinkError, VehicleLink
 from sim_vehicles import camera as cam
+from sim_vehicles.approach import ApproachRecorder
 
 log = logging.getLogger("camera")
 
 CONNECT_TIMEOUT_S = 120.0
 POSITION_HZ = 10.0
+
+
+class LatestPositions:
+    """Every vehicle's latest horizontal position, fed by the per-vehicle threads; each sample
+    updates the closest-approach record with all of them, once every vehicle has a position.
+
+    The vehicles' clocks (separate autopilots) need not agree: the record's steps follow the newest
+    vehicle time seen, and a pair's distance is that of the two latest samples, which are at most
+    1 / POSITION_HZ apart (plus the links' latencies)."""
+
+    def __init__(self, recorder: ApproachRecorder, n: int) -> None:
+        self.recorder = recorder
+        self.x, self.y = np.full(n, np.nan), np.full(n, np.nan)
+        self.t = -np.inf
+        self._lock = threading.Lock()
+
+    def sample(self, uav: int, t: float, x: float, y: float) -> None:
+        with self._lock:
+            self.x[uav], self.y[uav], self.t = x, y, max(self.t, t)
+            if np.isfinite(self.x).all():
+                self.recorder.update(self.t, self.x, self.y)
 
 
 def _connect(url: str, frame: LocalFrame, stop: threading.Event) -> VehicleLink | None:
@@ -56,12 +84,15 @@ class CameraNode:
         seed: int,
         bus: cam.CameraBus,
         signing_secrets: list[bytes] | None = None,
+        positions: LatestPositions | None = None,
     ) -> None:
         """`signing_secrets`: give each vehicle its MAVLink signing secret once connected
-        (`--setup-signing`: SITL on loopback, whose SERIAL0 is its USB port)."""
+        (`--setup-signing`: SITL on loopback, whose SERIAL0 is its USB port); `positions`: where
+        the position streams go for the separation record."""
         if len(urls) != mission.n_uavs:
             raise ValueError(f"--vehicles: {len(urls)} links for the mission's {mission.n_uavs} vehicles")
-        self.mission, self.urls, self.bus, self.signing_secrets = mission, urls, bus, signing_secrets
+        self.mission, self.urls, self.bus = mission, urls, bus
+        self.signing_secrets, self.positions = signing_secrets, positions
         self.frame = LocalFrame(mission.region.origin)
         self.grid, self.targets = cam.draw_truth(mission, seed)
         rng = cam.instance_rng(seed, 0, cam.Stream.CAMERA)
@@ -97,13 +128,16 @@ class CameraNode:
         print(f"camera: vehicle {uav} up at {url}{signed}", flush=True)
         period = 1.0 / self.mission.sim.camera_hz
         s, alt0 = link.state, self.mission.region.origin.alt
-        next_t, beat = -1.0, 0.0
+        next_t, beat, sampled = -1.0, 0.0, -1.0
         try:
             while not stop.is_set():
                 link.poll(0.1)
                 if time.monotonic() - beat >= 1.0:
                     link.send_heartbeat()
                     beat = time.monotonic()
+                if self.positions is not None and s.has_pose and s.gps_fix >= 3 and s.time_s != sampled:
+                    self.positions.sample(uav, s.time_s, s.x, s.y)
+                    sampled = s.time_s
                 if not s.has_pose or s.time_s < next_t:
                     continue
                 lat, lon, _ = self.frame.to_geodetic(s.x, s.y)
@@ -121,6 +155,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicles", required=True, help="pymavlink URLs of the vehicles, comma-separated")
     parser.add_argument("--seed", type=int, default=None, help="target seed (default: the mission's)")
     parser.add_argument("--truth", type=Path, default=None, help="write the ground truth (JSON) here")
+    parser.add_argument(
+        "--approach",
+        type=Path,
+        default=None,
+        help="write every pair's closest approach per step, from the position streams (CSV)",
+    )
     parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT")
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT")
     parser.add_argument(
@@ -147,9 +187,15 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # KeyDirectoryError too
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    recorder = None
     try:
         signing = mavlink_secrets(mission) if args.setup_signing else None
-        node = CameraNode(mission, urls, seed, bus, signing)
+        positions = None
+        if args.approach is not None:
+            k = mission.kinematics
+            recorder = ApproachRecorder(args.approach, mission.n_uavs, k.step, 3 * mission.comms.safety)
+            positions = LatestPositions(recorder, mission.n_uavs)
+        node = CameraNode(mission, urls, seed, bus, signing, positions)
         if args.truth is not None:
             cam.write_truth(args.truth, cam.truth_record(mission, seed, node.grid, node.targets, node.frame))
         print(f"camera: mission {mission.name}, {len(urls)} vehicles, seed {seed}", flush=True)
@@ -159,6 +205,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     finally:
         bus.close()
+        if recorder is not None:
+            recorder.close()
         for s, handler in previous.items():
             signal.signal(s, handler)
     for error in node.errors:

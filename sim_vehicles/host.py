@@ -192,6 +192,8 @@ class HostedVehicle:
                     ),
                     addr,
                 )
+        elif kind == "HEARTBEAT":
+            self.vehicle.heartbeat(self.t, msg.get_srcSystem())
         elif kind == "TIMESYNC":
             if msg.tc1 == 0:
                 self.reply(M.MAVLink_timesync_message(round(self.t * 1e9), msg.ts1), addr)

@@ -13,7 +13,13 @@ direct turn-rate command; the flight model limits and integrates it (see `dynami
   seconds after the last one, then the vehicle goes back to circling its guided point (as
   ArduPlane does after a SET_ATTITUDE_TARGET expires);
 - the fence: outside an uploaded inclusion polygon, with FENCE_ENABLE and FENCE_TYPE's polygon bit
-  set, the vehicle reports the breach and, with FENCE_ACTION 1, flies RTL.
+  set, the vehicle reports the breach and, with FENCE_ACTION 1, flies RTL;
+- ArduPlane's GCS failsafe: with FS_GCS_ENABL 1 or 2 (3: in AUTO only), when no HEARTBEAT from
+  system MAV_GCS_SYSID has come for FS_LONG_TIMEOUT seconds (the vehicle counts its boot as heard),
+  the long failsafe switches mode by FS_LONG_ACTN: in GUIDED and AUTO 1 RTL, 2 FBWA, 4 AUTO, 0 and 3
+  nothing; in RTL 4 AUTO; in the other modes 2 FBWA, 4 AUTO, 3 nothing, else RTL. It clears when
+  HEARTBEATs are back within FS_SHORT_TIMEOUT (FS_LONG_TIMEOUT if FS_SHORT_ACTN is 3), leaving the
+  mode as it is.
 """
 
 from __future__ import annotations
@@ -34,6 +40,16 @@ SETPOINT_MAX_GAP = 0.5  # s: ...and the last one this recent
 FENCE_POLYGON_BIT = 4
 FENCE_ACTION_RTL = 1
 NO_BANK_LIMIT = math.pi / 2  # the airframe's roll limit applies
+GCS_HEARTBEAT, GCS_HEARTBEAT_RSSI, GCS_HEARTBEAT_AUTO = 1, 2, 3  # FS_GCS_ENABL
+LONG_RTL, LONG_GLIDE, LONG_PARACHUTE, LONG_AUTO = 1, 2, 3, 4  # FS_LONG_ACTN
+SHORT_DISABLED = 3  # FS_SHORT_ACTN
+ITEM_NAMES = {  # ArduPilot's short names of mission commands ("Mission: 1 LoitUnlim")
+    mavlink.MAV_CMD_NAV_WAYPOINT: "WP",
+    mavlink.MAV_CMD_NAV_LOITER_UNLIM: "LoitUnlim",
+    mavlink.MAV_CMD_NAV_LOITER_TURNS: "LoitTurns",
+    mavlink.MAV_CMD_NAV_LOITER_TIME: "LoitTime",
+    mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: "RTL",
+}
 
 
 @dataclass(frozen=True)
@@ -86,13 +102,16 @@ class Turn:
 
 @dataclass(frozen=True)
 class Waypoint:
-    """A flyable mission item in the local frame; `up` None keeps the altitude."""
+    """A flyable mission item in the local frame; `up` None keeps the altitude; `here`: wherever the
+    vehicle is when the item starts (x, y unused); `radius` a loiter's (0: WP_LOITER_RAD)."""
 
     seq: int
     command: int
     x: float
     y: float
     up: float | None
+    here: bool = False
+    radius: float = 0.0
 
 
 class Vehicle:
@@ -120,6 +139,8 @@ class Vehicle:
         self.setpoints: deque[float] = deque(maxlen=3)
         self.offboard_nav: Nav = None
         self.texts: list[tuple[int, str]] = []  # STATUSTEXTs to send (severity, text)
+        self.gcs_heard = 0.0  # simulated time of the latest HEARTBEAT from MAV_GCS_SYSID (boot counts)
+        self.gcs_failsafe = False
         self.reached: list[int] = []  # mission seqs reached, for MISSION_ITEM_REACHED
 
     # ---- queries ------------------------------------------------------------------------
@@ -151,6 +172,11 @@ class Vehicle:
 
     def say(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
         self.texts.append((severity, text))
+
+    def heartbeat(self, t: float, sysid: int) -> None:
+        """A HEARTBEAT from system `sysid` arrived at simulated time `t`."""
+        if sysid == int(self.params.value("gcs_sysid", 0.0)):
+            self.gcs_heard = t
 
     # ---- commands -----------------------------------------------------------------------
     def arm(self, armed: bool) -> int:
@@ -306,11 +332,8 @@ class Vehicle:
             wp = self.mission[self.mission_index]
             self.reached.append(wp.seq)
             self.say(f"Reached waypoint #{wp.seq}")
-            if wp.command == mavlink.MAV_CMD_NAV_LOITER_UNLIM:
-                self.nav = Loiter(wp.x, wp.y, self.loiter_radius)
-            else:
-                self.mission_index += 1
-                self._next_waypoint()
+            self.mission_index += 1
+            self._next_waypoint()
 
     def _fence_check(self, x: float, y: float) -> None:
         if not self.fence_enabled:
@@ -325,6 +348,7 @@ class Vehicle:
         self.fence_breached = outside
 
     def _failsafes(self, t: float, x: float, y: float) -> None:
+        self._gcs_failsafe(t, x, y)
         if self.mode.behaviour is Behaviour.GUIDED and isinstance(self.nav, RateHold):
             if t > self.nav.expires:
                 self.nav = self.guided_point
@@ -333,6 +357,36 @@ class Vehicle:
         ):
             self._enter(self.flavour.by_name(self.flavour.hold), x, y)
             self.say("Offboard setpoints lost: HOLD", mavlink.MAV_SEVERITY_WARNING)
+
+    def _gcs_failsafe(self, t: float, x: float, y: float) -> None:
+        p = self.params
+        silent = t - self.gcs_heard
+        if self.gcs_failsafe:
+            short = p.value("short_action", 0.0) != SHORT_DISABLED
+            if silent < p.value("short_timeout" if short else "long_timeout", math.inf):
+                self.gcs_failsafe = False
+                self.say("GCS Failsafe Cleared", mavlink.MAV_SEVERITY_WARNING)
+            return
+        enabled = int(p.value("gcs_failsafe", 0.0))
+        watching = enabled in (GCS_HEARTBEAT, GCS_HEARTBEAT_RSSI) or (
+            enabled == GCS_HEARTBEAT_AUTO and self.mode.behaviour is Behaviour.AUTO
+        )
+        if watching and self.armed and silent > p.value("long_timeout"):
+            self.gcs_failsafe = True
+            target = self._long_failsafe_mode(int(p.value("long_action")))
+            if target is not None:
+                self.set_mode(self.flavour.by_name(target).custom_mode, t, x, y)
+            self.say(f"GCS Failsafe On: {self.mode.name}", mavlink.MAV_SEVERITY_WARNING)
+
+    def _long_failsafe_mode(self, action: int) -> str | None:
+        """The mode ArduPlane's long failsafe switches to from the current mode (None: stay)."""
+        if self.mode.behaviour in (Behaviour.GUIDED, Behaviour.AUTO):
+            return {LONG_RTL: "RTL", LONG_GLIDE: "FBWA", LONG_AUTO: "AUTO"}.get(action)
+        if self.mode.behaviour is Behaviour.RTL:
+            return "AUTO" if action == LONG_AUTO else None
+        if action == LONG_PARACHUTE:
+            return None
+        return {LONG_GLIDE: "FBWA", LONG_AUTO: "AUTO"}.get(action, "RTL")
 
     # ---- internals ----------------------------------------------------------------------
     def _stream_ok(self, t: float) -> bool:
@@ -363,10 +417,16 @@ class Vehicle:
         while self.mission_index < len(self.mission):
             wp = self.mission[self.mission_index]
             if wp.command == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+                self.say(f"Mission: {wp.seq} RTL")
                 self._enter(self.flavour.by_name(self.flavour.rtl), *self.last_xy)
                 return
-            if math.isfinite(wp.x):
-                self.nav = Leg(self.last_xy, wp.x, wp.y)
+            if wp.here or math.isfinite(wp.x):
+                x, y = self.last_xy if wp.here else (wp.x, wp.y)
+                self.say(f"Mission: {wp.seq} {ITEM_NAMES.get(wp.command, 'Cmd')}")
+                if wp.command == mavlink.MAV_CMD_NAV_LOITER_UNLIM:
+                    self.nav = Loiter(x, y, wp.radius or self.loiter_radius)
+                else:
+                    self.nav = Leg(self.last_xy, x, y)
                 if wp.up is not None:
                     self.alt_target = wp.up
                 return

@@ -676,6 +676,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="upload the region plus its margin as the autopilot's fence (default: with --takeover)",
     )
+    co.add_argument(
+        "--failsafe",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="make the autopilot loiter where it is when the companion falls silent (ArduPilot's GCS "
+        "failsafe; default: with --takeover)",
+    )
     co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
     co.add_argument("--steps", type=int, default=None)
     co.add_argument("--seed", type=int, default=None)

@@ -68,8 +68,9 @@ def truth_cells(path: Path) -> np.ndarray:
 
 
 def read_approach(path: Path) -> dict[int, float]:
-    """The simulator's physics-rate record (`sim_vehicles.approach`): each step's closest approach of
-    any pair of vehicles, horizontal metres. Empty when there is no record (external vehicles)."""
+    """The separation record (`sim_vehicles.approach`): each step's closest approach of any pair of
+    vehicles, horizontal metres, from the simulator at its physics rate or from the stand-alone
+    camera's position streams (SITL, external vehicles). Empty when there is no record."""
     if not path.exists():
         return {}
     lines = path.read_text(encoding="utf-8", errors="replace").split("\n")[:-1]  # a last line cut short: out
@@ -101,8 +102,8 @@ def evaluate(
     approach: dict[int, float] | None = None,
 ) -> RunResult:
     """A RunResult of the flown mission: eq. 30, targets found, coverage, lambda_2, min distance, and
-    the closest approach between sampling moments: the simulator's physics-rate record where there
-    is one (`read_approach`), else the logged poses' distance at the sampling moments.
+    the closest approach between sampling moments: the separation record where there is one
+    (`read_approach`), else the logged poses' distance at the sampling moments.
 
     Step 0 of the result is the first step every companion logged. A UAV whose log stops (a killed
     companion) keeps its last logged pose for the link metrics, and its last mean uncertainty; the

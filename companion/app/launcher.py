@@ -217,6 +217,8 @@ def _start_camera(
             "--truth",
             str(out / "truth.json"),
             *(["--setup-signing"] if setup_signing else []),
+            "--approach",
+            str(out / "approach.csv"),
         ],
         out / "camera.log",
     )
@@ -413,8 +415,9 @@ def run_mission(opts: RunOptions) -> int:
         f"min lambda_2 {s['min_lambda2']:.4f}, min distance {s['min_distance']:.1f} m"
     )
     if approach:
+        source = "stand-alone camera, position streams" if opts.external else "simulator, physics rate"
         print(
-            "closest approach along the flown tracks (simulator, physics rate): "
+            f"closest approach along the flown tracks ({source}): "
             f"{result.approach.min():.1f} m (R_s = {mission.comms.safety:g} m); "
             f"{result.separation_losses} steps within R_s"
         )

@@ -81,14 +81,29 @@ class SafetyPlan:
     shapes: FloatArray  # `Limits.shapes` of the mission's paths (eq. 23)
 
 
+FAILSAFE_CHECK_S = 0.5  # ArduPlane checks its long failsafe at 3 Hz
+
+
+def failsafe_loiter_radius(mission: Mission) -> float:
+    """The radius (m) of the loiter a silent UAV's failsafe flies: 1.5 turn radii of the mission's
+    kinematics, at least 60 m (ArduPlane's default WP_LOITER_RAD)."""
+    k = mission.kinematics
+    return max(60.0, 1.5 * k.speed * k.step / math.radians(k.turn_limit_deg))
+
+
 def failsafe_reach(mission: Mission, limits: Limits) -> float:
-    """Default `safety.failsafe_reach`: a silent UAV's vehicle flies on for a step and the autopilot's
-    guidance timeout, then circles where it is (the simulator's loiter radius, 1.5 turn radii, at
-    least 60 m; its track reaches about a turn radius beyond the circle)."""
+    """Default `safety.failsafe_reach`: how far from its last report (its pose at the start of its
+    last step) the vehicle of a UAV whose companion fell silent can be (companion.node.failsafe).
+
+    The companion dies within a step of that report; the autopilot, which last heard its HEARTBEAT
+    before it died, flies on at most `safety.failsafe_timeout` (plus its check's slack) before its
+    failsafe; then it loiters around where it is: out to the loiter's radius (ArduPlane flies the
+    circle up to a quarter wider than asked), and it may overshoot the circle by a turn radius while
+    it turns onto it (ArduPlane SITL flew a 93 m circle for 76 m asked, at most 123 m from its centre)."""
     k = mission.kinematics
     turn_radius = k.speed * k.step / math.radians(k.turn_limit_deg)
-    flown = (1 + mission.sim.guided_timeout / k.step) * limits.reach.step
-    return flown + max(60.0, 1.5 * turn_radius) + turn_radius
+    flown = (1 + (mission.safety.failsafe_timeout + FAILSAFE_CHECK_S) / k.step) * limits.reach.step
+    return flown + 1.25 * failsafe_loiter_radius(mission) + turn_radius
 
 
 def build_safety(

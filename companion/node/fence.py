@@ -20,6 +20,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.core.geometry import ConvexPolygon, FloatArray
 from companion.mission import Mission
 from companion.node.frames import LocalFrame
+from companion.node.mission_upload import Item, upload
 from companion.node.vehicle_link import VehicleLink
 
 log = logging.getLogger("companion")
@@ -27,8 +28,7 @@ log = logging.getLogger("companion")
 DEFAULT_MARGIN_M = 100.0
 FENCE_TYPE_POLYGON = 4
 FENCE_ACTION_REPORT, FENCE_ACTION_RTL = 0, 1
-UPLOAD_TRIES = 3
-REPLY_TIMEOUT_S = 2.0
+VERTEX = mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION  # param1: the polygon's vertex count
 
 
 def fence_margin(mission: Mission) -> float:
@@ -76,8 +76,13 @@ def nearest_inside(region: ConvexPolygon, x: float, y: float, depth: float) -> t
 
 def upload_fence(link: VehicleLink, frame: LocalFrame, polygon: ConvexPolygon) -> str | None:
     """Upload `polygon` as the autopilot's inclusion fence and enable it; the reason on failure."""
-    vertices = [frame.to_geodetic(float(x), float(y))[:2] for x, y in polygon.vertices]
-    error = _send_items(link, vertices)
+    count = len(polygon.vertices)
+    corners = [frame.to_geodetic(float(x), float(y))[:2] for x, y in polygon.vertices]
+    items = [
+        Item(mavlink.MAV_FRAME_GLOBAL, VERTEX, (count, 0, 0, 0), round(lat * 1e7), round(lon * 1e7))
+        for lat, lon in corners
+    ]
+    error = upload(link, mavlink.MAV_MISSION_TYPE_FENCE, items, "fence")
     if error:
         return error
     params = link.read_params(["FENCE_TYPE", "FENCE_ACTION"])
@@ -92,27 +97,3 @@ def upload_fence(link: VehicleLink, frame: LocalFrame, polygon: ConvexPolygon) -
             f"the autopilot did not enable the fence (DO_FENCE_ENABLE result {result}, FENCE_ENABLE not set)"
         )
     return None
-
-
-def _send_items(link: VehicleLink, vertices: list[tuple[float, float]]) -> str | None:
-    """The mission protocol's upload, driven by the autopilot's MISSION_REQUEST(_INT)s."""
-    fence, count = mavlink.MAV_MISSION_TYPE_FENCE, len(vertices)
-
-    def reply(m: mavlink.MAVLink_message) -> bool:
-        return (
-            m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK")
-            and m.mission_type == fence
-        )
-
-    for _ in range(UPLOAD_TRIES):
-        link.mission_count(count, fence)
-        while (msg := link.await_reply(reply, REPLY_TIMEOUT_S)) is not None:
-            if msg.get_type() == "MISSION_ACK":
-                if msg.type == mavlink.MAV_MISSION_ACCEPTED:
-                    return None
-                return f"the autopilot refused the fence (MISSION_ACK {msg.type})"
-            if not 0 <= msg.seq < count:
-                return f"the autopilot asked for fence item {msg.seq} of {count}"
-            lat, lon = vertices[msg.seq]
-            link.fence_vertex(msg.seq, count, lat, lon)
-    return "no answer to the fence upload"

@@ -17,7 +17,7 @@ from companion.node.journal import JournalError
 from companion.node.keys import KeyDirectoryError, for_mission, mavlink_secret, uav_identity, warn_if_insecure
 from companion.node.mesh import Mesh
 from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
-from companion.node.vehicle_link import LinkError, VehicleLink
+from companion.node.vehicle_link import COMPANION_SYSTEM, LinkError, VehicleLink
 
 
 def run_companion(args: argparse.Namespace) -> int:
@@ -44,6 +44,7 @@ def run_companion(args: argparse.Namespace) -> int:
         command_mode=args.command_mode,
         takeover=args.takeover,
         fence=args.fence,
+        failsafe=args.failsafe,
         lockstep=args.lockstep,
         seed=args.seed,
         steps=args.steps,
@@ -59,7 +60,9 @@ def run_companion(args: argparse.Namespace) -> int:
     frame = LocalFrame(mission.region.origin)
     loss_rng = instance_rng(seed, 1000 + args.uav, Stream.RADIO)
     tlog = out / f"uav{args.uav}.tlog" if out else None
-    link = VehicleLink(opts.vehicle_url, frame, tlog, signing_secret=secret)
+    link = VehicleLink(
+        opts.vehicle_url, frame, tlog, signing_secret=secret, system=COMPANION_SYSTEM, heartbeat=True
+    )
     restarting = opts.journal is not None and opts.journal.exists() and opts.journal.stat().st_size > 0
     try:
         with Mesh(

@@ -7,9 +7,9 @@ mode) and publishes the outbox. The clock is the vehicle's: a sped-up simulator 
 
 On connecting it reads the autopilot's airframe parameters, warns when the mission cannot be flown
 and refuses command modes the autopilot does not fly (`airframe`); with `--takeover` it puts the
-vehicle in guided flight (`takeover`) and uploads the region plus its margin as the autopilot's
-fence (`fence`). Every step it measures how far the vehicle is from where the plan put it and
-guards the region (`tracking`).
+vehicle in guided flight (`takeover`), uploads the region plus its margin as the autopilot's fence
+(`fence`) and arms the autopilot's failsafe for its own silence (`failsafe`). Every step it
+measures how far the vehicle is from where the plan put it and guards the region (`tracking`).
 
 In lockstep the bundled simulator advances only when every companion has reported that its step
 is done (MAV_CMD_USER_1, see docs/simulator.md), and each step waits for the pose, the camera frame
@@ -44,6 +44,7 @@ from companion.mission import Mission
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.camera_feed import CameraFeed
 from companion.node.detections import camera_key
+from companion.node.failsafe import arm_failsafe
 from companion.node.faults import InjectedFaults
 from companion.node.fence import fence_margin, fence_polygon, upload_fence
 from companion.node.frames import LocalFrame
@@ -120,6 +121,7 @@ class CompanionOptions:
     command_mode: str = "turn-rate"
     takeover: bool = False
     fence: bool | None = None  # upload the region plus margin as the autopilot's fence (default: takeover)
+    failsafe: bool | None = None  # arm the autopilot's failsafe for our silence (default: takeover)
     lockstep: bool = False
     seed: int | None = None
     steps: int | None = None
@@ -170,6 +172,8 @@ class Companion:
         self.guard = RegionGuard(opts.uav, region, self.fence, depth=margin, step_length=k.speed * k.step)
         self.airframe_warnings: list[str] = []
         self.fence_uploaded = False
+        self.failsafe_armed = False
+        self._was_steerable = False
         self._seen_alive: set[int] = set()
         self._departed: set[int] = set()
         self._resync = False  # lockstep: the link was lost, the vehicle may have gone on without us
@@ -218,6 +222,22 @@ class Companion:
                 fence_margin(self.opts.mission),
                 len(self.fence.vertices),
             )
+
+    def _arm_failsafe(self) -> None:
+        if self.link.state.px4:
+            log.info("uav %d: failsafe: PX4's own offboard-loss failsafe applies", self.opts.uav)
+            return
+        m = self.opts.mission
+        error = arm_failsafe(self.link, m, self.opts.uav)
+        if error:
+            log.warning("uav %d: failsafe not set: %s", self.opts.uav, error)
+            return
+        self.failsafe_armed = True
+        log.info(
+            "uav %d: failsafe armed: %g s without our HEARTBEAT, the aircraft loiters where it is",
+            self.opts.uav,
+            m.safety.failsafe_timeout,
+        )
 
     # -- one step --------------------------------------------------------------------------------
     def _pose(self, ahead: float = 0.0) -> tuple[float, float, float]:
@@ -337,10 +357,24 @@ class Companion:
         self._plan_file.flush()
 
     # -- loops -----------------------------------------------------------------------------------
+    def _check_mode(self) -> None:
+        """Say when the vehicle leaves the mode the companion steers in (a failsafe, a pilot)."""
+        steerable = self._steerable()
+        if self._was_steerable and not steerable:
+            texts = self.link.state.texts
+            log.warning(
+                "uav %d: the vehicle left its guided mode (now custom mode %d%s): not steering",
+                self.opts.uav,
+                self.link.state.custom_mode,
+                f"; it said '{texts[-1]}'" if texts else "",
+            )
+        self._was_steerable = steerable
+
     def _check_link(self) -> bool:
         """Whether the vehicle link is up. A companion whose link is lost cannot steer: it leaves the
         mesh (its peers take its UAV as gone, flying its last commitments and then its failsafe)
         and joins again when the link is back (in lockstep, once it has caught up: `_catch_up`)."""
+        self._check_mode()
         alive = self.link.link_alive(time.monotonic(), LINK_TIMEOUT_S)
         if alive != self.steering:
             self.steering = alive
@@ -372,6 +406,8 @@ class Companion:
             take_over(self.link, self.guidance, self.opts.uav, stop)
         if (self.opts.takeover if self.opts.fence is None else self.opts.fence) and not stop.is_set():
             self._upload_fence()
+        if (self.opts.takeover if self.opts.failsafe is None else self.opts.failsafe) and not stop.is_set():
+            self._arm_failsafe()
         budget = self.opts.steps if self.opts.steps is not None else self.opts.mission.steps
         if self.opts.lockstep:
             self._run_lockstep(stop, budget)
@@ -386,16 +422,11 @@ class Companion:
 
     def _run_realtime(self, stop: threading.Event, budget: int) -> None:
         next_k: int | None = None
-        last_beat = 0.0
         self.mesh.join()
         if self.recovered is not None:
             self.steps_done = self.recovered.steps
         while not stop.is_set() and self.steps_done < budget:
-            self.link.poll(0.02)
-            now = time.monotonic()
-            if now - last_beat >= 1.0:
-                self.link.send_heartbeat()
-                last_beat = now
+            self.link.poll(0.02)  # and our HEARTBEAT when due
             if not self._check_link() or not self.link.state.has_pose:
                 continue
             self._measure()
@@ -457,7 +488,6 @@ class Companion:
             self._measure()
             self.step(k)
             self.link.command_long(LOCKSTEP_COMMAND, k + 1)
-            self.link.send_heartbeat()
             k += 1
 
     def _catch_up(self, k: int) -> int:
@@ -492,6 +522,7 @@ class Companion:
             "command_mode": self.opts.command_mode,
             "airframe_warnings": self.airframe_warnings,
             "fence_uploaded": self.fence_uploaded,
+            "failsafe_armed": self.failsafe_armed,
             "fence_exits": self.guard.exits,
             "guard": self.guard.state.value,
             "restarted_from_step": self._journaled,

@@ -3,9 +3,13 @@
 Any pymavlink connection string works (udp, udpin, udpout, tcp, serial). The link waits for the
 autopilot's HEARTBEAT, asks for the telemetry it needs at the rates it needs, keeps the latest
 vehicle state (pose in the mission's local frame, mode, armed flag, vehicle time) and records a
-.tlog of everything it receives and sends. It never changes the vehicle's mode or arms it unless
-asked to (`companion.node.takeover`). Replies to requests (COMMAND_ACK, PARAM_VALUE, the mission
-protocol's requests and acks) are kept for the code that waits for them (`await_reply`).
+.tlog of everything it receives and sends. It speaks as the vehicle's own system id, or as a system
+id of its own (the companion's `COMPANION_SYSTEM`, which the autopilot's GCS failsafe watches:
+`companion.node.failsafe`); with `heartbeat` it sends its HEARTBEAT from `poll` whenever one is
+due, in vehicle time and in wall time, so the autopilot hears it in every phase of the flight.
+It never changes the vehicle's mode or arms it unless asked to (`companion.node.takeover`).
+Replies to requests (COMMAND_ACK, PARAM_VALUE, the mission protocol's requests and acks) are kept
+for the code that waits for them (`await_reply`).
 
 With a signing secret (the vehicle's, from the mission's key directory or `--mavlink-key`) every
 frame sent is MAVLink2-signed and only frames signed with the same secret are accepted (besides the
@@ -33,6 +37,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.node.frames import LocalFrame, yaw_to_heading
 
 COMPANION_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
+# The companion's own system id: no ground station (255; MAVSDK 245) or on-board component (the
+# vehicle's id) uses it, so the autopilot's GCS failsafe, which knows its GCS by system id only,
+# hears the companion alone.
+COMPANION_SYSTEM = 200
+HEARTBEAT_VEHICLE_S = 0.5  # our HEARTBEAT at least this often in vehicle time (a sped-up simulator)...
+HEARTBEAT_WALL_S = 1.0  # ...and in wall time (a vehicle whose clock stands still, a lost link)
 ARDUPILOT_GUIDED = 15
 ARDUPILOT_TAKEOFF = 13
 PX4_OFFBOARD = 6 << 16
@@ -110,16 +120,23 @@ class VehicleLink:
         tlog: Path | None = None,
         component: int = COMPANION_COMPONENT,
         signing_secret: bytes | None = None,
+        system: int | None = None,
+        heartbeat: bool = False,
     ) -> None:
+        """`system`: the link's own system id (None: the vehicle's, once its HEARTBEAT is heard);
+        `heartbeat`: `poll` sends our HEARTBEAT whenever one is due."""
         self.url, self.frame = url, frame
         self.state = VehicleState()
         self.rejected = 0
         self.unauthenticated = 0
         self.replies: deque[mavlink.MAVLink_message] = deque(maxlen=256)
+        self._own_system = system
+        self._heartbeat = heartbeat
+        self._beat_wall, self._beat_vehicle = -math.inf, -math.inf
         self._tlog = TlogWriter(tlog) if tlog else None
         self._conn = mavutil.mavlink_connection(
             url,
-            source_system=255,
+            source_system=255 if system is None else system,
             source_component=component,
             autoreconnect=True,
             dialect="ardupilotmega",
@@ -148,7 +165,8 @@ class VehicleLink:
             self.send_heartbeat()
             self.poll(0.5)
             if self.state.system:
-                self._conn.mav.srcSystem = self.state.system
+                if self._own_system is None:
+                    self._conn.mav.srcSystem = self.state.system
                 return
         raise LinkError(f"no HEARTBEAT from {self.url} within {timeout:.0f} s")
 
@@ -161,6 +179,14 @@ class VehicleLink:
         self._conn.mav.heartbeat_send(
             mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
         )
+        self._beat_wall, self._beat_vehicle = time.monotonic(), self.state.time_s
+
+    def _beat_if_due(self) -> None:
+        wall_due = time.monotonic() - self._beat_wall >= HEARTBEAT_WALL_S
+        vehicle_due = self.state.time_s - self._beat_vehicle >= HEARTBEAT_VEHICLE_S
+        if wall_due or vehicle_due:
+            with contextlib.suppress(OSError):  # a TCP vehicle gone: the next poll says so
+                self.send_heartbeat()
 
     def link_alive(self, now: float, timeout: float) -> bool:
         return now - self.state.last_heartbeat <= timeout
@@ -169,6 +195,8 @@ class VehicleLink:
     def poll(self, timeout: float) -> int:
         """Read every pending message (waiting up to `timeout` for the first); returns how many."""
         count = 0
+        if self._heartbeat:
+            self._beat_if_due()
         try:
             msg = self._conn.recv_match(blocking=True, timeout=timeout)
             while msg is not None:
@@ -177,6 +205,8 @@ class VehicleLink:
                 msg = self._conn.recv_match(blocking=False)
         except (OSError, ValueError):  # a TCP vehicle gone: pymavlink's reconnect was refused
             time.sleep(timeout)
+        if self._heartbeat:
+            self._beat_if_due()
         return count
 
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
@@ -377,24 +407,31 @@ class VehicleLink:
             self.state.system, mavlink.MAV_COMP_ID_AUTOPILOT1, count, mission_type
         )
 
-    def fence_vertex(self, seq: int, count: int, lat: float, lon: float) -> None:
-        """MISSION_ITEM_INT of a fence upload: vertex `seq` of one inclusion polygon of `count` vertices."""
+    def mission_item(
+        self,
+        seq: int,
+        mission_type: int,
+        frame: int,
+        command: int,
+        params: tuple[float, float, float, float],
+        x: int,
+        y: int,
+        z: float,
+    ) -> None:
+        """MISSION_ITEM_INT `seq` of an upload of `mission_type` (autocontinue on)."""
         self._conn.mav.mission_item_int_send(
             self.state.system,
             mavlink.MAV_COMP_ID_AUTOPILOT1,
             seq,
-            mavlink.MAV_FRAME_GLOBAL,
-            mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+            frame,
+            command,
             0,
             1,
-            count,
-            0,
-            0,
-            0,
-            round(lat * 1e7),
-            round(lon * 1e7),
-            0,
-            mavlink.MAV_MISSION_TYPE_FENCE,
+            *params,
+            x,
+            y,
+            z,
+            mission_type,
         )
 
     def change_speed(self, speed: float) -> None:
@@ -424,6 +461,11 @@ class VehicleLink:
         clear: only over a link that cannot be overheard (USB, or SITL on loopback)."""
         autopilot = mavlink.MAV_COMP_ID_AUTOPILOT1
         self._conn.mav.setup_signing_send(self.state.system, autopilot, secret, signing_timestamp())
+
+    @property
+    def system_id(self) -> int:
+        """The system id this link speaks as."""
+        return int(self._conn.mav.srcSystem)
 
     def close(self) -> None:
         with contextlib.suppress(OSError, AttributeError):  # pymavlink's TCP link after a failed reconnect

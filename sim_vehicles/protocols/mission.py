@@ -35,6 +35,7 @@ FENCE_COMMANDS = (
     M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
     M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION,
 )
+RELATIVE_FRAMES = (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 GLOBAL_FRAMES = (
     M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
     M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
@@ -211,9 +212,15 @@ class MissionProtocol:
             if it.command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
                 waypoints.append(Waypoint(seq, it.command, math.nan, math.nan, None))
             elif it.command in POSITION_COMMANDS:
-                x, y = hv.frame.to_local(it.x * 1e-7, it.y * 1e-7)
+                # ArduPilot: latitude and longitude 0 mean where the vehicle is when the item starts,
+                # a relative altitude 0 its altitude then
+                here = hv.vehicle.flavour.home_is_item0 and it.x == 0 and it.y == 0
+                x, y = (math.nan, math.nan) if here else hv.frame.to_local(it.x * 1e-7, it.y * 1e-7)
                 _, up = hv.altitude(it.z, it.frame)
-                waypoints.append(Waypoint(seq, it.command, x, y, up))
+                if up == 0 and it.frame in RELATIVE_FRAMES and hv.vehicle.flavour.home_is_item0:
+                    up = None
+                radius = it.params[2] if it.command == M.MAV_CMD_NAV_LOITER_UNLIM else 0.0
+                waypoints.append(Waypoint(seq, it.command, x, y, up, here, radius))
         hv.vehicle.set_mission(waypoints)
 
     def _request(self, hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address, seq: int) -> None:

@@ -52,6 +52,13 @@ def param_specs(mission: Mission) -> tuple[ParamSpec, ...]:
         ParamSpec("fence_enable", "FENCE_ENABLE", None, 0.0, 0.0, 1.0),
         ParamSpec("fence_action", "FENCE_ACTION", None, 1.0, 0.0, 1.0),
         ParamSpec("fence_type", "FENCE_TYPE", None, 4.0, 0.0, 15.0),
+        # ArduPlane's GCS failsafe (sim_vehicles.vehicle), with ArduPlane's defaults
+        ParamSpec("gcs_failsafe", "FS_GCS_ENABL", None, 0.0, 0.0, 3.0),
+        ParamSpec("gcs_sysid", "MAV_GCS_SYSID", None, 255.0, 1.0, 255.0),
+        ParamSpec("short_action", "FS_SHORT_ACTN", None, 0.0, 0.0, 4.0),
+        ParamSpec("short_timeout", "FS_SHORT_TIMEOUT", None, 1.5, 1.0, 100.0),
+        ParamSpec("long_action", "FS_LONG_ACTN", None, 0.0, 0.0, 4.0),
+        ParamSpec("long_timeout", "FS_LONG_TIMEOUT", None, 5.0, 1.0, 300.0),
     )
 
 

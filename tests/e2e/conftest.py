@@ -44,6 +44,9 @@ GUIDED, LOITER = 15, 12  # ArduPlane custom modes
 # --speedup 10 the default 3 s is 0.3 s of wall time, less than a companion may be starved of
 # CPU on a loaded 2-core machine; 20 s (2 s wall) keeps the tests about steering, not about load.
 SLACK_GUIDED_TIMEOUT = "guided_timeout = 20.0"
+# The same for the autopilot's failsafe for a silent companion (FS_LONG_TIMEOUT, which the
+# companion sets with --takeover): 5 s by default, 0.5 s of wall time at --speedup 10.
+SLACK_FAILSAFE_TIMEOUT = "failsafe_timeout = 20.0"
 
 
 # -- ports and missions ---------------------------------------------------------------------------
@@ -71,7 +74,12 @@ class MissionFile:
 
 
 def write_mission(
-    directory: Path, *, n: int = 4, kinematics: str = "continuous", sim: str = SLACK_GUIDED_TIMEOUT
+    directory: Path,
+    *,
+    n: int = 4,
+    kinematics: str = "continuous",
+    sim: str = SLACK_GUIDED_TIMEOUT,
+    safety: str = SLACK_FAILSAFE_TIMEOUT,
 ) -> MissionFile:
     """scenario1 with its first n vehicles (same starts), on free ports and its own key space.
 
@@ -89,7 +97,7 @@ def write_mission(
     out = head
     for body, port in zip(vehicles[:n], ports, strict=True):
         out += "[[vehicles]]" + body.rstrip() + f"\nmavlink_port = {port}\n\n"
-    out += f'[sim]\nhost = "127.0.0.1"\n{sim}\n\n'
+    out += f'[sim]\nhost = "127.0.0.1"\n{sim}\n\n[safety]\n{safety}\n\n'
     out += f'[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{seed}"\n'
     out += f'router = "tcp/127.0.0.1:{router}"\n\n[pass_criteria]\nmin_targets_found = 0\n'
     path = directory / f"mission-{prefix}.toml"

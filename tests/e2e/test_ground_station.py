@@ -12,6 +12,7 @@ from pathlib import Path
 
 from pymavlink import mavutil
 
+from sim_vehicles.protocols.params import param_specs
 from tests.e2e.conftest import GUIDED, Procs, assert_follows, read_csv, wait_rows
 
 MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")  # installed with the test extras
@@ -43,7 +44,7 @@ def test_mavproxy_attached_while_the_companion_flies(make_mission, procs: Procs,
         ],
         cwd=gcs_dir,
     )
-    proxy.wait_for_text("Received 11 parameters")
+    proxy.wait_for_text(f"Received {len(param_specs(mission.mission))} parameters")
     proxy.wait_for_text("Mode GUIDED")
     attached = int(read_csv(csv_path)[-1]["step"])
     wait_rows(csv_path, WITH_GCS_STEPS, comp, cond=lambda r: r["step"] > attached)

@@ -2,31 +2,41 @@
 
 The other three carry on; they forget the dead UAV within a few steps (their `peers` count drops
 from 3 to 2), so its task is no longer held by anyone in their views and goes back to the auction;
-its vehicle, without guidance, goes back to circling its guided point (where the takeover put it
-in GUIDED, its start) once the turn-rate command expires, as ArduPlane does (seen on our own
-MAVLink connection); and the mission still ends with a report.
+and the mission still ends with a report. The dead companion's vehicle, without its HEARTBEATs, flies
+on for `safety.failsafe_timeout`, then the autopilot's GCS failsafe (which the companion armed with
+--takeover) switches it to AUTO and it circles where it is (seen on our own MAVLink connection):
+it stays within `safety.failsafe_reach` of the companion's last report, as the survivors' model of
+a silent UAV assumes. The simulator's physics-rate record (approach.csv) gives its closest approach
+to a survivor after the kill: when that is within R_s the test is an expected failure, for a known
+gap of the safety layer (a survivor already inside the dead UAV's failsafe disk keeps the
+trajectory in force it had, a loiter there; docs/algorithm.md, "What a UAV does not hear").
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import signal
 import time
 from pathlib import Path
 
+import pytest
+
+from companion.core.world import build_world, failsafe_loiter_radius
 from companion.node.frames import LocalFrame
-from tests.e2e.conftest import GUIDED, PY, STARTUP_S, Procs, companion_pid, read_csv, wait_rows
-from tests.sim.conftest import distance_m
+from tests.e2e.conftest import PY, STARTUP_S, Procs, companion_pid, read_csv, wait_rows
+from tests.sim.conftest import fit_circle
 
 STEPS = 80
 KILL_AFTER = 15  # steps logged by the victim before it is killed
 VICTIM = 2
+AUTO = 10
 
 
 def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_path: Path) -> None:
-    mission = make_mission(n=4, kinematics="grid")
+    mission = make_mission(n=4)
     m = mission.mission
     out = tmp_path / "out"
     run = procs.start(
@@ -54,41 +64,68 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
         time.sleep(0.2)
     gcs = ground(mission.ports[VICTIM], VICTIM + 1)
     wait_rows(out / f"uav{VICTIM}.csv", KILL_AFTER, run)
-    assert gcs.wait("HEARTBEAT", lambda h: h.custom_mode == 15), "the victim's vehicle is not in GUIDED"
+    assert "failsafe armed" in (out / f"companion{VICTIM}.log").read_text()
 
     os.kill(victim_pid, signal.SIGKILL)
-    kill_step = int(max(r["step"] for r in read_csv(out / f"uav{VICTIM}.csv")))
+    rows = read_csv(out / f"uav{VICTIM}.csv")
+    kill_step = int(rows[-1]["step"])
+    report = (rows[-1]["x"], rows[-1]["y"])  # its last report: its pose at the start of its last step
 
-    # its vehicle: no more guidance, so after the guidance timeout it flies back to its guided
-    # point (its start, where the takeover switched to GUIDED) and circles it, still in GUIDED
-    start = mission.mission.vehicles[VICTIM]
-    lat0, lon0, _ = LocalFrame(m.region.origin).to_geodetic(start.x, start.y)
-    g = gcs.wait("GLOBAL_POSITION_INT")
-    assert distance_m(g.lat * 1e-7, g.lon * 1e-7, lat0, lon0) > 200, "killed too close to its start"
-    back = gcs.wait(
-        "GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, lat0, lon0) < 150, timeout=90
-    )
-    assert back is not None, "the victim's vehicle did not go back to circle its guided point"
-    assert gcs.wait("HEARTBEAT", lambda h: h.get_srcComponent() == 1).custom_mode == GUIDED
+    # its vehicle: the failsafe fires, then it circles where it is, until the run ends
+    frame = LocalFrame(m.region.origin)
+    track: list[tuple[float, tuple[float, float]]] = []
+    failsafe_at: tuple[float, float] | None = None
+    modes = set()
+    while run.alive():
+        msg = gcs.wait(["GLOBAL_POSITION_INT", "STATUSTEXT", "HEARTBEAT"], timeout=2.0)
+        if msg is None:
+            continue
+        kind = msg.get_type()
+        if kind == "GLOBAL_POSITION_INT":
+            track.append((msg.time_boot_ms * 1e-3, frame.to_local(msg.lat * 1e-7, msg.lon * 1e-7)))
+        elif kind == "STATUSTEXT" and msg.text == "GCS Failsafe On: AUTO" and track:
+            failsafe_at = track[-1][1]
+        elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
+            modes.add(msg.custom_mode)
+    assert run.popen.returncode in (0, 1), run.text()  # 1: pass criteria not met in so short a mission
+    assert failsafe_at is not None and AUTO in modes, f"no failsafe seen (modes {modes})"
+    world = build_world(m)
+    reach = world.safety.failsafe_reach
+    farthest = max(math.dist(p, report) for _, p in track)
+    print(f"victim: farthest {farthest:.0f} m from its last report (failsafe_reach {reach:.0f} m)")
+    assert farthest <= reach, f"the victim went {farthest:.0f} m from its last report > {reach:.0f} m"
+    t_on = next(t for t, p in track if p == failsafe_at)
+    circling = [p for t, p in track if t > t_on + 30.0]
+    assert len(circling) > 100, "the run ended too soon after the failsafe"
+    cx, cy, r = fit_circle(circling)
+    radius = failsafe_loiter_radius(m)
+    assert math.dist((cx, cy), failsafe_at) < 25.0 and abs(r - radius) < 0.15 * radius, (cx, cy, r)
 
-    rc = run.wait(timeout=STARTUP_S + 120)
-    assert rc in (0, 1), run.text()  # 1: pass criteria not met in so short a mission
+    # ground truth of separation after the kill, while the survivors flew the mission (their
+    # companions stop at the step budget): the victim's closest approach to a survivor
+    survivors = [i for i in range(m.n_uavs) if i != VICTIM]
+    logs = {i: {int(r["step"]): r for r in read_csv(out / f"uav{i}.csv")} for i in survivors}
+    flown_to = min(max(rows_i) for rows_i in logs.values())
+    with (out / "approach.csv").open() as f:
+        record = [r for r in csv.DictReader(f) if kill_step < int(r["step"]) <= flown_to]
+    assert len({r["step"] for r in record}) >= flown_to - kill_step - 1, "steps missing in approach.csv"
+    near = [r for r in record if VICTIM in (int(r["i"]), int(r["j"]))]  # pairs within 3 R_s (and closest)
+    closest = min((float(r["distance_m"]) for r in near), default=math.inf)
+    print(f"victim: closest approach to a survivor after the kill {closest:.1f} m (R_s {m.comms.safety:g} m)")
 
     # the others carried on well past the kill
-    survivors = [i for i in range(m.n_uavs) if i != VICTIM]
     timeout = m.comms.peer_timeout_steps
-    for i in survivors:
-        rows = {int(r["step"]): r for r in read_csv(out / f"uav{i}.csv")}
-        assert max(rows) >= kill_step + 40, f"uav{i} stopped at step {max(rows)} (kill at {kill_step})"
-        assert len(rows) >= STEPS - 2
+    for i, rows_i in logs.items():
+        assert max(rows_i) >= kill_step + 40, f"uav{i} stopped at step {max(rows_i)} (kill at {kill_step})"
+        assert len(rows_i) >= STEPS - 2
         # before the kill it knew all three others (directly or through relayed claims) ...
-        before = [rows[k]["peers"] for k in range(kill_step - 4, kill_step + 1) if k in rows]
+        before = [rows_i[k]["peers"] for k in range(kill_step - 4, kill_step + 1) if k in rows_i]
         assert before and max(before) == 3, f"uav{i} peers before the kill: {before}"
         # ... and within a few steps of it, only the two survivors: the dead UAV and its task are gone
         forgotten = kill_step + timeout + 4
-        after = [(k, r["peers"]) for k, r in rows.items() if k >= forgotten]
+        after = [(k, r["peers"]) for k, r in rows_i.items() if k >= forgotten]
         assert after and all(p <= 2 for _, p in after), f"uav{i} still counts the dead UAV: {after[:10]}"
-        assert all(r["steered"] for k, r in rows.items() if k > kill_step), f"uav{i} stopped steering"
+        assert all(r["steered"] for k, r in rows_i.items() if k > kill_step), f"uav{i} stopped steering"
 
     # the mission ended with a report of the whole run
     summary = json.loads((out / "summary.json").read_text())
@@ -100,3 +137,5 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
     for i in survivors:
         assert json.loads((out / f"uav{i}.json").read_text())["steps"] >= STEPS - 2
     assert not (out / f"uav{VICTIM}.json").exists()  # killed: no clean-shutdown report of its own
+    if closest <= m.comms.safety:  # the known gap (module docstring)
+        pytest.xfail(f"the dead UAV's aircraft came {closest:.1f} m from a survivor (R_s {m.comms.safety:g})")

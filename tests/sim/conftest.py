@@ -206,3 +206,13 @@ def distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
 def offset(lat: float, lon: float, north: float, east: float) -> tuple[float, float]:
     return (lat + math.degrees(north / 6_371_000.0),
             lon + math.degrees(east / (6_371_000.0 * math.cos(math.radians(lat)))))
+
+
+def fit_circle(points: list[tuple[float, float]]) -> tuple[float, float, float]:
+    """Least-squares circle (centre x, centre y, radius) through local (x, y) points."""
+    import numpy as np  # local: the rest of the helpers need no numpy
+
+    p = np.asarray(points, dtype=float)
+    a = np.c_[2 * p[:, 0], 2 * p[:, 1], np.ones(len(p))]
+    cx, cy, c = np.linalg.lstsq(a, np.sum(p**2, axis=1), rcond=None)[0]
+    return float(cx), float(cy), float(math.sqrt(c + cx * cx + cy * cy))

@@ -103,6 +103,8 @@ def test_parameters_change_behaviour(mav: Mav) -> None:
     assert names == {
         "AIRSPEED_CRUISE", "AIRSPEED_MIN", "AIRSPEED_MAX", "SIM_TURN_LIMIT", "ROLL_LIMIT_DEG",
         "SIM_GUIDED_TMO", "WP_RADIUS", "WP_LOITER_RAD", "FENCE_ENABLE", "FENCE_ACTION", "FENCE_TYPE",
+        "FS_GCS_ENABL", "MAV_GCS_SYSID", "FS_SHORT_ACTN", "FS_SHORT_TIMEOUT", "FS_LONG_ACTN",
+        "FS_LONG_TIMEOUT",
     }
     mav.mav.param_request_read_send(mav.sysid, 1, b"WP_RADIUS", -1)
     assert mav.need("PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == 40.0

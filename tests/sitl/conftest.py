@@ -29,6 +29,9 @@ from companion.node.vehicle_link import ARDUPILOT_GUIDED, VehicleLink
 from tests.e2e.conftest import ROOT, Proc
 
 CONTINUOUS = ROOT / "mission_files" / "scenario1_continuous.toml"
+# The companions' failsafe timeout (FS_LONG_TIMEOUT): 10 s, 2.5 s of wall time at 4x, 1.25 s at 8x
+# (ArduPlane's 5 s would be 0.6 s at 8x, less than a companion may be starved on a busy machine).
+SLACK_FAILSAFE_TIMEOUT = "failsafe_timeout = 10.0"
 GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: the tests' ground station
 
 
@@ -93,6 +96,7 @@ def write_mission(
     mesh = bases[-1]
     out += f'[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{mesh}"\n'
     out += f'router = "tcp/127.0.0.1:{mesh + 1}"\n\n[pass_criteria]\nmin_targets_found = 0\n'
+    out += f"\n[safety]\n{SLACK_FAILSAFE_TIMEOUT}\n"
     path = directory / f"{prefix}.toml"
     path.write_text(out, encoding="utf-8")
     return SitlMission(path, load_mission(path))
@@ -159,9 +163,10 @@ class Airborne:
             self.link.poll(1.0)
 
     def fly_to(self, x: float, y: float, within: float = 250.0, timeout: float = 120.0) -> None:
-        """Fence off (a companion may have enabled it), GUIDED, DO_REPOSITION to (x, y) at the
-        mission altitude; returns once within `within` m (call it inside `use()`)."""
+        """Fence and GCS failsafe off (a companion may have enabled them), GUIDED, DO_REPOSITION
+        to (x, y) at the mission altitude; returns once within `within` m (call it inside `use()`)."""
         assert self.link.command_ack(mavlink.MAV_CMD_DO_FENCE_ENABLE, 0) == mavlink.MAV_RESULT_ACCEPTED
+        assert self.link.set_param("FS_GCS_ENABL", 0.0)
         self.guided()
         lat, lon, _ = self.frame.to_geodetic(x, y)
         s = self.link.state

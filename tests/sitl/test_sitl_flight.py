@@ -8,6 +8,10 @@
 - Conformance: one scripted command sequence (two heading holds with different param3, then a
   DO_REPOSITION flown to and circled) on SITL and on the bundled simulator; the flown tracks,
   relative to each vehicle's pose at the start, agree within the tolerances below.
+- Conformance of the silent companion's failsafe: a companion link arms it
+  (`companion.node.failsafe`), holds a heading, and dies (its link closed); on SITL and on the
+  bundled simulator the failsafe fires FS_LONG_TIMEOUT later with the same STATUSTEXT, switches
+  to AUTO and circles where it is; failsafe time, point and circle agree within the tolerances below.
 """
 
 from __future__ import annotations
@@ -21,10 +25,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from companion.mission import Mission
+from companion.node.failsafe import arm_failsafe
 from companion.node.guidance import Guidance
 from companion.node.takeover import take_over
-from companion.node.vehicle_link import VehicleLink
+from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink
 from tests.e2e.conftest import PY, ROOT, Proc, assert_follows, read_csv
+from tests.sim.conftest import fit_circle
 from tests.sitl.conftest import Airborne
 
 STEPS = 25
@@ -33,6 +40,14 @@ MEDIAN_POSITION_M, MEDIAN_HEADING_DEG = 15.0, 35.0
 # conformance tolerances (relative tracks, metres and degrees)
 HEADING_PHASE_M, WHOLE_SCRIPT_M, SETTLED_DEG, LOITER_RADIUS = 40.0, 80.0, 8.0, 0.1
 SCRIPT_TARGET = (500.0, 300.0)  # the DO_REPOSITION point: ahead, left of the start pose
+# failsafe conformance: when it fires after the silence (FS_LONG_TIMEOUT after the last HEARTBEAT,
+# which went out up to 0.5 s before; the observer notes the silence up to 0.5 s late at 8x;
+# ArduPlane checks at 3 Hz), how far apart the two failsafe points are (relative to the pose at the
+# silence), how far each circle's centre is from its failsafe point, and how far apart the circles'
+# radii and the farthest excursions from the failsafe point are (ratio)
+FAILSAFE_EARLY_S = FAILSAFE_LATE_S = 1.5
+FAILSAFE_POINT_M, LOITER_CENTRE_M, FAILSAFE_LOITER = 30.0, 20.0, 0.25
+AUTO = 10
 
 
 def _companion(airborne: Airborne, out: Path, *args: str, mission: Path | None = None) -> Proc:
@@ -189,3 +204,111 @@ def test_simulator_flies_a_command_script_like_arduplane(airborne: Airborne, tmp
         for tr in (sitl, at)
     ]
     assert abs(radius[1] - radius[0]) < LOITER_RADIUS * radius[0], f"loiter radii {radius}"
+
+
+# -- the silent companion's failsafe ------------------------------------------------------------
+def _silence_script(companion: VehicleLink, observer: VehicleLink, mission: Mission) -> dict:
+    """Arm the failsafe, fly north for 20 s, then die (the companion's link closed); what the
+    observer saw in the next 90 s, relative to its pose at the silence: the failsafe's time and
+    point, the modes, and the track (t, ahead, left) every 0.5 s."""
+    assert arm_failsafe(companion, mission, 0) is None
+    s, o = companion.state, observer.state
+    end, last = s.time_s + 20.0, -math.inf
+    while s.time_s < end:
+        if s.time_s - last >= 0.5:
+            companion.change_heading(0.0, 9.8)
+            last = s.time_s
+        companion.poll(0.02)
+        observer.poll(0.0)
+    companion.close()
+    observer.poll(0.05)
+    t0, x0, y0, h0 = o.time_s, o.x, o.y, o.heading
+    c, sn = math.cos(h0), math.sin(h0)
+    o.texts.clear()
+    track: list[tuple[float, float, float]] = []
+    modes: set[int] = set()
+    failsafe: tuple[float, float, float] | None = None
+    while o.time_s < t0 + 90.0:
+        observer.poll(0.05)
+        dx, dy = o.x - x0, o.y - y0
+        row = (o.time_s - t0, c * dx + sn * dy, -sn * dx + c * dy)
+        if not track or row[0] - track[-1][0] >= 0.5 - 1e-6:
+            track.append(row)
+        modes.add(o.custom_mode)
+        if failsafe is None and "GCS Failsafe On: AUTO" in o.texts:
+            failsafe = row
+    assert failsafe is not None, f"no failsafe: {o.texts}"
+    return {"failsafe": failsafe, "modes": sorted(modes), "track": track, "texts": list(o.texts)}
+
+
+def _loiter(run: dict) -> tuple[float, float, float]:
+    """(distance of the circle's centre from the failsafe point, radius, farthest from that point)."""
+    t_on, fx, fy = run["failsafe"]
+    circling = [(a, b) for t, a, b in run["track"] if t > t_on + 30.0]
+    cx, cy, r = fit_circle(circling)
+    farthest = max(math.dist((a, b), (fx, fy)) for t, a, b in run["track"] if t >= t_on)
+    return math.dist((cx, cy), (fx, fy)), r, farthest
+
+
+def test_simulator_failsafe_for_a_silent_companion_like_arduplane(
+    airborne: Airborne, tmp_path: Path
+) -> None:
+    mission = airborne.mission.mission
+    ports = airborne.mission.ports(0)
+    with airborne.use() as observer:
+        airborne.fly_to(0.0, -900.0)
+        observer.change_speed(22.0)  # plane.parm's AIRSPEED_CRUISE, which AUTO flies
+        companion = VehicleLink(
+            ports.url(ports.serial1), airborne.frame, system=COMPANION_SYSTEM, heartbeat=True
+        )
+        companion.wait_heartbeat(30)
+        companion.request_streams()
+        sitl = _silence_script(companion, observer, mission)
+    straight = [row for row in sitl["track"] if 0 < row[0] < sitl["failsafe"][0]]
+    speed = straight[-1][1] / straight[-1][0]  # ground speed flying north before the failsafe
+    assert 18.0 < speed < 28.0, speed
+
+    url = f"udpout:127.0.0.1:{ports.serial0}"
+    sim = Proc(
+        "sim",
+        [PY, "-m", "sim_vehicles", "--mission", str(airborne.mission.path), "--speedup", "8", "--no-camera"],
+        tmp_path / "sim.log",
+    )
+    try:
+        sim.wait_for_text("vehicle 0 sysid")
+        bundled = VehicleLink(url, airborne.frame)
+        bundled.wait_heartbeat(60)
+        bundled.request_streams()
+        for name, value in (("AIRSPEED_CRUISE", speed), ("ROLL_LIMIT_DEG", 65.0), ("WP_LOITER_RAD", 80.0)):
+            assert bundled.set_param(name, value), name  # plane.parm's, and SITL's ground speed
+        while not bundled.state.has_pose:
+            bundled.poll(0.2)
+        guidance = Guidance(bundled, airborne.frame, mission, 0, "heading")
+        assert take_over(bundled, guidance, 0, threading.Event())
+        companion = VehicleLink(url, airborne.frame, system=COMPANION_SYSTEM, heartbeat=True)
+        companion.wait_heartbeat(30)
+        companion.request_streams()
+        ours = _silence_script(companion, bundled, mission)
+        bundled.close()
+    finally:
+        sim.stop()
+
+    (tmp_path / "failsafe.json").write_text(json.dumps({"sitl": sitl, "bundled": ours}))
+    timeout = mission.safety.failsafe_timeout
+    for run in (sitl, ours):
+        t_on = run["failsafe"][0]
+        assert timeout - FAILSAFE_EARLY_S < t_on < timeout + FAILSAFE_LATE_S, f"failsafe after {t_on:.1f} s"
+        texts = run["texts"]
+        assert texts.index("Mission: 1 LoitUnlim") < texts.index("GCS Failsafe On: AUTO"), texts
+        assert AUTO in run["modes"] and run["track"], run["modes"]
+    apart = math.dist(sitl["failsafe"][1:], ours["failsafe"][1:])
+    assert apart < FAILSAFE_POINT_M, f"failsafe points {apart:.0f} m apart"
+    (c_sitl, r_sitl, far_sitl), (c_ours, r_ours, far_ours) = _loiter(sitl), _loiter(ours)
+    print(
+        f"failsafe: SITL after {sitl['failsafe'][0]:.1f} s, circle r {r_sitl:.0f} m (centre {c_sitl:.0f} m "
+        f"off), farthest {far_sitl:.0f} m; simulator after {ours['failsafe'][0]:.1f} s, r {r_ours:.0f} m "
+        f"(centre {c_ours:.0f} m off), farthest {far_ours:.0f} m; points {apart:.0f} m apart"
+    )
+    assert c_sitl < LOITER_CENTRE_M and c_ours < LOITER_CENTRE_M, (c_sitl, c_ours)
+    assert abs(r_ours - r_sitl) < FAILSAFE_LOITER * r_sitl, (r_sitl, r_ours)
+    assert abs(far_ours - far_sitl) < FAILSAFE_LOITER * far_sitl, (far_sitl, far_ours)

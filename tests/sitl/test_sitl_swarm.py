@@ -1,17 +1,24 @@
 """A whole swarm on ArduPlane SITL with one command: `uavsearch run --autopilot ardupilot-sitl`.
 
 Four SITL instances (speed-up 4), the stand-alone camera, four companions taking off by themselves
-at their altitude layers. One companion is killed mid-mission: its aircraft keeps its last heading
-(ArduPlane has no guidance timeout for it) until the fence the companion uploaded (the region plus
-its margin) makes the autopilot fly RTL, and then circles home, inside the fence, seen on a ground
-station of our own (SITL's SERIAL2). The others fly on; the run, stopped with Ctrl-C, is scored:
-targets found, every logged pose inside the fence, each UAV at its altitude layer, and separation:
-two UAVs closer than R_s horizontally are apart by their altitude layers (the vertical backstop;
-the plan's horizontal separation alone is not kept on a real autopilot, see docs/companion.md).
+at their altitude layers, each arming its autopilot's failsafe for its own silence. One companion
+is killed mid-mission: its aircraft flies its last heading for `safety.failsafe_timeout`, then
+ArduPlane's GCS failsafe switches it to AUTO and it circles where it is (seen on a ground station
+of our own, SITL's SERIAL2), within `safety.failsafe_reach` of the companion's last report. The
+others fly on; the run, stopped with Ctrl-C, is scored: targets found, every logged pose inside the
+fence, each UAV at its altitude layer, and separation: where the camera's record of every pair's
+closest approach (approach.csv, from the vehicles' position streams at 10 Hz) has the dead UAV's
+aircraft within R_s of a survivor after the kill, and wherever two logged UAVs are closer than R_s
+horizontally, they are apart by their altitude layers (the vertical backstop: on a real autopilot
+the horizontal separation is not guaranteed, by the plans' tracking error and because a survivor's
+trajectory in force when a UAV dies was not checked against its failsafe; docs/algorithm.md,
+"What a UAV does not hear"; the dead aircraft loiters at its own layer). A dead UAV's aircraft
+within R_s of a survivor horizontally makes the test an expected failure, for that known gap.
 """
 
 from __future__ import annotations
 
+import csv
 import itertools
 import json
 import math
@@ -20,19 +27,21 @@ import signal
 import statistics
 from pathlib import Path
 
-from companion.node.fence import fence_polygon
+import pytest
+
+from companion.core.world import build_world, failsafe_loiter_radius
 from companion.node.frames import LocalFrame
 from companion.node.vehicle_link import VehicleLink
 from tests.e2e.conftest import PY, Procs, companion_pid, read_csv, wait_rows
+from tests.sim.conftest import fit_circle
 from tests.sitl.conftest import GCS_COMPONENT, write_mission
 
 VICTIM = 1
 KILL_AFTER = 8  # steps the victim logs before it is killed
 SURVIVOR_STEPS = 40  # steps every other UAV logs after the kill
-RTL = 11
-CIRCLING_S = 40.0  # simulated seconds the victim's aircraft must circle home inside the fence
-HOME_M = 200.0  # "circling home": within this of its start (WP_LOITER_RAD 80 m, as ArduPlane flies it)
-FLIGHT_S = 400.0  # simulated seconds it gets to reach the fence, turn back and get home
+AUTO = 10
+CIRCLING_S = 60.0  # simulated seconds the victim's aircraft is watched circling after its failsafe
+FAILSAFE_S = 60.0  # simulated seconds after the kill by which the failsafe must have fired
 
 
 def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path) -> None:
@@ -46,32 +55,30 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
         run = procs.start("run", argv)
         victim_pid = companion_pid(run, VICTIM)
         wait_rows(out / f"uav{VICTIM}.csv", KILL_AFTER, run, timeout=240)
+        assert "failsafe armed" in (out / f"companion{VICTIM}.log").read_text()
         frame = LocalFrame(m.region.origin)
         ports = mission.ports(VICTIM)
         gcs = VehicleLink(ports.url(ports.serial2), frame, component=GCS_COMPONENT)
         gcs.wait_heartbeat(30)
         gcs.request_streams()
         os.kill(victim_pid, signal.SIGKILL)
-        killed_at = int(read_csv(out / f"uav{VICTIM}.csv")[-1]["step"])
+        last = read_csv(out / f"uav{VICTIM}.csv")[-1]
+        killed_at, report = int(last["step"]), (last["x"], last["y"])
 
-        fence = fence_polygon(m)
-        home = m.vehicles[VICTIM]
         s = gcs.state
         while not s.has_pose:
             gcs.poll(0.2)
-        t_kill, rtl, circling_since = s.time_s, False, None
-        while circling_since is None or s.time_s < circling_since + CIRCLING_S:
+        t_kill, failsafe, track, ups = s.time_s, None, [], []
+        s.texts.clear()
+        while failsafe is None or s.time_s < failsafe[0] + CIRCLING_S:
             gcs.poll(0.1)
-            assert s.time_s < t_kill + FLIGHT_S, (
-                f"not circling home by t = {s.time_s:.0f} s (RTL seen: {rtl})"
-            )
-            rtl |= s.custom_mode == RTL
-            near = (s.x - home.x) ** 2 + (s.y - home.y) ** 2 <= HOME_M**2
-            if circling_since is None and rtl and near:
-                circling_since = s.time_s
-            elif circling_since is not None:
-                assert near and fence.contains(s.x, s.y), f"left home's circle at ({s.x:.0f}, {s.y:.0f})"
-        assert s.custom_mode == RTL
+            track.append((s.time_s, (s.x, s.y)))
+            ups.append(s.up)
+            if failsafe is None:
+                assert s.time_s < t_kill + FAILSAFE_S, f"no failsafe by t = {s.time_s:.0f} s: {s.texts}"
+                if "GCS Failsafe On: AUTO" in s.texts:
+                    failsafe = (s.time_s, (s.x, s.y))
+        assert s.custom_mode == AUTO
         gcs.close()
         for i in range(m.n_uavs):
             if i != VICTIM:
@@ -86,6 +93,21 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
     finally:
         procs.stop_all()
 
+    # the victim's aircraft: within failsafe_reach of its last report, circling where it failed safe
+    reach = build_world(m).safety.failsafe_reach
+    farthest = max(math.dist(p, report) for _, p in track)
+    cx, cy, r = fit_circle([p for t, p in track if t > failsafe[0] + 30.0])
+    t_on, point = failsafe
+    print(
+        f"victim: failsafe {t_on - t_kill:.1f} s after the kill, {math.dist(point, report):.0f} m from its "
+        f"last report; circle r {r:.0f} m, centre {math.dist((cx, cy), point):.0f} m off; "
+        f"farthest {farthest:.0f} m (failsafe_reach {reach:.0f} m)"
+    )
+    assert farthest <= reach, f"the victim went {farthest:.0f} m from its last report > {reach:.0f} m"
+    assert math.dist((cx, cy), failsafe[1]) < 25.0, (cx, cy, failsafe)
+    assert r < 1.25 * failsafe_loiter_radius(m), r
+    assert abs(statistics.median(ups[len(ups) // 2 :]) - m.altitude_of(VICTIM)) < 5.0, "victim off its layer"
+
     summary = json.loads((out / "summary.json").read_text())["proposed"]
     assert summary["targets_found_fraction"] > 0, summary
     tracking = json.loads((out / "tracking.json").read_text())
@@ -97,7 +119,23 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
         assert abs(statistics.median(r["up"] for r in flown) - m.altitude_of(i)) < 5.0, (
             f"uav{i} off its layer"
         )
+
+    # ground truth of separation after the kill, while the survivors flew the mission
+    flown_to = min(max(rows) for i, rows in logs.items() if i != VICTIM)
+    with (out / "approach.csv").open() as f:
+        near = [
+            (float(r["distance_m"]), int(r["step"]), int(r["i"]) + int(r["j"]) - VICTIM)
+            for r in csv.DictReader(f)
+            if VICTIM in (int(r["i"]), int(r["j"])) and killed_at < int(r["step"]) <= flown_to
+        ]
+    closest = min(near, default=(math.inf, -1, -1))[0]
+    print(f"victim: closest approach to a survivor after the kill {closest:.1f} m (R_s {m.comms.safety:g} m)")
     layer = m.kinematics.altitude_step
+    for d, k, j in near:
+        if d <= m.comms.safety:
+            survivor = logs[j][max(step for step in logs[j] if step <= k)]
+            vertical = abs(survivor["up"] - m.altitude_of(VICTIM))
+            assert vertical >= 0.8 * layer * abs(j - VICTIM), (f"victim, uav{j}, step {k}", d, vertical)
     for (i, a), (j, b) in itertools.combinations(logs.items(), 2):
         for k in a.keys() & b.keys():
             if math.dist((a[k]["x"], a[k]["y"]), (b[k]["x"], b[k]["y"])) <= m.comms.safety:
@@ -105,3 +143,5 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
                 assert vertical >= 0.8 * layer * (j - i), (
                     f"uav{i} and uav{j} at step {k}: {vertical:.0f} m apart"
                 )
+    if closest <= m.comms.safety:  # the known gap (module docstring)
+        pytest.xfail(f"the dead UAV's aircraft came {closest:.1f} m from a survivor (R_s {m.comms.safety:g})")

@@ -1,0 +1,111 @@
+"""ArduPlane's GCS failsafe on the bundled simulator, armed by the companion's own code.
+
+A companion-like link (the companion's system id, HEARTBEATs from `poll`) arms the failsafe with
+`companion.node.failsafe.arm_failsafe` on a vehicle flying a heading in GUIDED. While it polls,
+nothing happens; when it falls silent the vehicle flies on for FS_LONG_TIMEOUT, says "GCS Failsafe
+On: AUTO" and circles the point it reached at its altitude layer, with the failsafe's radius; a
+ground station's HEARTBEATs (another system) do not stop that. When the link speaks again the
+failsafe clears and the mode stays AUTO. With FS_LONG_ACTN 0 the vehicle stays in GUIDED.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from companion.core.world import failsafe_loiter_radius
+from companion.mission import load_mission
+from companion.node.failsafe import arm_failsafe
+from companion.node.frames import LocalFrame
+from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink
+from tests.sim.conftest import M, Mav, SimProcess, fit_circle, write_mission
+
+GUIDED, AUTO = 15, 10
+
+
+@pytest.fixture
+def flying(tmp_path: Path) -> Iterator[tuple[VehicleLink, Mav, Path]]:
+    path, ports, _ = write_mission(tmp_path, n=1, starts=[(0.0, -600.0)])
+    sim = SimProcess(path, "--speedup", "10", "--no-camera")
+    link = None
+    try:
+        sim.wait_ready(1)
+        ground = Mav(ports[0])
+        mission = load_mission(path)
+        link = VehicleLink(
+            f"udpout:127.0.0.1:{ports[0]}", LocalFrame(mission.region.origin), system=COMPANION_SYSTEM,
+            heartbeat=True,
+        )
+        link.wait_heartbeat(30)
+        link.request_streams()
+        assert ground.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+        assert ground.command(M.MAV_CMD_DO_SET_MODE, 1, GUIDED) == M.MAV_RESULT_ACCEPTED
+        yield link, ground, path
+    finally:
+        if link is not None:
+            link.close()
+        sim.kill()
+
+
+def _poll_for(link: VehicleLink, seconds: float) -> None:
+    """Poll (and so send HEARTBEATs) for `seconds` of vehicle time."""
+    s = link.state
+    link.poll(0.1)  # what came while it was silent, first
+    while not s.has_pose:
+        link.poll(0.1)
+    end = s.time_s + seconds
+    while s.time_s < end:
+        link.poll(0.05)
+
+
+def _text(ground: Mav, text: str, timeout: float = 30.0) -> float:
+    """Wait for STATUSTEXT `text`; the vehicle time of the next position (s)."""
+    ground.need("STATUSTEXT", lambda m: m.text == text, timeout)
+    return ground.sim_time()
+
+
+def test_silent_companion_makes_the_vehicle_loiter_where_it_is(flying) -> None:
+    link, ground, path = flying
+    mission = load_mission(path)
+    link.change_heading(90.0, 5.0)  # east, straight on
+    assert arm_failsafe(link, mission, 0) is None
+    _poll_for(link, 12.0)  # heard: no failsafe
+    assert link.state.custom_mode == GUIDED and not any("Failsafe" in t for t in link.state.texts)
+
+    silent_from = link.state.time_s  # the last HEARTBEAT went out at or after this vehicle time
+    ground.need("STATUSTEXT", lambda m: m.text == "Mission: 1 LoitUnlim", timeout=30)  # as ArduPlane
+    t_on = _text(ground, "GCS Failsafe On: AUTO")
+    frame = LocalFrame(mission.region.origin)
+    g = ground.need("GLOBAL_POSITION_INT")
+    centre = frame.to_local(g.lat * 1e-7, g.lon * 1e-7)
+    assert t_on >= silent_from + mission.safety.failsafe_timeout
+    assert ground.need("HEARTBEAT").custom_mode == AUTO
+
+    track, ups = [], []
+    while ground.sim_time() < t_on + 90:  # ground's HEARTBEATs (system 250) go on: not the GCS
+        g = ground.need("GLOBAL_POSITION_INT")
+        track.append(frame.to_local(g.lat * 1e-7, g.lon * 1e-7))
+        ups.append(g.relative_alt * 1e-3)
+    radius = failsafe_loiter_radius(mission)
+    k = mission.kinematics
+    turn_radius = k.speed * k.step / math.radians(k.turn_limit_deg)
+    assert max(math.dist(p, centre) for p in track) < 1.25 * radius + turn_radius
+    cx, cy, r = fit_circle(track[len(track) // 2 :])
+    assert math.dist((cx, cy), centre) < 20.0, (cx, cy, centre)
+    assert abs(r - radius) < 0.15 * radius, (r, radius)
+    assert abs(ups[-1] - mission.altitude_of(0)) < 5.0
+    assert ground.need("HEARTBEAT").custom_mode == AUTO
+
+    link.poll(0.05)  # the companion speaks again: cleared...
+    ground.need("STATUSTEXT", lambda m: m.text == "GCS Failsafe Cleared")
+    _poll_for(link, 3.0)
+    assert ground.need("HEARTBEAT").custom_mode == AUTO  # ...and the mode stays
+
+    assert ground.command(M.MAV_CMD_DO_SET_MODE, 1, GUIDED) == M.MAV_RESULT_ACCEPTED
+    assert link.set_param("FS_LONG_ACTN", 0.0)  # continue: the failsafe changes nothing in GUIDED
+    _poll_for(link, 1.0)
+    _text(ground, "GCS Failsafe On: GUIDED")
+    assert ground.need("HEARTBEAT").custom_mode == GUIDED
