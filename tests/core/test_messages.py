@@ -56,7 +56,11 @@ messages = st.one_of(
     st.builds(
         BidsMsg, **header, rewards=st.lists(st.floats(0, 10), min_size=N_TASKS, max_size=N_TASKS).map(tuple)
     ),
-    st.builds(ClaimsMsg, **header, known=st.lists(states, max_size=N_UAVS).map(tuple)),
+    st.builds(ClaimsMsg, **header, known=st.lists(states, max_size=N_UAVS).map(tuple)).map(
+        lambda m: msgspec.structs.replace(  # relayed states are never newer than their message
+            m, known=tuple(msgspec.structs.replace(s, stamp=min(s.stamp, m.stamp)) for s in m.known)
+        )
+    ),
 )
 
 

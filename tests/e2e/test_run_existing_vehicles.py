@@ -9,13 +9,13 @@ from pathlib import Path
 
 from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, read_csv
 
-STEPS = 25
+STEPS = 40
 
 
 def test_run_attaches_to_existing_vehicles(make_mission, procs: Procs, tmp_path: Path) -> None:
     mission = make_mission(n=2)
     k = mission.mission.kinematics
-    procs.sim(mission, "--speedup", "10", "--truth", str(tmp_path / "sim-truth.json"))
+    procs.sim(mission, "--speedup", "5", "--truth", str(tmp_path / "sim-truth.json"))
     links = ",".join(f"udpout:127.0.0.1:{port}" for port in mission.ports)
     out = tmp_path / "out"
     argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--vehicles", links]
