@@ -46,6 +46,7 @@ class Guidance:
         self.set_speed = False  # the autopilot cruises at another speed: command the mission's
         self.last_send = -math.inf  # vehicle time of the latest guidance
         self.last: tuple[Command, tuple[float, float]] | None = None
+        self.point: tuple[float, float] | None = None  # position-target: a point flown to (go_to)
         self._since_assert: int | None = None  # steps since the altitude and speed were asserted
 
     def step(self, command: Command, position: tuple[float, float]) -> None:
@@ -53,7 +54,7 @@ class Guidance:
         if self._since_assert is None or self._since_assert >= REASSERT_STEPS:
             self.assert_flight()
         self._since_assert = (self._since_assert or 0) + 1
-        self.last = (command, position)
+        self.last, self.point = (command, position), None
         self._send(command, position)
 
     def paused(self) -> None:
@@ -63,10 +64,13 @@ class Guidance:
     def due(self, now: float) -> bool:
         """Whether the current command should be repeated at vehicle time `now` (streamed modes)."""
         period = STREAM_PERIOD_S.get(self.mode)
-        return period is not None and self.last is not None and now - self.last_send >= period
+        current = self.last is not None or self.point is not None
+        return period is not None and current and now - self.last_send >= period
 
     def repeat(self) -> None:
-        if self.last is not None:
+        if self.point is not None:
+            self.hold(*self.point)
+        elif self.last is not None:
             self._send(*self.last)
 
     def assert_flight(self) -> None:
@@ -76,13 +80,28 @@ class Guidance:
             self.link.change_speed(self.speed)
 
     def go_to(self, x: float, y: float) -> None:
-        """DO_REPOSITION to local (x, y) at the UAV's altitude: the autopilot flies there and circles."""
+        """Fly to local (x, y) at the UAV's altitude and circle there, instead of the plan: the position
+        target, streamed from now on, in `position-target` (PX4 OFFBOARD: a DO_REPOSITION would switch
+        to Hold); DO_REPOSITION in the other modes."""
+        self.last = None
+        if self.mode == "position-target":
+            self.point = (x, y)
+            self.hold(x, y)
+            return
+        self.point = None
         lat, lon, _ = self.frame.to_geodetic(x, y)
         self.link.reposition(lat, lon, self.altitude)
         self.last_send = self.link.state.time_s
 
+    def hold_course(self, x: float, y: float, heading: float) -> None:
+        """Fly on along `heading` from (x, y) until the first step: the position target a lead ahead,
+        streamed from now on (what PX4 needs streamed before it accepts OFFBOARD, and after)."""
+        self.last = None
+        self.point = (x + self.lead * math.cos(heading), y + self.lead * math.sin(heading))
+        self.hold(*self.point)
+
     def hold(self, x: float, y: float) -> None:
-        """A position setpoint at (x, y) (what PX4 needs streamed before it accepts OFFBOARD)."""
+        """A position setpoint at (x, y)."""
         lat, lon, _ = self.frame.to_geodetic(x, y)
         self.link.position_target(lat, lon, self.altitude)
         self.last_send = self.link.state.time_s

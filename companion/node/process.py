@@ -149,6 +149,18 @@ class Companion:
     def _steerable(self) -> bool:
         return steerable(self.link, self.opts.command_mode)
 
+    def _keep_streaming(self) -> None:
+        """Repeat the streamed guidance when due, also while a request waits for its reply (PX4
+        leaves OFFBOARD when its setpoints stop for COM_OF_LOSS_T)."""
+        s = self.link.state
+        if (
+            self.steering
+            and self.guard.state is not Guard.RELEASED
+            and self._steerable()
+            and self.guidance.due(s.time_s)
+        ):
+            self.guidance.repeat()  # the plan's command, or the way back inside
+
     def _check_airframe(self) -> None:
         """Read the airframe's parameters, warn about what the mission asks beyond them, refuse
         what the autopilot cannot fly."""
@@ -315,6 +327,7 @@ class Companion:
         self.link.wait_heartbeat(120.0, stop.is_set)
         log.info("uav %d: vehicle system %d is up", self.opts.uav, self.link.state.system)
         self.link.request_streams()
+        self.link.on_poll = self._keep_streaming  # from the take-over on, whatever waits
         self._check_airframe()
         if self.opts.lockstep:
             self.link.command_long(LOCKSTEP_COMMAND, 0)  # the simulator resends the current step's state
@@ -351,15 +364,9 @@ class Companion:
                 k = math.floor((t + lead) / self.dt + 1e-6)
                 self.step(k, ahead=k * self.dt - t)
                 next_k = k + 1
-            elif (
-                self.steering
-                and self.guard.state is Guard.INSIDE
-                and self._steerable()
-                and self.guidance.due(t)
-            ):
-                self.guidance.repeat()
 
     def _run_lockstep(self, stop: threading.Event, budget: int) -> None:
+        self.link.on_poll = None  # one command per step: nothing repeated between steps
         k = 0
         while not stop.is_set() and k < budget:
             while not stop.is_set() and self.link.state.time_s + 1e-6 < k * self.dt:
