@@ -7,6 +7,7 @@ Without `--takeover` the companion never arms the vehicle or changes its mode. W
   mode TAKEOFF, arm (retried until the pre-arm checks pass). PX4: arm (retried until PX4 accepts),
   MAV_CMD_NAV_TAKEOFF to that altitude (AUTO.TAKEOFF, a runway take-off for a fixed-wing); first
   it waits, if need be, until PX4's altitude reference has climbed to the ground (`px4_ready_at`);
+- PX4 OFFBOARD: the OFFBOARD-loss failsafe becomes Hold if it was a stick-flown mode;
 - then the guided mode (ArduPilot GUIDED; PX4 OFFBOARD, or Hold for `reposition`) and arming,
   retried every second until the HEARTBEAT shows both. PX4 refuses OFFBOARD without a setpoint
   stream, so for OFFBOARD a point ahead on the current heading is streamed first, while waiting,
@@ -38,6 +39,7 @@ ON_GROUND_M = 10.0
 CLIMBED = 0.8
 PX4_REFERENCE_RATE = "FW_T_CLMB_R_SP"  # m/s: how fast PX4's altitude reference climbs before take-off
 PX4_REFERENCE_MARGIN_S = 5.0
+OFFBOARD_LOSS, OFFBOARD_LOSS_MANUAL, OFFBOARD_LOSS_HOLD = "COM_OBL_RC_ACT", 2, 5
 
 
 def guided_mode(link: VehicleLink, command_mode: str) -> int:
@@ -65,6 +67,8 @@ def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.E
     mode = guidance.mode
     want = guided_mode(link, mode)
     offboard = want == PX4_OFFBOARD
+    if offboard:
+        hold_on_offboard_loss(link, uav)
     deadline = time.monotonic() + TAKEOVER_TIMEOUT_S
     sent, last_wall, last_try = 0, -math.inf, -math.inf
     while not stop.is_set() and not (steerable(link, mode) and s.armed):
@@ -82,6 +86,20 @@ def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.E
             last_try = now
         link.poll(0.02)
     return not stop.is_set()
+
+
+def hold_on_offboard_loss(link: VehicleLink, uav: int) -> None:
+    """PX4: make the OFFBOARD-loss failsafe Hold (COM_OBL_RC_ACT 5) where it is Position, Altitude or
+    Manual mode (0-2): flown from sticks, without them a fixed-wing flies straight on."""
+    action = link.read_params([OFFBOARD_LOSS]).get(OFFBOARD_LOSS)
+    if action is not None and action <= OFFBOARD_LOSS_MANUAL:
+        link.set_param(OFFBOARD_LOSS, OFFBOARD_LOSS_HOLD)
+        log.info(
+            "uav %d: %s was %d; set to Hold (5): the vehicle circles if the companion stops",
+            uav,
+            OFFBOARD_LOSS,
+            action,
+        )
 
 
 def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event) -> bool:
