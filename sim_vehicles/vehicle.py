@@ -115,6 +115,7 @@ class Vehicle:
     ) -> None:
         self.index, self.sysid = index, index + 1
         self.flavour, self.params = flavour, params
+        self._nav = (flavour.nav_period, flavour.nav_damping)
         self.home = home
         self.last_xy, self.last_heading = home, 0.0
         self.step = step
@@ -317,9 +318,9 @@ class Vehicle:
             self._check_arrival(target, x, y, heading)
             if self.nav is not target:
                 return self.steer(t, x, y, heading)
-            accel = nav.track(x, y, heading, v, target.start, (target.x, target.y))
+            accel = nav.track(x, y, heading, v, target.start, (target.x, target.y), *self._nav)
         else:
-            accel = nav.loiter(x, y, heading, v, (target.x, target.y), target.radius)
+            accel = nav.loiter(x, y, heading, v, (target.x, target.y), target.radius, *self._nav)
         return Turn(math.atan(accel / nav.GRAVITY))
 
     def _check_arrival(self, leg: Leg, x: float, y: float, heading: float) -> None:

@@ -97,3 +97,6 @@ def test_what_a_real_autopilot_cannot_fly_is_refused() -> None:
     assert "ArduPlane takes only the altitude" in str(refusal(CONTINUOUS, bundled, "position-target"))
     px4 = Airframe.from_params("px4", {})
     assert "no MAV_CMD_GUIDED_CHANGE_HEADING" in str(refusal(CONTINUOUS, px4, "heading"))
+    assert "use --command-mode position-target or reposition" in str(refusal(CONTINUOUS, px4, "turn-rate"))
+    assert refusal(CONTINUOUS, px4, "position-target") is None
+    assert refusal(CONTINUOUS, px4, "reposition") is None

@@ -4,8 +4,9 @@
   as planned: the companion takes over, uploads the fence, steers every step, the aircraft ends
   each step closer to the planned point than straight on, and the plan-versus-flight errors stay
   small.
-- What PX4 cannot fly is refused with a clear message: the heading and turn-rate command modes,
-  and grid kinematics (by the companion on connecting, and by `uavsearch run --autopilot px4-sitl`).
+- What PX4 cannot fly is refused with a clear message: the heading command mode and grid
+  kinematics (by the companion on connecting, and by `uavsearch run --autopilot px4-sitl`; the
+  turn-rate refusal's message: tests/node).
 - Conformance: one scripted command sequence (OFFBOARD refused without a setpoint stream, entered
   with one, a position setpoint flown to and orbited, the stream stopped, the failsafe's Hold, a
   DO_REPOSITION flown to and circled) on PX4 and on the bundled simulator's PX4 flavour; the
@@ -16,17 +17,26 @@
 from __future__ import annotations
 
 import json
+import math
 import statistics
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from companion.node.vehicle_link import PX4_HOLD, PX4_OFFBOARD, VehicleLink
 from tests.e2e.conftest import PY, ROOT, Proc, assert_follows, read_csv
 from tests.px4.conftest import Px4Airborne
+from tests.sim.conftest import M
+from tests.sitl.conftest import free_bases
 
 STEPS = 25
 MEDIAN_POSITION_M, MEDIAN_HEADING_DEG = 10.0, 20.0
+# conformance tolerances (PX4 announces a mode change at its next HEARTBEAT, up to 1 s later)
+LOSS_TIMING_S, OFFBOARD_LEG_M = 1.5, 25.0
+SHAPE_TOLERANCES = {"hold_extent_m": 25.0, "leg_course_deg": 6.0, "circle_radius_m": 8.0, "circle_sense": 0.0}
 
 
 def _companion(airborne: Px4Airborne, out: Path, *args: str, mission: Path | None = None) -> Proc:
@@ -75,8 +85,6 @@ def _refused(airborne: Px4Airborne, out: Path, *args: str, mission: Path | None 
 def test_what_px4_cannot_fly_is_refused(px4_airborne: Px4Airborne, tmp_path: Path) -> None:
     text = _refused(px4_airborne, tmp_path / "heading", "--command-mode", "heading")
     assert "PX4 has no MAV_CMD_GUIDED_CHANGE_HEADING" in text, text
-    text = _refused(px4_airborne, tmp_path / "turn-rate", "--command-mode", "turn-rate")
-    assert "use --command-mode position-target or reposition" in text, text
     grid = tmp_path / "grid.toml"
     grid.write_text(px4_airborne.mission.path.read_text().replace('mode = "continuous"', 'mode = "grid"'))
     text = _refused(px4_airborne, tmp_path / "grid", "--command-mode", "position-target", mission=grid)
@@ -90,3 +98,164 @@ def test_what_px4_cannot_fly_is_refused(px4_airborne: Px4Airborne, tmp_path: Pat
         argv += ["--out", str(tmp_path)]
         run = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120)
         assert run.returncode == 2 and why in run.stderr, run.stderr
+
+
+# -- conformance -----------------------------------------------------------------------------------
+SCRIPT_P1 = (500.0, -300.0)  # the OFFBOARD position setpoint: ahead, left (negative: right)
+SCRIPT_P2 = (900.0, 250.0)  # the DO_REPOSITION point: ahead, left
+STREAM_END, REPOSITION_AT, SCRIPT_END = 35.0, 60.0, 160.0  # script seconds
+LOSS_S = 2.0  # COM_OF_LOSS_T, set on both
+
+
+class Script:
+    """The scripted sequence on one vehicle (PX4 SITL or the bundled simulator's PX4 flavour), from
+    straight flight north: rows (t, ahead, left, heading change) every 0.5 s relative to the pose
+    at its start, and what happened."""
+
+    def __init__(self, link: VehicleLink, altitude: float) -> None:
+        self.link, self.altitude = link, altitude
+        self.rows: list[tuple[float, float, float, float]] = []
+        self.events: dict[str, float] = {}
+        self.t0 = self.x0 = self.y0 = self.h0 = self.speed = 0.0
+
+    def run(self, seconds: float, each: Callable[[], None] | None = None) -> None:
+        s = self.link.state
+        end = s.time_s + seconds
+        while s.time_s < end:
+            self.link.poll(0.02)
+            (each or self.log)()
+
+    def until(self, script_t: float, each: Callable[[], None] | None = None) -> None:
+        self.run(script_t - (self.link.state.time_s - self.t0), each)
+
+    def log(self) -> None:
+        s = self.link.state
+        if not self.rows or s.time_s - self.t0 - self.rows[-1][0] >= 0.5 - 1e-6:
+            dx, dy = s.x - self.x0, s.y - self.y0
+            c, sn = math.cos(self.h0), math.sin(self.h0)
+            turned = math.remainder(s.heading - self.h0, math.tau)
+            self.rows.append((s.time_s - self.t0, c * dx + sn * dy, -sn * dx + c * dy, turned))
+
+    def world(self, ahead: float, left: float) -> tuple[float, float]:
+        c, sn = math.cos(self.h0), math.sin(self.h0)
+        x, y = self.x0 + c * ahead - sn * left, self.y0 + sn * ahead + c * left
+        return self.link.frame.to_geodetic(x, y)[:2]
+
+    def fly(self) -> None:
+        link, s = self.link, self.link.state
+        lat, lon, _ = link.frame.to_geodetic(s.x, s.y + 3000.0)
+        link.reposition(lat, lon, self.altitude)  # straight north
+        self.run(25.0, lambda: None)
+        t, x, y = s.time_s, s.x, s.y
+        self.run(10.0, lambda: None)
+        self.speed = math.hypot(s.x - x, s.y - y) / (s.time_s - t)
+        self.t0, self.x0, self.y0, self.h0 = s.time_s, s.x, s.y, s.heading
+        link.set_mode(PX4_OFFBOARD)  # no setpoint stream yet
+        ack = link.await_reply(lambda m: m.get_type() == "COMMAND_ACK" and m.command == 176, 2.0)
+        self.events["refused"] = ack.result if ack is not None else -1
+        p1, sent = self.world(*SCRIPT_P1), [-math.inf]
+
+        def stream() -> None:
+            self.log()
+            if s.time_s - sent[0] >= 0.1:
+                link.position_target(*p1, self.altitude)
+                sent[0] = s.time_s
+
+        self.run(1.0, stream)
+        link.set_mode(PX4_OFFBOARD)
+        self.until(STREAM_END, stream)
+        self.events["offboard"] = s.custom_mode == PX4_OFFBOARD
+        stopped = s.time_s
+
+        def lost() -> None:
+            self.log()
+            if s.custom_mode != PX4_OFFBOARD:
+                self.events.setdefault("lost_after", s.time_s - stopped)
+
+        self.until(REPOSITION_AT, lost)
+        self.events["hold"] = s.custom_mode == PX4_HOLD
+        link.reposition(*self.world(*SCRIPT_P2), self.altitude)
+        self.until(SCRIPT_END)
+
+    def track(self) -> np.ndarray:
+        return np.array(self.rows)
+
+
+def _prepare(link: VehicleLink) -> None:
+    """What the script needs of both: COM_OF_LOSS_T, and Hold when the stream is lost."""
+    link.read_params(["COM_OF_LOSS_T", "COM_OBL_RC_ACT"])  # their types, for setting them
+    assert link.set_param("COM_OF_LOSS_T", LOSS_S) and link.set_param("COM_OBL_RC_ACT", 5)
+
+
+def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tmp_path: Path) -> None:
+    px4_airborne.fly_to(0.0, -700.0, within=300.0)
+    altitude = px4_airborne.mission.mission.altitude_of(0)
+    link = px4_airborne.link
+    _prepare(link)
+    px4 = Script(link, altitude)
+    px4.fly()
+    assert 9.0 < px4.speed < 16.0, px4.speed
+
+    m = px4_airborne.mission
+    sim_mission = tmp_path / "sim.toml"
+    port = free_bases(1)[0]
+    text = m.path.read_text().replace(
+        f"mavlink_port = {m.mission.vehicles[0].mavlink_port}", f"mavlink_port = {port}"
+    )
+    sim_mission.write_text(text + '\n[sim]\nflavour = "px4"\n')
+    sim = Proc(
+        "sim",
+        [PY, "-m", "sim_vehicles", "--mission", str(sim_mission), "--speedup", "8", "--no-camera"],
+        tmp_path / "sim.log",
+    )
+    try:
+        sim.wait_for_text("vehicle 0 sysid")
+        bundled = VehicleLink(f"udpout:127.0.0.1:{port}", px4_airborne.frame)
+        bundled.wait_heartbeat(60)
+        bundled.request_streams()
+        _prepare(bundled)
+        assert bundled.set_param("FW_AIRSPD_TRIM", round(px4.speed, 2))  # PX4's ground speed
+        while not bundled.state.has_pose:
+            bundled.poll(0.2)
+        assert bundled.command_ack(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+        ours = Script(bundled, altitude)
+        ours.fly()
+        bundled.close()
+    finally:
+        sim.stop()
+
+    a, b = px4.track(), ours.track()
+    (tmp_path / "tracks.json").write_text(json.dumps({"px4": a.tolist(), "bundled": b.tolist()}))
+    for key in ("refused", "offboard", "hold"):
+        assert px4.events[key] == ours.events[key], (key, px4.events, ours.events)
+    assert px4.events["refused"] == M.MAV_RESULT_TEMPORARILY_REJECTED and px4.events["offboard"]
+    lost = px4.events["lost_after"], ours.events["lost_after"]
+    assert abs(lost[0] - lost[1]) < LOSS_TIMING_S and LOSS_S - 0.5 < lost[1] < LOSS_S + 0.5, lost
+    px4_shape, our_shape = _shape(a, lost[0]), _shape(b, lost[1])
+    (tmp_path / "shapes.json").write_text(json.dumps({"px4": px4_shape, "bundled": our_shape}))
+    at = np.array([b[np.argmin(np.abs(b[:, 0] - t))] for t in a[:, 0]])
+    leg = a[:, 0] <= STREAM_END
+    gap = np.hypot(a[leg, 1] - at[leg, 1], a[leg, 2] - at[leg, 2])
+    assert gap.max() < OFFBOARD_LEG_M, f"OFFBOARD leg: {gap.max():.0f} m apart"
+    for key, tolerance in SHAPE_TOLERANCES.items():
+        assert abs(px4_shape[key] - our_shape[key]) <= tolerance, (key, px4_shape, our_shape)
+
+
+def _shape(track: np.ndarray, lost_after: float) -> dict[str, float]:
+    """What the script's later phases look like on one vehicle: the farthest it strays from where it
+    entered Hold (the circle's diameter), the course of the leg to the DO_REPOSITION point (deg),
+    and the radius and sense (-1 clockwise) of the circle there, over the last 20 s."""
+    t = track[:, 0]
+    hold = (t >= STREAM_END + lost_after) & (t < REPOSITION_AT)
+    entry = track[hold][0, 1:3]
+    leg = (t >= REPOSITION_AT + 10.0) & (t < REPOSITION_AT + 35.0)
+    circle = t >= SCRIPT_END - 20.0
+    turned = np.unwrap(track[circle, 3])
+    return {
+        "hold_extent_m": float(np.hypot(*(track[hold, 1:3] - entry).T).max()),
+        "leg_course_deg": float(np.degrees(np.mean(track[leg, 3]))),
+        "circle_radius_m": float(
+            np.mean(np.hypot(track[circle, 1] - SCRIPT_P2[0], track[circle, 2] - SCRIPT_P2[1]))
+        ),
+        "circle_sense": float(np.sign(turned[-1] - turned[0])),
+    }
