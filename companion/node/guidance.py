@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from companion.core.agent import Command
+from companion.core.geometry import ConvexPolygon
 from companion.mission import Mission
 from companion.node.airframe import turn_accel
 from companion.node.frames import LocalFrame, heading_to_yaw
@@ -28,6 +31,7 @@ COMMAND_MODES = ("turn-rate", "heading", "reposition", "position-target")
 STREAM_PERIOD_S = {"turn-rate": 0.5, "heading": 0.5, "position-target": 0.2}
 LEAD_STEPS, LEAD_MIN_M = 5, 200.0  # waypoint modes fly to a point this far ahead (see lead_point)
 REASSERT_STEPS = 10
+FENCE_CLEARANCE_M = 5.0  # how far inside the fence a lead point stays
 WITHOUT_ALTITUDE = ("turn-rate", "heading")
 
 
@@ -47,6 +51,7 @@ class Guidance:
         self.last_send = -math.inf  # vehicle time of the latest guidance
         self.last: tuple[Command, tuple[float, float]] | None = None
         self.point: tuple[float, float] | None = None  # position-target: a point flown to (go_to)
+        self.fence: ConvexPolygon | None = None  # lead points stay inside it
         self._since_assert: int | None = None  # steps since the altitude and speed were asserted
 
     def step(self, command: Command, position: tuple[float, float]) -> None:
@@ -118,12 +123,33 @@ class Guidance:
         self.last_send = self.link.state.time_s
 
     def lead_point(self, command: Command, position: tuple[float, float]) -> tuple[float, float]:
-        """Where the waypoint modes fly: ahead of the step's position on the commanded heading.
+        return lead_point(position, command.heading, self.lead, self.fence)
 
-        The next planned path point is one step (v dT) away, inside the acceptance radius of an
-        autopilot (WP_RADIUS, NAV_ACC_RAD): it would count as reached at once and the vehicle
-        would loiter around it. A point LEAD_STEPS steps (at least LEAD_MIN_M) out on the heading
-        the plan reaches after its first step turns the vehicle onto that heading now.
-        """
-        x, y = position
-        return x + self.lead * math.cos(command.heading), y + self.lead * math.sin(command.heading)
+
+def lead_point(
+    position: tuple[float, float], heading: float, lead: float, fence: ConvexPolygon | None
+) -> tuple[float, float]:
+    """Where the waypoint modes fly: `lead` ahead of the step's position on the commanded heading.
+
+    The next planned path point is one step (v dT) away, inside the acceptance radius of an
+    autopilot (WP_RADIUS, NAV_ACC_RAD): it would count as reached at once and the vehicle would
+    loiter around it. A point LEAD_STEPS steps (at least LEAD_MIN_M) out on the heading the plan
+    reaches after its first step turns the vehicle onto that heading now. It stays inside the
+    fence (PX4 refuses a DO_REPOSITION beyond its geofence): nearer the vehicle when the heading
+    points out of the area.
+    """
+    x, y = position
+    c, s = math.cos(heading), math.sin(heading)
+    if fence is not None:
+        lead = min(lead, _exit_distance(fence, x, y, c, s))
+    return x + lead * c, y + lead * s
+
+def _exit_distance(fence: ConvexPolygon, x: float, y: float, c: float, s: float) -> float:
+    """How far from (x, y) along (c, s) the fence is left, less FENCE_CLEARANCE_M (inf if never;
+    the full lead from outside it: the region guard acts there)."""
+    along = fence.normals @ np.array([c, s])
+    room = fence.offsets - fence.normals @ np.array([x, y])
+    if np.any(room < 0):
+        return math.inf
+    out = along > 1e-12
+    return float(np.min(room[out] / along[out])) - FENCE_CLEARANCE_M if np.any(out) else math.inf

@@ -111,6 +111,7 @@ class Companion:
         self.tracker = PlanTracker(opts.uav, k.speed, k.step, bound_m=k.speed * k.step)
         margin = fence_margin(m)
         self.fence = fence_polygon(m, margin)
+        self.guidance.fence = self.fence
         region = ConvexPolygon.from_vertices(m.region.polygon)
         self.guard = RegionGuard(opts.uav, region, self.fence, depth=margin, step_length=k.speed * k.step)
         self.airframe_warnings: list[str] = []
