@@ -12,12 +12,28 @@ import re
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import msgspec
 import numpy as np
 
+if TYPE_CHECKING:
+    from companion.core.geometry import ConvexPolygon
+
 ALGORITHMS = ("proposed", "no-ta", "pheromone")
+
+# Sizes a mission may ask for, so that no file makes a process hang or allocate what a machine cannot
+# hold (docs/mission-files.md, "Limits"): 40 times the paper's 2,500 cells on a side-by-side
+# lattice, a sensor footprint of at most ~1,000 cells, and the CVT's work bounded.
+MAX_FILE_BYTES = 1 << 20
+MAX_GRID_CELLS = 250_000  # the lattice over the region's bounding box
+MAX_FOV_CELLS = 1_000  # the FOV stencil (eq. 3) in cells
+MAX_FOV_TABLE = 20_000_000  # grid cells x FOV stencil: the per-cell FOV table's entries
+MAX_CVT_WORK = 50_000_000  # grid cells x n_g: one Lloyd iteration's distances
+MAX_VEHICLES = 64
+MAX_VERTICES = 256
+MAX_CENTRES = 1_000
+MAX_STEPS = 1_000_000
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
@@ -48,7 +64,7 @@ class Origin(_Base, kw_only=True):
 class Region(_Base, kw_only=True):
     """Convex search polygon in local metres and the cell size of the search grid."""
 
-    polygon: list[tuple[float, float]]
+    polygon: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_VERTICES)]
     cell_size: Positive
     origin: Origin
 
@@ -65,7 +81,7 @@ class Centre(_Base, kw_only=True):
 
 class Prior(_Base, kw_only=True):
     sigma: Positive
-    centres: list[Centre]
+    centres: Annotated[list[Centre], msgspec.Meta(max_length=MAX_CENTRES)]
     targets: Annotated[int, msgspec.Meta(ge=0)]
 
 
@@ -149,7 +165,7 @@ class Algorithm(_Base, kw_only=True):
     c_max: Positive = 300.0
     comm_cost_cap: Positive = 3.0
     lloyd_tolerance: Positive = 1.0
-    lloyd_max_iterations: Annotated[int, msgspec.Meta(ge=1)] = 200
+    lloyd_max_iterations: Annotated[int, msgspec.Meta(ge=1, le=10_000)] = 200
     pheromone: Pheromone = Pheromone()
 
 
@@ -196,6 +212,36 @@ class Mesh(_Base, kw_only=True):
     max_bundle_bytes: Annotated[int, msgspec.Meta(ge=1024)] = 1 << 20
 
 
+class NetworkFault(_Base, kw_only=True):
+    """Injected mesh faults over the steps [start, end): the companions drop the messages between
+    UAVs of different `groups` (a partition: UAVs in no group hear only themselves), and any other
+    message with probability `loss` (docs/reliability.md, "Fault matrix")."""
+
+    start: Annotated[int, msgspec.Meta(ge=0)]
+    end: Annotated[int, msgspec.Meta(ge=1)]
+    groups: Annotated[
+        list[Annotated[list[Annotated[int, msgspec.Meta(ge=0)]], msgspec.Meta(max_length=MAX_VEHICLES)]],
+        msgspec.Meta(max_length=MAX_VEHICLES),
+    ] = []
+    loss: Probability = 0.0
+
+
+class Faults(_Base, kw_only=True):
+    """Faults the companions inject into themselves (for the fault matrix)."""
+
+    network: Annotated[list[NetworkFault], msgspec.Meta(max_length=1_000)] = []
+
+
+class Security(_Base, kw_only=True):
+    """Authentication (docs/reliability.md): `keys` is the key directory written by `uavsearch keys`
+    (relative to the mission file); empty, the default, runs an insecure mesh and MAVLink link, and
+    every process says so. `mavlink_signing`: with keys, sign the companion-autopilot link with each
+    vehicle's secret (the bundled simulator then rejects unsigned commands)."""
+
+    keys: str = ""
+    mavlink_signing: bool = True
+
+
 class PassCriteria(_Base, kw_only=True):
     """What a scripted mission must achieve to pass."""
 
@@ -207,7 +253,7 @@ class PassCriteria(_Base, kw_only=True):
 class Mission(_Base, kw_only=True):
     name: str
     seed: int = 1
-    steps: Annotated[int, msgspec.Meta(ge=1)] = 1000
+    steps: Annotated[int, msgspec.Meta(ge=1, le=MAX_STEPS)] = 1000
     region: Region
     prior: Prior
     sensor: Sensor
@@ -216,9 +262,11 @@ class Mission(_Base, kw_only=True):
     safety: Safety = Safety()
     uncertainty: Uncertainty = Uncertainty()
     algorithm: Algorithm = Algorithm()
-    vehicles: list[Vehicle]
+    vehicles: Annotated[list[Vehicle], msgspec.Meta(max_length=MAX_VEHICLES)]
     sim: Sim = Sim()
     mesh: Mesh = Mesh()
+    faults: Faults = Faults()
+    security: Security = Security()
     pass_criteria: PassCriteria = PassCriteria()
 
     @property
@@ -243,6 +291,11 @@ class Mission(_Base, kw_only=True):
 
     def with_seed(self, seed: int) -> Mission:
         return msgspec.structs.replace(self, seed=seed)
+
+    @property
+    def secured(self) -> bool:
+        """True when the mission names a key directory (an authenticated mesh and MAVLink link)."""
+        return bool(self.security.keys)
 
 
 _PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
@@ -325,9 +378,56 @@ def _validate(m: Mission, source: str) -> None:
     ports = [m.vehicle_port(i) for i in range(m.n_uavs)]
     if len(set(ports)) != len(ports):
         fail("vehicles", f"two vehicles share a MAVLink port: {ports}")
+    if m.secured:
+        for name in ("router", "seed_endpoint", "listen"):
+            if not getattr(m.mesh, name).startswith(("tcp/", "tls/")):
+                fail(f"mesh.{name}", "a secured mesh (security.keys) runs over TLS: use tcp/ or tls/")
     if math.isclose(m.region.cell_size, 0):
         fail("region.cell_size", "must be positive")
+    _validate_sizes(m, region, fail)
+    for i, f in enumerate(m.faults.network):
+        where = f"faults.network[{i}]"
+        if f.end <= f.start:
+            fail(f"{where}.end", f"must be after start ({f.start}), got {f.end}")
+        members = [u for g in f.groups for u in g]
+        if any(u >= m.n_uavs for u in members) or len(set(members)) != len(members):
+            fail(f"{where}.groups", f"UAVs 0..{m.n_uavs - 1}, each in at most one group")
     _validate_start(m, fail)
+
+
+def _validate_sizes(m: Mission, region: ConvexPolygon, fail: Callable[[str, str], None]) -> None:
+    """The grid, the sensor footprint, the CVT and the targets within the limits above (checked
+    before anything of that size is built)."""
+    from companion.core.geometry import Grid  # local: keep module import light
+
+    bx0, by0, bx1, by1 = region.bounds
+    cell = m.region.cell_size
+    lattice = math.ceil((bx1 - bx0) / cell) * math.ceil((by1 - by0) / cell)
+    if lattice > MAX_GRID_CELLS:
+        fail(
+            "region.cell_size",
+            f"{cell:g} m makes a grid of about {lattice:.3g} cells over the region; at most "
+            f"{MAX_GRID_CELLS:,} are allowed (a larger cell size)",
+        )
+    stencil = (2 * math.ceil(m.sensor.radius / cell + 0.5) + 1) ** 2
+    if stencil > MAX_FOV_CELLS:
+        fail(
+            "sensor.radius",
+            f"{m.sensor.radius:g} m covers about {stencil:,} cells of {cell:g} m; at most "
+            f"{MAX_FOV_CELLS:,} are allowed",
+        )
+    if lattice * stencil > MAX_FOV_TABLE:
+        fail("sensor.radius", f"grid cells x FOV cells = {lattice * stencil:,}, over {MAX_FOV_TABLE:,}")
+    n_cells = Grid.build(region, cell, m.sensor.radius).n_cells
+    if n_cells == 0:
+        fail("region.cell_size", f"no cell of {cell:g} m has its centre inside region.polygon")
+    if m.prior.targets > n_cells:
+        fail("prior.targets", f"{m.prior.targets} targets, more than the grid's {n_cells} cells (one a cell)")
+    a = m.algorithm
+    if a.name == "proposed" and a.n_g > n_cells:
+        fail("algorithm.n_g", f"{a.n_g} tasks, more than the grid's {n_cells} cells")
+    if a.name == "proposed" and n_cells * a.n_g > MAX_CVT_WORK:
+        fail("algorithm.n_g", f"grid cells x n_g = {n_cells * a.n_g:,}, over {MAX_CVT_WORK:,}")
 
 
 def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
@@ -373,10 +473,14 @@ def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
 
 def parse_mission(text: str, source: str = "<mission>") -> Mission:
     """Parse and validate mission TOML text; `source` names it in errors."""
+    if len(text) > MAX_FILE_BYTES:
+        raise MissionError(source, "(file)", f"{len(text):,} characters; at most {MAX_FILE_BYTES:,}")
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MissionError(source, "(syntax)", str(exc)) from None
+    except RecursionError:
+        raise MissionError(source, "(syntax)", "arrays or tables nested too deeply") from None
     try:
         mission = msgspec.convert(raw, Mission)
     except msgspec.ValidationError as exc:
@@ -386,11 +490,34 @@ def parse_mission(text: str, source: str = "<mission>") -> Mission:
     return mission
 
 
+def validate(mission: Mission | dict, source: str = "<mission>") -> Mission:
+    """Check a mission built in code (a copy with other start poses or weights, say; as a Mission or
+    as the tables of a mission file) exactly as a mission file is checked; returns it."""
+    raw = mission if isinstance(mission, dict) else msgspec.to_builtins(mission)
+    try:
+        checked = msgspec.convert(raw, Mission)
+    except msgspec.ValidationError as exc:
+        field, reason = _field_from_msgspec(str(exc))
+        raise MissionError(source, field, reason) from None
+    _validate(checked, source)
+    return checked
+
+
 def load_mission(path: str | Path) -> Mission:
     """Read and validate a mission file."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        if p.stat().st_size > MAX_FILE_BYTES:
+            raise MissionError(str(p), "(file)", f"larger than {MAX_FILE_BYTES:,} bytes")
+        text = p.read_bytes().decode("utf-8")
     except OSError as exc:
         raise MissionError(str(p), "(file)", exc.strerror or str(exc)) from None
-    return parse_mission(text, str(p))
+    except UnicodeDecodeError as exc:
+        reason = f"not UTF-8 text: byte 0x{exc.object[exc.start]:02x} at offset {exc.start}"
+        raise MissionError(str(p), "(file)", reason) from None
+    mission = parse_mission(text, str(p))
+    keys = mission.security.keys
+    if keys and not Path(keys).is_absolute():  # relative to the mission file, wherever it is read from
+        security = msgspec.structs.replace(mission.security, keys=str((p.parent / keys).absolute()))
+        mission = msgspec.structs.replace(mission, security=security)
+    return mission

@@ -19,8 +19,16 @@ from companion.core.world import Stream, build_grid, build_prior, instance_rng
 from companion.mission import Mission
 from companion.node import detections
 from companion.node.frames import LocalFrame
+from companion.node.keys import SwarmKeys
 
-LOOPBACK_PREFIXES = ("tcp/127.0.0.1:", "udp/127.0.0.1:", "tcp/localhost:", "unixsock-stream/")
+LOOPBACK_PREFIXES = (
+    "tcp/127.0.0.1:",
+    "tls/127.0.0.1:",
+    "udp/127.0.0.1:",
+    "tcp/localhost:",
+    "tls/localhost:",
+    "unixsock-stream/",
+)
 
 
 def draw_truth(mission: Mission, seed: int) -> tuple[Grid, np.ndarray]:
@@ -106,17 +114,21 @@ def check_loopback(endpoint: str) -> str:
 class CameraBus:
     """A Zenoh session publishing every vehicle's camera frames on its key."""
 
-    def __init__(self, mission: Mission, listen: list[str], connect: list[str]) -> None:
+    def __init__(
+        self, mission: Mission, listen: list[str], connect: list[str], keys: SwarmKeys | None = None
+    ) -> None:
+        """`keys`: the camera's own (`keys.for_mission(mission, "camera")`) for a secured mesh."""
         import zenoh  # only simulations with a camera pay for it
 
-        cfg: dict[str, Any] = {
-            "mode": mission.mesh.mode,
-            "connect": {"endpoints": [check_loopback(e) for e in connect]},
-            "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True, "multihop": False}},
-        }
+        from companion.node.zenoh_config import MeshSecurity, client_config, peer_config
+
+        security = None if keys is None else MeshSecurity.of(keys, mission)
+        connect_to = tuple(check_loopback(e) for e in connect)
         if mission.mesh.mode == "peer":
-            cfg["listen"] = {"endpoints": [check_loopback(e) for e in listen]}
-        self.session = zenoh.open(zenoh.Config.from_json5(json.dumps(cfg)))
+            cfg = peer_config(tuple(check_loopback(e) for e in listen), connect_to, security)
+        else:
+            cfg = client_config(connect_to, mission.mesh.connect_timeout, security)
+        self.session = zenoh.open(cfg)
         prefix, name = mission.mesh.key_prefix, mission.name
         self.publishers = [
             self.session.declare_publisher(detections.camera_key(prefix, name, i))

@@ -23,6 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mission import Mission, load_mission
 from companion.node.frames import LocalFrame
+from companion.node.keys import for_mission, mavlink_secrets
 from companion.node.vehicle_link import LinkError, VehicleLink
 from sim_vehicles import camera as cam
 
@@ -48,10 +49,19 @@ def _connect(url: str, frame: LocalFrame, stop: threading.Event) -> VehicleLink 
 class CameraNode:
     """Every vehicle's camera, one thread per vehicle link."""
 
-    def __init__(self, mission: Mission, urls: list[str], seed: int, bus: cam.CameraBus) -> None:
+    def __init__(
+        self,
+        mission: Mission,
+        urls: list[str],
+        seed: int,
+        bus: cam.CameraBus,
+        signing_secrets: list[bytes] | None = None,
+    ) -> None:
+        """`signing_secrets`: give each vehicle its MAVLink signing secret once connected
+        (`--setup-signing`: SITL on loopback, whose SERIAL0 is its USB port)."""
         if len(urls) != mission.n_uavs:
             raise ValueError(f"--vehicles: {len(urls)} links for the mission's {mission.n_uavs} vehicles")
-        self.mission, self.urls, self.bus = mission, urls, bus
+        self.mission, self.urls, self.bus, self.signing_secrets = mission, urls, bus, signing_secrets
         self.frame = LocalFrame(mission.region.origin)
         self.grid, self.targets = cam.draw_truth(mission, seed)
         rng = cam.instance_rng(seed, 0, cam.Stream.CAMERA)
@@ -80,8 +90,11 @@ class CameraNode:
             self.errors.append(f"vehicle {uav} at {url}: {exc}")
             stop.set()
             return
+        if self.signing_secrets is not None:
+            link.provision_signing(self.signing_secrets[uav])
         link.request_streams({mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: POSITION_HZ})
-        print(f"camera: vehicle {uav} up at {url}", flush=True)
+        signed = ", MAVLink signing set up" if self.signing_secrets is not None else ""
+        print(f"camera: vehicle {uav} up at {url}{signed}", flush=True)
         period = 1.0 / self.mission.sim.camera_hz
         s, alt0 = link.state, self.mission.region.origin.alt
         next_t, beat = -1.0, 0.0
@@ -110,6 +123,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--truth", type=Path, default=None, help="write the ground truth (JSON) here")
     parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT")
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT")
+    parser.add_argument(
+        "--setup-signing",
+        action="store_true",
+        help="give each vehicle its MAVLink signing secret from the mission's keys (SETUP_SIGNING: "
+        "only over links that cannot be overheard, e.g. SITL's SERIAL0 on loopback)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -123,12 +142,14 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        bus = cam.CameraBus(mission, args.zenoh_listen or ["tcp/127.0.0.1:0"], connect)
-    except ValueError as exc:
+        keys = for_mission(mission, "camera")
+        bus = cam.CameraBus(mission, args.zenoh_listen or ["tcp/127.0.0.1:0"], connect, keys)
+    except ValueError as exc:  # KeyDirectoryError too
         print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
-        node = CameraNode(mission, urls, seed, bus)
+        signing = mavlink_secrets(mission) if args.setup_signing else None
+        node = CameraNode(mission, urls, seed, bus, signing)
         if args.truth is not None:
             cam.write_truth(args.truth, cam.truth_record(mission, seed, node.grid, node.targets, node.frame))
         print(f"camera: mission {mission.name}, {len(urls)} vehicles, seed {seed}", flush=True)

@@ -41,6 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="loopback Zenoh endpoint to connect to (default: the mission's mesh)")
     parser.add_argument("--truth", type=Path, default=None,
                         help="write the ground-truth evaluation record (JSON) here")
+    parser.add_argument("--approach", type=Path, default=None,
+                        help="write every pair's closest approach per step, at the physics rate (CSV)")
+    parser.add_argument("--state", type=Path, default=None,
+                        help="save the simulator's state here every step, and resume from it if it exists")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,14 +52,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         mission = load_mission(args.mission)
     except MissionError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: mission file {exc}", file=sys.stderr)
         return 2
     options = HostOptions(
         speedup=args.speedup, lockstep=args.lockstep, flavour=args.flavour, seed=args.seed,
         camera=not args.no_camera,
         zenoh_listen=tuple(args.zenoh_listen or ("tcp/127.0.0.1:0",)),
         zenoh_connect=tuple(args.zenoh_connect) if args.zenoh_connect else None,
-        truth=args.truth, host=args.host,
+        truth=args.truth, approach=args.approach, host=args.host, state=args.state,
     )
     try:
         host = Host(mission, options)
@@ -72,8 +76,11 @@ def run(args: argparse.Namespace) -> int:
         clock = "lockstep" if options.lockstep else f"speedup {options.speedup:g}"
         print(f"sim_vehicles: mission {mission.name}, {mission.n_uavs} vehicles, {flavour}, {clock}, "
               f"seed {host.seed}", flush=True)
+        signing = "requires MAVLink2-signed input" if host.signed else "UNSIGNED: accepts any sender"
+        if host.resumed:
+            print(f"sim_vehicles: resumed from {options.state} at t = {host.t:.3f} s", flush=True)
         for index, ip, port in host.endpoints:
-            print(f"vehicle {index} sysid {index + 1} mavlink udp {ip}:{port}", flush=True)
+            print(f"vehicle {index} sysid {index + 1} mavlink udp {ip}:{port} ({signing})", flush=True)
         stats = host.run()
     finally:
         host.close()

@@ -14,25 +14,29 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 
 class RealTimeClock:
-    """Ticks of `tick_dt` simulated seconds, `speedup` times faster than the wall clock."""
+    """Ticks of `tick_dt` simulated seconds, `speedup` times faster than the wall clock, counted from
+    tick `origin_tick` at `wall_start` (a resumed simulator starts from its saved tick)."""
 
     def __init__(self, tick_dt: float, speedup: float, wall_start: float) -> None:
         self.tick_dt, self.speedup, self.wall_start = tick_dt, speedup, wall_start
+        self.origin_tick = 0
 
     def target(self, wall: float) -> int:
-        return math.floor((wall - self.wall_start) * self.speedup / self.tick_dt + 1e-9)
+        return self.origin_tick + math.floor((wall - self.wall_start) * self.speedup / self.tick_dt + 1e-9)
 
     def sleep(self, wall: float, tick: int) -> float:
         """Wall seconds until tick `tick` + 1 is due."""
-        return max(0.0, self.wall_start + (tick + 1) * self.tick_dt / self.speedup - wall)
+        ahead = tick + 1 - self.origin_tick
+        return max(0.0, self.wall_start + ahead * self.tick_dt / self.speedup - wall)
 
 
 class LockstepClock:
     """Simulated time advances by one sampling step when every vehicle is ready for it.
 
     A driver (one per vehicle) reports "ready for step s". `step` is the current step k (simulated
-    time k * dT). Reports of s = k + 1 count towards the next advance; s = k asks for a snapshot of
-    the current step; s < k is a stale duplicate; anything else is refused.
+    time k * dT). Reports of s = k + 1 count towards the next advance; s = k, or s = 0 (a driver
+    that (re)starts and does not know k), asks for a snapshot of the current step; other s < k are
+    stale duplicates; anything else is refused.
     """
 
     def __init__(self, tick_dt: float, substeps: int, n_vehicles: int) -> None:
@@ -57,7 +61,7 @@ class LockstepClock:
                 self.step += 1
                 self.ready.clear()
             return mavlink.MAV_RESULT_ACCEPTED, False
-        if s == self.step:
+        if s in (self.step, 0):
             return mavlink.MAV_RESULT_ACCEPTED, True
         if s < self.step:
             return mavlink.MAV_RESULT_ACCEPTED, False

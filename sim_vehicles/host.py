@@ -20,7 +20,9 @@ import numpy as np
 from companion.core.kinematics import Kinematics
 from companion.mission import Mission
 from companion.node.frames import LocalFrame
+from companion.node.keys import for_mission, mavlink_secrets
 from sim_vehicles import camera as cam
+from sim_vehicles.approach import ApproachRecorder
 from sim_vehicles.clock import LockstepClock, RealTimeClock
 from sim_vehicles.dynamics.flight import BankedFlight, Demand, Flight, GridFlight, KinematicFlight
 from sim_vehicles.mavlink_endpoint import Address, InputStats, MavlinkEndpoint
@@ -29,6 +31,7 @@ from sim_vehicles.protocols import ftp
 from sim_vehicles.protocols.commands import MAX_RANGE_M, handle_command
 from sim_vehicles.protocols.mission import MissionProtocol
 from sim_vehicles.protocols.params import ParamStore, handle_param, param_specs
+from sim_vehicles.resume import load_state, save_state
 from sim_vehicles.telemetry import Pose, Streams, TelemetryBuilder
 from sim_vehicles.vehicle import Vehicle
 
@@ -57,7 +60,9 @@ class HostOptions:
     zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     zenoh_connect: tuple[str, ...] | None = None  # None: the mission's seed endpoint / router
     truth: Path | None = None
+    approach: Path | None = None  # the physics-rate closest approaches (sim_vehicles.approach)
     host: str | None = None  # None: the mission's sim.host
+    state: Path | None = None  # save the state every step; resume from it if it exists (resume.py)
 
 
 @dataclass
@@ -81,7 +86,7 @@ class HostedVehicle:
         self.stats = endpoint.stats
         self._pose_tick = -1
         self._pose: Pose | None = None
-        self._stats_reported = (0, 0)
+        self._stats_reported = (0, 0, 0)
         self._stats_said = -math.inf
 
     @property
@@ -238,10 +243,13 @@ class HostedVehicle:
         v.reached.clear()
 
     def report_bad_input(self, wall: float) -> None:
-        counts = (self.stats.bad_frames, self.stats.rejected)
+        s = self.stats
+        counts = (s.bad_frames, s.rejected, s.unsigned + s.bad_signature)
         if counts != self._stats_reported and wall - self._stats_said >= STATS_TEXT_INTERVAL:
+            unsigned = f", {counts[2]} unsigned or badly signed" if self.endpoint.signing else ""
             self.vehicle.say(
-                f"Bad input: {counts[0]} bad frames, {counts[1]} rejected values", M.MAV_SEVERITY_NOTICE
+                f"Bad input: {counts[0]} bad frames, {counts[1]} rejected values{unsigned}",
+                M.MAV_SEVERITY_NOTICE,
             )
             self._stats_reported, self._stats_said = counts, wall
             self.flush()
@@ -277,10 +285,18 @@ class Host:
         self.wakeup_w.setblocking(False)
         self.selector.register(self.wakeup_r, selectors.EVENT_READ, None)
         self.bus: cam.CameraBus | None = None
+        self.resumed = False
+        self._saved_tick = -1
         self.stopping = False
         self.stats = RunStats()
+        self.approach = (
+            ApproachRecorder(options.approach, mission.n_uavs, k.step, 3 * mission.comms.safety)
+            if options.approach is not None
+            else None
+        )
         try:
             bind = options.host or mission.sim.host
+            secrets = mavlink_secrets(mission)
             for i, v in enumerate(mission.vehicles):
                 vehicle = Vehicle(
                     i,
@@ -290,7 +306,8 @@ class Host:
                     mission.altitude_of(i),
                     k.step,
                 )
-                endpoint = MavlinkEndpoint(bind, mission.vehicle_port(i), i + 1)
+                secret = secrets[i] if secrets else None
+                endpoint = MavlinkEndpoint(bind, mission.vehicle_port(i), i + 1, secret)
                 hv = HostedVehicle(self, i, vehicle, endpoint)
                 self.hosted.append(hv)
                 self.selector.register(endpoint, selectors.EVENT_READ, hv)
@@ -299,12 +316,18 @@ class Host:
                 cam.write_truth(options.truth, record)
             rng = cam.instance_rng(self.seed, 0, cam.Stream.CAMERA)
             self.camera = cam.Camera(mission, self.grid, self.targets, rng, self.frame)
+            self.next_camera = 0.0
+            if options.state is not None and options.state.exists():
+                load_state(self, options.state)
+                self.resumed = True
+                self._saved_tick = self.tick
             if options.camera:
                 connect = options.zenoh_connect
                 if connect is None:
                     mesh = mission.mesh
                     connect = (mesh.seed_endpoint if mesh.mode == "peer" else mesh.router,)
-                self.bus = cam.CameraBus(mission, list(options.zenoh_listen), list(connect))
+                keys = for_mission(mission, "camera")
+                self.bus = cam.CameraBus(mission, list(options.zenoh_listen), list(connect), keys)
         except BaseException:
             self.close()
             raise
@@ -326,6 +349,11 @@ class Host:
         return self.tick * self.tick_dt
 
     @property
+    def signed(self) -> bool:
+        """True when every vehicle requires signed MAVLink (the mission's [security] keys)."""
+        return all(hv.endpoint.signing for hv in self.hosted)
+
+    @property
     def endpoints(self) -> list[tuple[int, str, int]]:
         """(vehicle index, host, port) of every endpoint."""
         return [(hv.index, *hv.endpoint.sock.getsockname()) for hv in self.hosted]
@@ -342,7 +370,6 @@ class Host:
         if isinstance(self.clock, RealTimeClock):
             self.clock.wall_start = wall0
         next_second = wall0
-        self.next_camera = 0.0
         while not self.stopping:
             now = time.monotonic()
             target = self.clock.target(now)
@@ -350,6 +377,7 @@ class Host:
             while self.tick < target and budget:
                 self._tick()
                 budget -= 1
+            self._save_state()
             if isinstance(self.clock, LockstepClock) and self.tick == target:
                 if self.clock.step != self.snapshot_step:
                     self.snapshot_step = self.clock.step
@@ -368,6 +396,13 @@ class Host:
         for hv in self.hosted:
             self.stats.input.add(hv.stats)
         return self.stats
+
+    def _save_state(self) -> None:
+        """At each step boundary, the state a restarted simulator resumes from (`--state`)."""
+        path = self.options.state
+        if path is not None and self.tick % self.substeps == 0 and self.tick != self._saved_tick:
+            save_state(self, path)
+            self._saved_tick = self.tick
 
     def _serve(self, timeout: float) -> None:
         for key, _ in self.selector.select(timeout):
@@ -408,6 +443,8 @@ class Host:
         fl.tick(self._demand)
         self.tick += 1
         t = self.t
+        if self.approach is not None:
+            self.approach.update(t, fl.x, fl.y)
         for hv in hosted:
             if t >= hv.streams.next_any:
                 for msgid in hv.streams.due(t):
@@ -439,6 +476,9 @@ class Host:
         if self.bus is not None:
             self.bus.close()
             self.bus = None
+        if self.approach is not None:
+            self.approach.close()
+            self.approach = None
         for hv in self.hosted:
             hv.endpoint.close()
         self.selector.close()

@@ -4,6 +4,11 @@ Like ArduPilot SITL's UDP server: the vehicle listens on its port; every address
 valid MAVLink frame becomes a peer and receives its telemetry until silent for PEER_TIMEOUT.
 Each datagram is split into frames independently (a truncated frame never swallows the next
 datagram); anything undecodable is counted and skipped.
+
+With a signing secret the endpoint behaves like ArduPilot once MAVLink2 signing is set up: it
+signs what it sends and accepts only frames signed with the secret, with a timestamp newer than
+the last one of their stream (replays are refused), except the radio's own RADIO_STATUS. Rejected
+frames are counted (unsigned, bad_signature) and their senders do not become peers.
 """
 
 from __future__ import annotations
@@ -14,10 +19,13 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.node.vehicle_link import signing_timestamp
+
 PEER_TIMEOUT = 30.0  # wall seconds without traffic before a peer is forgotten
 MAX_PEERS = 16
 MAX_DATAGRAMS_PER_READ = 256
 _V2, _V1 = 0xFD, 0xFE
+UNSIGNED_ALLOWED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLINK_MSG_ID_RADIO})
 
 Address = tuple[str, int]
 
@@ -31,6 +39,8 @@ class InputStats:
     bad_frames: int = 0  # garbage, truncated, bad CRC, unknown message id
     unhandled: int = 0  # valid messages the vehicle does not act on
     rejected: int = 0  # values out of range, commands denied for their arguments
+    unsigned: int = 0  # signing on: frames without a signature
+    bad_signature: int = 0  # signing on: wrong key, or a replayed (not newer) timestamp
 
     def add(self, other: InputStats) -> None:
         for name in self.__dataclass_fields__:
@@ -68,13 +78,24 @@ def _next_magic(data: bytes, start: int) -> int:
 class MavlinkEndpoint:
     """UDP socket of one vehicle: receives and decodes, sends to one or all peers."""
 
-    def __init__(self, host: str, port: int, sysid: int) -> None:
+    def __init__(self, host: str, port: int, sysid: int, signing_secret: bytes | None = None) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
         self.sock.setblocking(False)
         self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
         self.peers: dict[Address, float] = {}
         self.stats = InputStats()
+        if signing_secret is not None:
+            signing = self.mav.signing
+            signing.secret_key = signing_secret
+            signing.sign_outgoing = True
+            signing.link_id = 0
+            signing.timestamp = signing_timestamp()
+            signing.allow_unsigned_callback = lambda _mav, msg_id: msg_id in UNSIGNED_ALLOWED
+
+    @property
+    def signing(self) -> bool:
+        return self.mav.signing.secret_key is not None
 
     def fileno(self) -> int:
         return self.sock.fileno()
@@ -93,15 +114,38 @@ class MavlinkEndpoint:
             frames, bad = split_frames(data)
             self.stats.bad_frames += bad
             for frame in frames:
+                stream = self._stream(frame)
+                before = self.mav.signing.stream_timestamps.get(stream) if stream else None
                 try:
                     msg = self.mav.decode(bytearray(frame))
-                except Exception:  # pymavlink raises MAVError, struct.error, ... on corrupt frames
-                    self.stats.bad_frames += 1
+                except Exception as exc:  # pymavlink raises MAVError, struct.error, ... on corrupt frames
+                    self._count_bad(exc, stream, before)
                     continue
                 self.stats.frames += 1
                 out.append((msg, addr))
                 self._touch(addr, now)
         return out
+
+    def _stream(self, frame: bytes) -> tuple[int, int, int] | None:
+        """(link id, system, component) of a signed MAVLink2 frame when signing is on, else None."""
+        if not self.signing or frame[0] != _V2 or not frame[2] & 1 or len(frame) < 25:
+            return None
+        return frame[-13], frame[5], frame[6]
+
+    def _count_bad(self, exc: Exception, stream: tuple[int, int, int] | None, before: int | None) -> None:
+        if "signature" not in str(exc):
+            self.stats.bad_frames += 1
+        elif stream is None:
+            self.stats.unsigned += 1
+        else:
+            self.stats.bad_signature += 1
+            # pymavlink moves the stream's timestamp before it checks the signature: put it back,
+            # so that a forged frame cannot make the genuine stream look like a replay
+            timestamps = self.mav.signing.stream_timestamps
+            if before is None:
+                timestamps.pop(stream, None)
+            else:
+                timestamps[stream] = before
 
     def _touch(self, addr: Address, now: float) -> None:
         if addr not in self.peers and len(self.peers) >= MAX_PEERS:

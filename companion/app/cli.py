@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from companion.batch.executors import ClusterError
-from companion.mission import MissionError, load_mission
+from companion.mission import Mission, MissionError, load_mission
 
 if TYPE_CHECKING:
     from companion.batch.generate import Family
@@ -20,8 +22,10 @@ def _mc(args: argparse.Namespace) -> int:
     from companion.batch.executors import open_executor
     from companion.batch.experiments import compare
     from companion.batch.report import copy_mission
+    from companion.batch.starts import parse_layouts
 
     mission = load_mission(args.mission)
+    layouts = parse_layouts(args.random_starts) if args.random_starts else ()
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
     seed = mission.seed if args.seed is None else args.seed
     steps = args.steps or mission.steps
@@ -36,10 +40,12 @@ def _mc(args: argparse.Namespace) -> int:
             save_trajectories=args.save_trajectories,
             progress=not args.quiet,
             executor=executor,
+            layouts=layouts,
         )
     copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
-    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv and plots")
+    starts = " and starts.csv" if layouts else ""
+    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv, plots{starts}")
     return 0
 
 
@@ -190,6 +196,197 @@ def _soak(args: argparse.Namespace) -> int:
     return 1 if events else 0
 
 
+@contextmanager
+def _bar(total: int, label: str, quiet: bool) -> Iterator[Callable[[], None]]:
+    """A progress bar over `total` runs; yields the function that advances it by one run."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    with Progress(*columns, disable=quiet) as bar:
+        task = bar.add_task(label, total=total)
+        yield lambda: bar.advance(task)
+
+
+def _output_folder(out: Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out {out}: {exc.strerror or exc}") from None
+
+
+def _missions(
+    args: argparse.Namespace, out: Path, check: Callable[[int], object]
+) -> tuple[list[Mission], dict]:
+    """The missions of `evaluate`/`tune`: generated (written to out/missions/) or a folder's files,
+    with the weights file applied; and how they were made. `check(n)` vets the command's other
+    options for n missions before anything is generated or written."""
+    from companion.batch.generate import generate, write
+    from companion.batch.paired import apply_weights, load_missions, load_weights
+
+    weights = [(path, load_weights(path)) for path in args.weights or ()]
+    origin: dict
+    if args.mission_dir is not None:
+        missions, origin = load_missions(args.mission_dir), {"mission_dir": str(args.mission_dir)}
+        check(len(missions))
+        _output_folder(out)
+    elif args.missions is not None and args.seed is not None:
+        if args.missions < 1:
+            raise ValueError("--missions must be at least 1")
+        check(args.missions)
+        family = _family(args)
+        _output_folder(out)
+        generated = generate(args.missions, args.seed, family)
+        write(generated, out / "missions")
+        missions = [m for m, _ in generated]
+        origin = {
+            "generated": {"count": args.missions, "seed": args.seed, "family": dataclasses.asdict(family)}
+        }
+    else:
+        raise ValueError("give --missions N and --seed S (generated missions), or --mission-dir DIR")
+    for path, table in weights:
+        missions = [apply_weights(m, table, path) for m in missions]
+    if weights:
+        origin["weights"] = [{"file": path, "algorithm": table} for path, table in weights]
+    return missions, origin
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
+    from companion.batch.heldout import MIN_RUNS, evaluate
+    from companion.batch.starts import parse_layouts
+
+    def check(_: int) -> None:
+        if args.runs < MIN_RUNS:
+            raise ValueError(
+                f"--runs must be at least {MIN_RUNS} (a per-mission interval needs two paired runs)"
+            )
+
+    out = Path(args.out)
+    layouts = parse_layouts(args.random_starts) if args.random_starts else ()
+    missions, origin = _missions(args, out, check)
+    total = 3 * args.runs * len(missions)
+    label = f"{len(missions)} missions x 3 algorithms x {args.runs} runs"
+    with open_executor(args.scheduler, args.workers) as executor, _bar(total, label, args.quiet) as advance:
+        result = evaluate(missions, args.runs, args.steps, out, executor, layouts, origin, advance)
+    _print_evaluation(result)
+    print(f"wrote {out}/evaluate.json, missions.csv, overall.csv, runs.csv and evaluate.png")
+    return 0
+
+
+def _tune(args: argparse.Namespace) -> int:
+    from companion.batch.executors import open_executor
+    from companion.batch.starts import parse_layouts
+    from companion.batch.tune import SPACE, Setup, load_space, plan, select, tune
+
+    out = Path(args.out)
+    layouts = parse_layouts(args.random_starts) if args.random_starts else ()
+    space = load_space(args.space) if args.space else SPACE
+    params = [p.strip() for p in args.params.split(",") if p.strip()] if args.params else None
+    chosen = select(space, args.algorithm, params)
+    if args.confirm < 0:
+        raise ValueError("--confirm must be at least 0")
+    missions, origin = _missions(args, out, lambda n: plan(args.budget, n, args.runs, args.confirm))
+    seed = args.seed if args.seed is not None else 0
+    setup = Setup(
+        args.algorithm,
+        args.runs,
+        args.steps,
+        args.budget,
+        seed,
+        args.uncertainty_weight,
+        layouts,
+        args.confirm,
+    )
+    trials, total = plan(args.budget, len(missions), args.runs, args.confirm)
+    label = f"tune {args.algorithm}: {trials} trials x {len(missions)} missions x {args.runs} runs"
+    with (
+        open_executor(args.scheduler, args.workers, keep=True) as executor,
+        _bar(total, label, args.quiet) as advance,
+    ):
+        tune(missions, chosen, setup, out, executor, origin, advance)
+    print((out / "weights.toml").read_text(), end="")
+    print(f"wrote {out}/weights.toml, history.csv, study.json and tune.png")
+    return 0
+
+
+def _print_evaluation(result: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    def interval(row: dict, key: str, scale: float = 1.0, digits: int = 4) -> str:
+        v, lo, hi = (scale * row[k] for k in (key, f"{key}_low", f"{key}_high"))
+        return f"{v:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
+
+    console = Console(width=max(Console().width, 150))  # wide enough when piped to a file
+    per = Table(title="per mission: proposed - baseline, mean over paired runs [95 % CI]")
+    per.add_column("mission")
+    per.add_column("UAVs", justify="right")
+    keys = list(dict.fromkeys((r["baseline"], r["metric"]) for r in result["missions"]))
+    for baseline, metric in keys:
+        per.add_column(f"{metric} vs {baseline}", justify="right")
+    info = {i["mission"]: i for i in result["mission_info"]}
+    for name, i in info.items():
+        cells = {(r["baseline"], r["metric"]): r for r in result["missions"] if r["mission"] == name}
+        per.add_row(name, str(i["uavs"]), *(interval(cells[k], "difference", digits=3) for k in keys))
+    console.print(per)
+    table = Table(title=f"overall ({result['meta']['missions']} missions x {result['meta']['runs']} runs)")
+    for col in ("baseline", "metric", "mean difference [95 % CI]", "relative (%)", "win rate [Wilson 95 %]"):
+        table.add_column(col, justify="right")
+    for r in result["overall"]:
+        table.add_row(
+            r["baseline"],
+            r["metric"],
+            interval(r, "difference"),
+            interval(r, "relative_difference", 100, 3),
+            f"{r['wins']}/{r['missions']}: " + interval(r, "win_rate", 100, 3),
+        )
+    console.print(table)
+
+
+def _faults(args: argparse.Namespace) -> int:
+    from companion.app.faults import ROWS, Plan, run_row
+
+    rows = ROWS if args.row == "all" else (args.row,)
+    if not 0 < args.at < args.at + args.outage < args.steps:
+        raise ValueError(f"--at {args.at} --outage {args.outage} must fit within --steps {args.steps}")
+    mission = load_mission(args.mission)
+    plan = Plan(args.steps, args.at, args.outage, args.victim % mission.n_uavs)
+    failed = 0
+    for row in rows:
+        o = run_row(row, mission, Path(args.out) / row, plan)
+        failed += bool(o.failures)
+        print(
+            f"{row}: {'FAILED: ' + '; '.join(o.failures) if o.failures else 'kept everything'}; "
+            f"{o.uavs} UAVs, {o.steps} steps, completed {o.completed}, detections {o.detections} "
+            f"(lost {len(o.lost_detections)}), closest approach {o.closest_approach_m:.1f} m "
+            f"({o.separation_losses} steps within R_s), converged {o.converged}, {o.seconds:.0f} s",
+            flush=True,
+        )
+    print(f"wrote {args.out}/<row>/outcome.json")
+    return 1 if failed else 0
+
+
+def _fuzz(args: argparse.Namespace) -> int:
+    from companion.app.fuzz import CAMPAIGNS, run_campaign
+
+    names = CAMPAIGNS if args.campaign == "all" else (args.campaign,)
+    failed = 0
+    for name in names:
+        c = run_campaign(name, args.count, args.seed)
+        failed += bool(c.failures)
+        reasons = ", ".join(f"{r} x{n}" for r, n in c.reasons.most_common(5))
+        print(
+            f"{name}: {c.inputs:,} inputs, {c.accepted:,} accepted, {c.rejected:,} rejected and counted, "
+            f"{len(c.failures)} failures, {c.seconds:.0f} s" + (f"; top reasons: {reasons}" * bool(reasons)),
+            flush=True,
+        )
+        for failure in c.failures[:10]:
+            print(f"  FAILURE {failure}", flush=True)
+        if c.notes:
+            print(f"  {json.dumps(c.notes, default=str)}", flush=True)
+    return 1 if failed else 0
+
+
 def _companion(args: argparse.Namespace) -> int:
     from companion.node.main import run_companion
 
@@ -224,6 +421,29 @@ def _run(args: argparse.Namespace) -> int:
     except RuntimeError as exc:  # a child that did not start (its log is in the message)
         print(f"error: {exc}", file=sys.stderr)
         return 1
+
+
+def _keys(args: argparse.Namespace) -> int:
+    from companion.node.keys import generate
+
+    mission = load_mission(args.mission) if args.mission else None
+    n_uavs = mission.n_uavs if mission else args.uavs
+    out = args.out or (mission.security.keys if mission else None)
+    if not n_uavs or n_uavs < 1 or not out:
+        print(
+            "error: give --mission FILE (with [security] keys or --out DIR), or --uavs N --out DIR",
+            file=sys.stderr,
+        )
+        return 2
+    if args.days < 1:
+        print("error: --days must be at least 1", file=sys.stderr)
+        return 2
+    generate(Path(out), n_uavs, args.days)
+    print(
+        f"wrote keys for {n_uavs} UAVs in {out}: each aircraft needs swarm.json, ca.pem and its "
+        "uav-N/ folder; keep ca.key off the aircraft"
+    )
+    return 0
 
 
 def _view(args: argparse.Namespace) -> int:
@@ -267,6 +487,17 @@ def _companion_bench(args: argparse.Namespace) -> int:
     return bench_main(args.args)
 
 
+def _random_starts_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--random-starts",
+        nargs="?",
+        const="edge,clustered",
+        default=None,
+        metavar="LAYOUTS",
+        help="draw each run's start layout (edge,clustered by default), the same for every algorithm",
+    )
+
+
 def _add_executor_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
@@ -292,6 +523,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_executor_arguments(mc)
     mc.add_argument("--save-trajectories", action="store_true")
     mc.add_argument("--quiet", action="store_true", help="no progress bar")
+    _random_starts_option(mc)
     mc.set_defaults(func=_mc)
 
     sw = sub.add_parser("sweep", help="sweep one algorithm parameter (the paper's Figure 11)")
@@ -356,6 +588,73 @@ def build_parser() -> argparse.ArgumentParser:
     family_options(so)
     so.set_defaults(func=_soak)
 
+    def mission_set_options(p: argparse.ArgumentParser, out: str) -> None:
+        p.add_argument("--missions", type=int, default=None, help="generate this many missions")
+        p.add_argument("--seed", type=int, default=None, help="the generator's seed")
+        p.add_argument("--mission-dir", default=None, help="use the mission files of a folder instead")
+        p.add_argument(
+            "--weights",
+            nargs="+",
+            default=None,
+            metavar="FILE",
+            help="TOML files whose [algorithm] tables replace the missions' weights, in order",
+        )
+        p.add_argument("--out", default=out)
+        _add_executor_arguments(p)
+        p.add_argument("--quiet", action="store_true", help="no progress bar")
+        family_options(p)
+
+    ev = sub.add_parser(
+        "evaluate", help="the proposed method against each baseline on held-out missions (paired, with CIs)"
+    )
+    mission_set_options(ev, "out/evaluate")
+    ev.add_argument("--runs", type=int, default=10, help="paired runs per mission and algorithm")
+    _random_starts_option(ev)
+    ev.set_defaults(func=_evaluate)
+
+    tu = sub.add_parser(
+        "tune", help="choose the weights the paper does not give, on training missions (Optuna)"
+    )
+    mission_set_options(tu, "out/tune")
+    tu.add_argument("--budget", type=int, required=True, help="runs in all, the current weights' included")
+    tu.add_argument("--runs", type=int, default=1, help="runs per mission and candidate")
+    tu.add_argument("--algorithm", choices=("proposed", "no-ta", "pheromone"), default="proposed")
+    tu.add_argument("--params", default=None, help="fields to tune (default: every row the algorithm reads)")
+    tu.add_argument("--space", default=None, help="a TOML search space (default: companion.batch.tune.SPACE)")
+    tu.add_argument(
+        "--uncertainty-weight", type=float, default=0.5, help="lambda: weight of the uncertainty term"
+    )
+    tu.add_argument(
+        "--confirm",
+        type=int,
+        default=5,
+        help="best candidates flown again on fresh runs before one is chosen",
+    )
+    _random_starts_option(tu)
+    tu.set_defaults(func=_tune)
+
+
+    fz = sub.add_parser("fuzz", help="fuzzing campaigns: mesh, MAVLink, camera frames, mission files")
+    fz.add_argument("--campaign", default="all", choices=("all", "mesh", "mavlink", "camera", "mission"))
+    fz.add_argument(
+        "--count", type=int, default=None, help="inputs per campaign (default: 100,000 mesh, 10,000 others, "
+        "1,000 mission files)",
+    )
+    fz.add_argument("--seed", type=int, default=0)
+    fz.set_defaults(func=_fuzz)
+
+    fa = sub.add_parser("faults", help="the fault matrix on real processes (docs/reliability.md)")
+    fa.add_argument(
+        "--row", default="all", choices=("all", "restart", "sim-restart", "link-loss", "partition", "loss")
+    )
+    fa.add_argument("--mission", default="mission_files/scenario1.toml")
+    fa.add_argument("--steps", type=int, default=300, help="steps of each row's mission")
+    fa.add_argument("--at", type=int, default=60, help="the step the fault strikes at")
+    fa.add_argument("--outage", type=int, default=8, help="steps the fault lasts (link-loss: 10 s)")
+    fa.add_argument("--victim", type=int, default=1, help="the UAV a companion or link fault hits")
+    fa.add_argument("--out", default="out/faults")
+    fa.set_defaults(func=_faults)
+
     from companion.node.guidance import COMMAND_MODES
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
@@ -382,7 +681,26 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--steps", type=int, default=None)
     co.add_argument("--seed", type=int, default=None)
     co.add_argument("--out", default=None, help="directory for the step log, the report and the .tlog")
+    co.add_argument(
+        "--journal",
+        default=None,
+        help="journal file: every step is kept there, and a companion started again on it goes on "
+        "where it stopped (docs/reliability.md)",
+    )
+    co.add_argument(
+        "--mavlink-key",
+        default=None,
+        help="sign the MAVLink link with this secret file (64 hex digits; default: the vehicle's in the "
+        "mission's key directory when [security] mavlink_signing is on)",
+    )
     co.set_defaults(func=_companion)
+
+    ke = sub.add_parser("keys", help="generate a swarm's keys and certificates (docs/reliability.md)")
+    ke.add_argument("--mission", default=None, help="the mission: its UAV count, and its key directory")
+    ke.add_argument("--uavs", type=int, default=None, help="the UAV count (without --mission)")
+    ke.add_argument("--out", default=None, help="the key directory (default: the mission's security.keys)")
+    ke.add_argument("--days", type=int, default=365, help="how long the certificates are valid")
+    ke.set_defaults(func=_keys)
 
     ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")
     ru.add_argument("mission")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +67,22 @@ def truth_cells(path: Path) -> np.ndarray:
     return np.array(sorted(int(t["cell"]) for t in data["targets"]), dtype=np.int64)
 
 
+def read_approach(path: Path) -> dict[int, float]:
+    """The simulator's physics-rate record (`sim_vehicles.approach`): each step's closest approach of
+    any pair of vehicles, horizontal metres. Empty when there is no record (external vehicles)."""
+    if not path.exists():
+        return {}
+    lines = path.read_text(encoding="utf-8", errors="replace").split("\n")[:-1]  # a last line cut short: out
+    out: dict[int, float] = {}
+    for row in csv.DictReader(lines):
+        try:
+            step, d = int(row["step"]), float(row["distance_m"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        out[step] = min(out.get(step, math.inf), d)
+    return out
+
+
 def logged_span(logs: dict[int, dict[int, dict[str, float]]]) -> range:
     """The steps to score: from the first step every UAV has logged (the mission starts when the
     whole swarm is up) to the last step any UAV logged."""
@@ -76,13 +93,20 @@ def logged_span(logs: dict[int, dict[int, dict[str, float]]]) -> range:
 
 
 def evaluate(
-    world: World, logs: dict[int, dict[int, dict[str, float]]], targets: np.ndarray, seconds: float, seed: int
+    world: World,
+    logs: dict[int, dict[int, dict[str, float]]],
+    targets: np.ndarray,
+    seconds: float,
+    seed: int,
+    approach: dict[int, float] | None = None,
 ) -> RunResult:
-    """A RunResult of the flown mission: eq. 30, targets found, coverage, lambda_2, min distance.
+    """A RunResult of the flown mission: eq. 30, targets found, coverage, lambda_2, min distance, and
+    the closest approach between sampling moments: the simulator's physics-rate record where there
+    is one (`read_approach`), else the logged poses' distance at the sampling moments.
 
     Step 0 of the result is the first step every companion logged. A UAV whose log stops (a killed
     companion) keeps its last logged pose for the link metrics, and its last mean uncertainty; the
-    vehicle itself keeps flying under its autopilot.
+    vehicle itself keeps flying under its autopilot (the physics-rate record sees it).
     """
     m = world.mission
     n = m.n_uavs
@@ -104,8 +128,9 @@ def evaluate(
             etas.append(row["mean_eta"])
         unc[k] = float(np.mean(etas)) if etas else 1.0
     scorer = Scorer(world, targets, steps)
-    for k in range(steps):
+    for k, step in enumerate(span):
         scorer.record(k, traj[k, :, :2], unc[k])
+        scorer.approach[k] = approach.get(step, math.inf) if approach else scorer.mind[k]
     return scorer.result(0, seed, seconds, trajectory=traj, tasks=tasks)
 
 
@@ -118,8 +143,9 @@ def failed_criteria(world: World, result: RunResult) -> list[str]:
         failures.append(f"targets found {found} < {c.min_targets_found}")
     if c.require_connected and result.steps and result.lambda2.min() <= 0:
         failures.append(f"network disconnected (min lambda_2 = {result.lambda2.min():.4f})")
-    if c.require_safe_distance and result.steps and result.min_distance.min() <= m.comms.safety:
-        failures.append(f"min distance {result.min_distance.min():.1f} m <= R_s = {m.comms.safety} m")
+    closest = min(result.min_distance.min(), result.approach.min()) if result.steps else math.inf
+    if c.require_safe_distance and closest <= m.comms.safety:
+        failures.append(f"closest approach {closest:.1f} m <= R_s = {m.comms.safety} m")
     if result.steps == 0:
         failures.append("no step was flown")
     return failures

@@ -28,7 +28,14 @@ from pathlib import Path
 import numpy as np
 
 from companion.app import px4_sitl, sitl
-from companion.app.evaluation import CompanionLogs, evaluate, failed_criteria, flight_report, truth_cells
+from companion.app.evaluation import (
+    CompanionLogs,
+    evaluate,
+    failed_criteria,
+    flight_report,
+    read_approach,
+    truth_cells,
+)
 from companion.batch import plots, report
 from companion.batch.engine import warm_up
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance
@@ -36,6 +43,7 @@ from companion.core.world import World, build_world
 from companion.mission import Mission, load_mission
 from companion.node.airframe import Airframe, refusal
 from companion.node.frames import LocalFrame
+from companion.node.keys import ROLES, for_mission, insecure_warning, mavlink_secrets, uav_identity
 from sim_vehicles import camera as cam
 
 START_TIMEOUT_S = 120.0
@@ -171,6 +179,11 @@ def _check_options(opts: RunOptions, mission: Mission) -> str | None:
         problem = refusal(mission, airframe, opts.mode)
         if problem:
             return f"--autopilot {opts.autopilot}: {problem}"
+        if opts.autopilot == "px4-sitl" and mission.secured and mission.security.mavlink_signing:
+            return (
+                "--autopilot px4-sitl: the PX4 SITL links are not MAVLink2-signed (PX4 is given no secret): "
+                "set [security] mavlink_signing = false for it"
+            )
     return None
 
 
@@ -191,6 +204,8 @@ def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | 
         str(seed),
         "--out",
         str(opts.out),
+        "--journal",
+        str(opts.out / f"uav{i}.journal"),
         "--command-mode",
         opts.mode,
     ]
@@ -202,9 +217,10 @@ def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | 
 
 
 def _start_camera(
-    children: Children, opts: RunOptions, links: list[str], seed: int, n: int
+    children: Children, opts: RunOptions, links: list[str], seed: int, n: int, setup_signing: bool = False
 ) -> subprocess.Popen:
-    """The stand-alone camera on `links`; returns once it has every vehicle's position stream."""
+    """The stand-alone camera on `links`; returns once it has every vehicle's position stream.
+    `setup_signing`: it gives each vehicle its MAVLink signing secret first (SITL's SERIAL0)."""
     out = opts.out
     camera = children.start(
         "camera",
@@ -221,6 +237,7 @@ def _start_camera(
             str(seed),
             "--truth",
             str(out / "truth.json"),
+            *(["--setup-signing"] if setup_signing else []),
         ],
         out / "camera.log",
     )
@@ -240,7 +257,8 @@ def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: in
         argv = sitl.sitl_argv(binary, defaults, mission, i, opts.speedup)
         children.start(f"sitl{i}", argv, opts.out / f"sitl{i}.log", cwd=home)
     ports = [sitl.sitl_ports(mission, i) for i in range(mission.n_uavs)]
-    _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs)
+    signing = mavlink_secrets(mission) is not None
+    _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs, signing)
     return [p.url(p.serial1) for p in ports]
 
 
@@ -276,6 +294,8 @@ def _start_bundled(children: Children, opts: RunOptions, mission: Mission, seed:
         str(seed),
         "--truth",
         str(opts.out / "truth.json"),
+        "--approach",
+        str(opts.out / "approach.csv"),
         "--speedup",
         str(opts.speedup),
     ]
@@ -300,6 +320,20 @@ def _stopped_early(children: Children) -> str | None:
     return None
 
 
+def security_summary(mission: Mission) -> str:
+    """What authenticates this run, after checking that every identity's keys load; the insecure
+    warning when nothing does."""
+    if not mission.secured:
+        return insecure_warning(mission)
+    for identity in [uav_identity(i) for i in range(mission.n_uavs)] + list(ROLES):
+        for_mission(mission, identity)
+    link = "MAVLink2-signed" if mavlink_secrets(mission) else "UNSIGNED ([security] mavlink_signing = false)"
+    return (
+        f"secured: mesh over mutually authenticated TLS with access control, every bundle signed; "
+        f"vehicle links {link}; keys in {mission.security.keys}"
+    )
+
+
 def run_mission(opts: RunOptions) -> int:
     """Fly the mission end to end; returns the process exit code."""
     mission = load_mission(opts.mission_file)
@@ -307,6 +341,8 @@ def run_mission(opts: RunOptions) -> int:
     if problem:
         print(f"error: {problem}", file=sys.stderr)
         return 2
+    security = security_summary(mission)  # raises KeyDirectoryError (a ValueError) for bad keys
+    print(security, flush=True)
     seed = mission.seed if opts.seed is None else opts.seed
     steps = opts.steps or mission.steps
     out = opts.out
@@ -385,7 +421,9 @@ def run_mission(opts: RunOptions) -> int:
         if not (out / "truth.json").exists():
             return 1
     logs.poll()
-    result = evaluate(world, logs.logs, truth_cells(out / "truth.json"), time.monotonic() - started, seed)
+    approach = read_approach(out / "approach.csv")
+    targets = truth_cells(out / "truth.json")
+    result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed, approach)
     if result.steps == 0:
         print(
             "error: no step was flown (see the companion and vehicle logs in the output directory)",
@@ -418,6 +456,12 @@ def run_mission(opts: RunOptions) -> int:
         f"{len(result.target_cells)}, mean target time {s['mean_target_time']:.1f}, "
         f"min lambda_2 {s['min_lambda2']:.4f}, min distance {s['min_distance']:.1f} m"
     )
+    if approach:
+        print(
+            "closest approach along the flown tracks (simulator, physics rate): "
+            f"{result.approach.min():.1f} m (R_s = {mission.comms.safety:g} m); "
+            f"{result.separation_losses} steps within R_s"
+        )
     p, h = flight["position_m"], flight["heading_deg"]
     if p["median"] is not None:
         print(
@@ -432,4 +476,6 @@ def run_mission(opts: RunOptions) -> int:
         print("pass criteria FAILED: " + "; ".join(failures), file=sys.stderr)
         return 1
     print(f"pass criteria met; wrote {out}")
+    if not mission.secured:
+        print("this run was INSECURE (no [security] keys): see the warning at its start", flush=True)
     return 0

@@ -261,6 +261,11 @@ def simulate(
         trajectory=traj,
         tasks=tasks,
         rejected_messages=sum(a.rejected for a in agents),
+        extras={
+            "proposals_accepted": sum(a.commitments.accepted for a in agents),
+            "proposals_rejected": sum(a.commitments.rejected for a in agents),
+            "recovered": sum(a.commitments.recovered for a in agents),
+        },
     )
 
 

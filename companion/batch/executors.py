@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import multiprocessing
+import multiprocessing.pool
 import os
 import signal
 import threading
@@ -56,9 +57,12 @@ class RunExecutor(Protocol):
 
 
 @contextmanager
-def open_executor(scheduler: str | None = None, workers: int | None = None) -> Iterator[RunExecutor]:
-    """A `DaskCluster` at `scheduler` (e.g. tcp://10.0.0.1:8786), or else a `LocalPool` of `workers`."""
-    executor: RunExecutor = LocalPool(workers) if scheduler is None else DaskCluster(scheduler)
+def open_executor(
+    scheduler: str | None = None, workers: int | None = None, keep: bool = False
+) -> Iterator[RunExecutor]:
+    """A `DaskCluster` at `scheduler` (e.g. tcp://10.0.0.1:8786), or else a `LocalPool` of `workers`
+    (kept across maps with `keep`)."""
+    executor: RunExecutor = LocalPool(workers, keep) if scheduler is None else DaskCluster(scheduler)
     try:
         yield executor
     finally:
@@ -118,31 +122,42 @@ def _sigterm_interrupts() -> Iterator[None]:
 
 class LocalPool:
     """A spawn pool of `workers` processes (default: every core), started for each map and stopped
-    after it; `workers == 1` runs in this process. An interrupted map (Ctrl-C, SIGTERM) terminates
-    the pool: no process is left behind."""
+    after it, or with `keep` started once and kept until `close` (for studies made of many small
+    maps, such as a tune's trials: a fresh pool costs seconds); `workers == 1` runs in this process.
+    An interrupted map (Ctrl-C, SIGTERM) terminates the pool: no process is left behind."""
 
-    def __init__(self, workers: int | None = None) -> None:
+    def __init__(self, workers: int | None = None, keep: bool = False) -> None:
         self.workers = workers or os.cpu_count() or 1
         if self.workers < 1:
             raise ValueError(f"--workers must be at least 1, not {self.workers}")
         self.description = f"{self.workers} local process{'es' * (self.workers != 1)}"
+        self.keep = keep
+        self._pool: multiprocessing.pool.Pool | None = None
 
     def imap_unordered(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[tuple[int, R]]:
         if self.workers == 1:
             yield from enumerate(map(fn, items))
             return
-        pool = multiprocessing.get_context("spawn").Pool(self.workers, initializer=_worker_init)
+        pool = self._pool or multiprocessing.get_context("spawn").Pool(self.workers, initializer=_worker_init)
+        self._pool = None
+        finished = False
         with _sigterm_interrupts():
             try:
                 chunk = _chunk_size(len(items), self.workers)
                 yield from pool.imap_unordered(partial(_indexed, fn), enumerate(items), chunksize=chunk)
-                pool.close()
+                finished = True
             finally:
-                pool.terminate()
-                pool.join()
+                if finished and self.keep:
+                    self._pool = pool
+                else:
+                    pool.terminate()
+                    pool.join()
 
     def close(self) -> None:
-        pass
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
+            self._pool = None
 
 
 RUN_LIBRARIES = ("numpy", "scipy", "numba", "msgspec")  # what a run computes with, besides `companion`

@@ -22,6 +22,7 @@ from companion.batch import plots, report
 from companion.batch.engine import RunResult, simulate
 from companion.batch.executors import LocalPool, RunExecutor
 from companion.batch.montecarlo import RunSpec, execute, run_specs, specs_for, summarize
+from companion.batch.starts import random_start
 from companion.core.world import build_world
 from companion.mission import ALGORITHMS, Mission
 
@@ -56,15 +57,22 @@ def compare(
     save_trajectories: bool = False,
     progress: bool = True,
     executor: RunExecutor | None = None,
+    layouts: tuple[str, ...] = (),
 ) -> dict:
     """The paper's comparison (Figures 8-10): every algorithm on the same mission instances, computed
-    on `executor` (default: a local pool of `workers` processes)."""
+    on `executor` (default: a local pool of `workers` processes). With `layouts`, run r starts from
+    the layout `starts.random_start` draws for it (starts.csv), the same for every algorithm; else
+    from the mission's."""
     for a in algorithms:
         if a not in ALGORITHMS:
             raise ValueError(f"unknown algorithm {a!r}; choose from {', '.join(ALGORITHMS)}")
     out.mkdir(parents=True, exist_ok=True)
     record: Callable[[int], bool] = lambda r: save_trajectories or runs == 1 or r == 0  # noqa: E731
-    specs = specs_for(mission, algorithms, runs, steps, seed, record)
+    drawn = [random_start(mission, seed, r, layouts) for r in range(runs)] if layouts else []
+    if drawn:
+        report.write_starts(out, drawn)
+        mission = drawn[0][0]  # the plots show run 0, from its own start
+    specs = specs_for(mission, algorithms, runs, steps, seed, record, [m for m, _ in drawn])
     flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: {len(specs)} runs")
     results = {a: flat[i * runs : (i + 1) * runs] for i, a in enumerate(algorithms)}
     meta = {
@@ -73,6 +81,7 @@ def compare(
         "runs": runs,
         "steps": steps,
         "algorithms": list(algorithms),
+        "start_layouts": list(layouts) or "the mission's",
     }
     summary = report.write_summary(out, results, meta)
     report.write_runs(out, results)

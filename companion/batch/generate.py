@@ -1,12 +1,12 @@
 """Generated missions: a family of search missions beyond the paper's three scenario files.
 
 A mission of the family has a random convex region (3-8 vertices, 0.8-4 km across, any
-orientation), 2-12 UAVs starting on one of its edges or clustered inside it (separated, connected,
-and with a start contingency for every UAV: `mission._validate_start`), 1-6 distribution centres
-of eq. 1 with their own sigma, 5-20 targets, and either kinematics mode. Everything else takes the
-paper's values (R_A, R_c, R'_c, R_s, R'_s, eta_0, gamma, M) and the scenario files' choices
-(speed, step, weights). `generate` is a pure function of (count, seed, family): the same seed
-gives the same missions, file for file.
+orientation), 2-12 UAVs starting on one of its edges or clustered inside it (`starts.start_layout`:
+separated, connected, and with a start contingency for every UAV: `mission._validate_start`), 1-6
+distribution centres of eq. 1 with their own sigma, 5-20 targets, and either kinematics mode.
+Everything else takes the paper's values (R_A, R_c, R'_c, R_s, R'_s, eta_0, gamma, M) and the
+scenario files' choices (speed, step, weights). `generate` is a pure function of (count, seed,
+family): the same seed gives the same missions, file for file.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import numpy as np
 import tomli_w
 from scipy.spatial import ConvexHull
 
+from companion.batch.starts import start_layout
 from companion.core.geometry import ConvexPolygon
 from companion.mission import Mission, MissionError, parse_mission
 
@@ -62,56 +63,6 @@ def _polygon(rng: np.random.Generator, fam: Family) -> np.ndarray:
             return np.round(hull, 1)
 
 
-def _heading_deg(dx: float, dy: float, grid: bool) -> float:
-    h = math.degrees(math.atan2(dy, dx))
-    return float(round(h / 45) * 45 if grid else round(h, 1))
-
-
-def _snap(x: float, y: float, x0: float, y0: float, cell: float) -> tuple[float, float]:
-    return x0 + cell * round((x - x0) / cell), y0 + cell * round((y - y0) / cell)
-
-
-def _start_layout(
-    rng: np.random.Generator, poly: ConvexPolygon, n: int, layout: str, grid: bool, fam: Family, link: float
-) -> list[tuple[float, float, float]]:
-    """Start poses (x, y, heading_deg): on an edge, heading inwards, or clustered about a point."""
-    cell = fam.cell_size
-    x0, y0 = poly.vertices.min(axis=0) + cell / 2
-    spacing = rng.uniform(2.0, 6.0) * cell
-    verts = poly.vertices
-    if layout == "edge":
-        e = int(rng.integers(len(verts)))
-        a, b = verts[e], verts[(e + 1) % len(verts)]
-        length = float(np.linalg.norm(b - a))
-        spacing = min(spacing, 0.8 * link, (length - 2 * cell) / max(n - 1, 1))
-        inward = -poly.normals[e]
-        mid = (a + b) / 2 + inward * cell * 0.5
-        along = (b - a) / length
-        points = [mid + along * spacing * (i - (n - 1) / 2) for i in range(n)]
-        heading = _heading_deg(inward[0], inward[1], grid)
-        poses = [(float(p[0]), float(p[1]), heading) for p in points]
-    else:
-        lo, hi = verts.min(axis=0), verts.max(axis=0)
-        while True:
-            c = rng.uniform(lo, hi)
-            if poly.contains(c[0], c[1]):
-                break
-        base = rng.uniform(-180, 180)
-        poses = []
-        for _ in range(50 * n):
-            if len(poses) == n:
-                break
-            p = c + rng.normal(0, spacing * math.sqrt(n) / 2, 2) if poses else c
-            far = all(math.dist(p, q[:2]) >= 1.5 * spacing / 2 + 60 for q in poses)
-            near = not poses or any(math.dist(p, q[:2]) <= 0.7 * link for q in poses)
-            if far and near and poly.contains(p[0], p[1]):
-                h = math.radians(base + rng.uniform(-30, 30))
-                poses.append((float(p[0]), float(p[1]), _heading_deg(math.cos(h), math.sin(h), grid)))
-    if grid:
-        poses = [(*_snap(x, y, x0, y0, cell), h) for x, y, h in poses]
-    return [(round(x, 1), round(y, 1), h) for x, y, h in poses]
-
-
 def _peaks(
     rng: np.random.Generator, cells: np.ndarray, centres: np.ndarray, sigmas: np.ndarray, targets: int
 ) -> np.ndarray:
@@ -132,15 +83,18 @@ def _peaks(
     return np.round(weights * hi, 6)
 
 
-def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict:
-    """One candidate mission as a TOML-ready dict (validated by the caller)."""
+def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict | None:
+    """One candidate mission as a TOML-ready dict (validated by the caller), or None when the start
+    layout could not place every UAV."""
     verts = _polygon(rng, fam)
     poly = ConvexPolygon.from_vertices(verts)
     mode = str(rng.choice(fam.modes))
     n = int(rng.integers(fam.uavs[0], fam.uavs[1] + 1))
     layout = str(rng.choice(fam.layouts))
     r_c, buffer = 1000.0, 5.0
-    poses = _start_layout(rng, poly, n, layout, mode == "grid", fam, r_c - buffer)
+    poses = start_layout(rng, poly, n, layout, mode == "grid", fam.cell_size, r_c - buffer)
+    if len(poses) < n:
+        return None
     across = float(np.max(np.linalg.norm(verts[:, None] - verts[None], axis=-1)))
     k = int(rng.integers(fam.centres[0], fam.centres[1] + 1))
     lo, hi = verts.min(axis=0), verts.max(axis=0)
@@ -197,7 +151,10 @@ def generate(count: int, seed: int, family: Family | None = None) -> list[tuple[
     for i in range(count):
         rng = np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(i,)))
         for _ in range(ATTEMPTS):
-            text = tomli_w.dumps(_draw(rng, family, f"generated-{seed}-{i:03d}", seed * 1000 + i))
+            drawn = _draw(rng, family, f"generated-{seed}-{i:03d}", seed * 1000 + i)
+            if drawn is None:
+                continue
+            text = tomli_w.dumps(drawn)
             try:
                 out.append((parse_mission(text, f"generated mission {i}"), text))
                 break

@@ -7,7 +7,7 @@ needs: the local process pool and a Dask cluster (`executors`) give the same res
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,10 +41,17 @@ def specs_for(
     steps: int,
     seed: int,
     record: Callable[[int], bool],
+    starts: Sequence[Mission] = (),
 ) -> list[RunSpec]:
-    """One spec per (algorithm, run): run r of every algorithm sees the same targets and radio draws."""
+    """One spec per (algorithm, run): run r of every algorithm sees the same targets and radio draws
+    (and, given `starts`, flies the same start layout: the mission `starts[r]`)."""
+    per_run = list(starts) or [mission] * runs
+    if len(per_run) != runs:
+        raise ValueError(f"{len(per_run)} start layouts for {runs} runs")
     return [
-        RunSpec(mission.with_algorithm(a), seed, r, steps, record(r)) for a in algorithms for r in range(runs)
+        RunSpec(per_run[r].with_algorithm(a), seed, r, steps, record(r))
+        for a in algorithms
+        for r in range(runs)
     ]
 
 

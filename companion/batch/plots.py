@@ -179,3 +179,73 @@ def plot_links(path: Path, result: RunResult, safety: float) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_paired(path: Path, table: dict, metrics: Sequence[str]) -> None:
+    """`uavsearch evaluate`: per mission, the paired difference proposed - baseline with its 95 %
+    interval (sorted), the overall mean difference (band) and the win rate, per baseline and metric."""
+    baselines = list(dict.fromkeys(row["baseline"] for row in table["overall"]))
+    fig, axes = plt.subplots(
+        len(metrics), len(baselines), figsize=(5.5 * len(baselines), 4.5 * len(metrics)), squeeze=False
+    )
+    for i, metric in enumerate(metrics):
+        for j, baseline in enumerate(baselines):
+            ax = axes[i, j]
+            rows = [r for r in table["missions"] if r["baseline"] == baseline and r["metric"] == metric]
+            rows.sort(key=lambda r: r["difference"])
+            d = np.array([r["difference"] for r in rows])
+            lo = np.array([r["difference_low"] for r in rows])
+            hi = np.array([r["difference_high"] for r in rows])
+            y = np.arange(len(rows))
+            ax.errorbar(
+                d, y, xerr=[d - lo, hi - d], fmt="o", markersize=3, color=COLOURS.get(baseline), capsize=2
+            )
+            o = next(r for r in table["overall"] if r["baseline"] == baseline and r["metric"] == metric)
+            ax.axvspan(
+                o["difference_low"], o["difference_high"], color="tab:red", alpha=0.2, label="overall 95 % CI"
+            )
+            ax.axvline(o["difference"], color="tab:red", label=f"overall mean {o['difference']:.3g}")
+            ax.axvline(0.0, color="black", linestyle="--")
+            ax.set_yticks([])
+            ax.set_ylabel("missions (sorted)")
+            ax.set_xlabel(f"{metric}: proposed - {baseline} (lower: proposed better)")
+            p, lo, hi = (100 * o[k] for k in ("win_rate", "win_rate_low", "win_rate_high"))
+            rate = f"{p:.0f} %, {lo:.0f}-{hi:.0f} %"
+            ax.set_title(f"vs {baseline}: wins {o['wins']}/{o['missions']} ({rate})")
+            ax.legend(loc="lower right", fontsize=8)
+            ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_study(path: Path, history: Sequence[dict], title: str) -> None:
+    """`uavsearch tune`: each trial's objective and the best so far; each trial's relative change of
+    the mean target time against that of the mean uncertainty (trial 0, the weights before, at 0)."""
+    trials = np.array([h["trial"] for h in history])
+    objective = np.array([h["objective"] for h in history])
+    time = 100 * np.array([h["relative_target_time"] for h in history])
+    unc = 100 * np.array([h["relative_uncertainty"] for h in history])
+    best = int(np.argmin(objective))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.8))
+    a.plot(trials, objective, "o", markersize=3, color="tab:grey", label="trial")
+    a.step(trials, np.minimum.accumulate(objective), where="post", color="tab:red", label="best so far")
+    a.axhline(0.0, color="black", linestyle="--", linewidth=0.8)
+    a.set_xlabel("trial")
+    a.set_ylabel("objective J (relative to trial 0; lower is better)")
+    a.set_title(f"{title}: {len(history)} trials")
+    a.legend()
+    points = b.scatter(unc, time, c=trials, cmap="viridis", s=12)
+    b.plot(unc[best], time[best], "*", color="tab:red", markersize=14, label=f"best (trial {trials[best]})")
+    b.plot(0, 0, "s", color="black", label="trial 0 (weights before)")
+    b.axhline(0.0, color="black", linewidth=0.5)
+    b.axvline(0.0, color="black", linewidth=0.5)
+    b.set_xlabel("mean uncertainty over the run: change (%)")
+    b.set_ylabel("mean target time: change (%)")
+    b.legend()
+    fig.colorbar(points, ax=b, label="trial")
+    for ax in (a, b):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -13,10 +13,12 @@ import numpy as np
 
 from companion.batch.engine import RunResult
 from companion.batch.montecarlo import summarize
+from companion.mission import Mission
 
 TRAJECTORY_COLUMNS = ("algorithm", "run", "step", "uav", "x", "y", "heading", "task")
 STEP_COLUMNS = ("algorithm", "run", "step", "uncertainty", "found", "coverage", "lambda2", "min_distance")
 TARGET_COLUMNS = ("algorithm", "run", "cell", "found_step")
+START_COLUMNS = ("run", "layout", "uav", "x", "y", "heading_deg")
 
 
 def write_summary(out: Path, results: Mapping[str, Sequence[RunResult]], extra: dict | None = None) -> dict:
@@ -174,6 +176,17 @@ def write_targets(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None
         for r in _recorded(results):
             for cell, step in zip(r.target_cells.tolist(), r.target_steps.tolist(), strict=True):
                 w.writerow([r.algorithm, r.run, cell, step])
+
+
+def write_starts(out: Path, drawn: Sequence[tuple[Mission, str]]) -> None:
+    """starts.csv: the start layout of each run (`uavsearch mc --random-starts`), the same for every
+    algorithm."""
+    with (out / "starts.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(START_COLUMNS)
+        for run, (mission, layout) in enumerate(drawn):
+            for i, v in enumerate(mission.vehicles):
+                w.writerow([run, layout, i, v.x, v.y, v.heading_deg])
 
 
 def copy_mission(mission: Path, out: Path) -> None:

@@ -31,6 +31,7 @@ class SoakRow:
     closest_approach: float
     targets_found: int
     targets: int
+    recovered: int  # trajectories in force replaced by a contingency: 0 where UAVs fly their plans exactly
 
     @property
     def clean(self) -> bool:
@@ -87,4 +88,5 @@ def row_of(spec: RunSpec, r: RunResult) -> SoakRow:
         float(r.approach.min()),
         int(np.count_nonzero(r.target_steps >= 0)),
         len(r.target_steps),
+        int(r.extras.get("recovered", 0)),
     )

@@ -11,6 +11,8 @@
    targets, so the swarm flies as in the batch engine.
    With `--viewer` the same run is repeated with a viewer attached: `uavsearch view`'s live
    server on the mesh (`viewer` mode of this module) and a headless Chromium showing its page.
+   With `--secured` it is repeated on a secured mesh (keys made for the run: TLS with mutual
+   authentication, access control, every bundle signed and checked; docs/reliability.md).
 2. **Largest real-time swarm**: N UAVs built from the mission (vehicles on a grid over the region,
    a unique key prefix, free ports), each stepping on the wall clock once per step period, in peer
    mode and in client mode with one router (`python -m companion.node.mesh router`). N grows over
@@ -95,9 +97,9 @@ def spread_vehicles(mission: Mission, n: int) -> list[Vehicle]:
     return out
 
 
-def bench_mission(base: Mission, n: int | None, mode: str, tag: str) -> Mission:
-    """`base` with n spread vehicles (None: its own), the mesh in `mode`, a unique key prefix and
-    fresh loopback ports for the seed endpoint and the router."""
+def bench_mission(base: Mission, n: int | None, mode: str, tag: str, keys: Path | None = None) -> Mission:
+    """`base` with n spread vehicles (None: its own), the mesh in `mode`, a unique key prefix,
+    fresh loopback ports for the seed endpoint and the router and, with `keys`, secured by them."""
     vehicles = base.vehicles if n is None else spread_vehicles(base, n)
     mesh = msgspec.structs.replace(
         base.mesh,
@@ -107,7 +109,8 @@ def bench_mission(base: Mission, n: int | None, mode: str, tag: str) -> Mission:
         router=f"tcp/127.0.0.1:{free_tcp_port()}",
         listen="tcp/127.0.0.1:0",
     )
-    return msgspec.structs.replace(base, vehicles=vehicles, mesh=mesh)
+    security = msgspec.structs.replace(base.security, keys=str(keys) if keys else "")
+    return msgspec.structs.replace(base, vehicles=vehicles, mesh=mesh, security=security)
 
 
 # -- worker side (one process per UAV) -------------------------------------------------------------
@@ -205,6 +208,59 @@ def _warm_up(mission: Mission, uav: int) -> None:
         ]
 
 
+def signing_cost(mission: Mission, steps: int = 60) -> dict[str, float]:
+    """Microseconds per bundle to sign (`Authenticator.relayable` + `seal`) and to check (`check`,
+    each receiver keeping its checked signatures, as the mesh does): the mission's agents step
+    together in one process, everyone hearing everyone, and every outbox is sealed by its sender
+    and checked by every other UAV. `mission` must name a key directory."""
+    from companion.core.agent import Agent, Observation
+    from companion.core.world import build_world
+    from companion.node.keys import for_mission, uav_identity
+    from companion.node.mesh import Bundle, encode_bundle, key_base
+    from companion.node.signing import Authenticator, decode_envelope
+
+    world = build_world(mission, mission.seed, 0)
+    n = mission.n_uavs
+    auths = []
+    for i in range(n):
+        keys = for_mission(mission, uav_identity(i))
+        assert keys is not None, "signing_cost needs a mission with keys"
+        auths.append(Authenticator(keys.public, key_base(mission), keys.signing))
+    agents = [Agent(world, i) for i in range(n)]
+    poses = [(v.x, v.y, math.radians(v.heading_deg)) for v in mission.vehicles]
+    boxes: list[list[Any]] = [[] for _ in range(n)]
+    seal_us: list[float] = []
+    check_us: list[float] = []
+    for k in range(steps):
+        out = [
+            a.step(Observation(step=k, x=p[0], y=p[1], heading=p[2]), box)
+            for a, p, box in zip(agents, poses, boxes, strict=True)
+        ]
+        boxes = [[] for _ in range(n)]
+        for i, (_, outbox) in enumerate(out):
+            t0 = time.perf_counter()
+            msgs = auths[i].relayable(outbox)
+            bundle = Bundle(sender=i, stamp=k, x=poses[i][0], y=poses[i][1], messages=tuple(msgs))
+            wire = auths[i].seal(encode_bundle(bundle), bundle.messages)
+            seal_us.append(1e6 * (time.perf_counter() - t0))
+            envelope = decode_envelope(wire)
+            for j in range(n):
+                if j != i:
+                    t0 = time.perf_counter()
+                    auths[j].check(envelope, i, bundle.messages)
+                    check_us.append(1e6 * (time.perf_counter() - t0))
+                    boxes[j].extend(msgs)
+        poses = [
+            tuple(float(v) for v in world.kinematics.advance(*p, c.turn))  # type: ignore[misc]
+            for p, (c, _) in zip(poses, out, strict=True)
+        ]
+    return {
+        "seal_us_median": float(np.median(seal_us)),
+        "check_us_median": float(np.median(check_us)),
+        "bundles": len(seal_us),
+    }
+
+
 def _run(uav: _Uav, mesh: Any, peers: set[int], steps: int, period: float, start: float) -> dict:
     """The timed loop: lockstep when period == 0, else one step every `period` s from `start`."""
     phases = np.zeros((steps, 4))
@@ -242,6 +298,7 @@ def _reply(**fields: object) -> None:
 
 def worker_main(argv: Sequence[str] | None = None) -> int:
     """A pool worker: JSON commands on stdin (open, go, close), replies on stdout; exits on EOF."""
+    from companion.node.keys import for_mission, uav_identity
     from companion.node.mesh import Mesh
 
     _reply(op="hello", pid=os.getpid())
@@ -260,7 +317,8 @@ def worker_main(argv: Sequence[str] | None = None) -> int:
                 _warm_up(mission, cmd["uav"])
                 uav = _Uav(mission, cmd["uav"])
                 n_tasks = uav.world.tessellation.n_tasks if uav.world.tessellation else 0
-                mesh = Mesh(mission, cmd["uav"], uav.world.grid.n_cells, n_tasks)
+                keys = for_mission(mission, uav_identity(cmd["uav"]))
+                mesh = Mesh(mission, cmd["uav"], uav.world.grid.n_cells, n_tasks, keys=keys)
                 peers = set(range(mission.n_uavs)) - {cmd["uav"]}
                 absent = mesh.wait_alive(peers, ALIVE_S)
                 _reply(op="ready", missing=sorted(absent), open_s=time.perf_counter() - started)
@@ -285,10 +343,11 @@ def viewer_main(argv: Sequence[str]) -> int:
     from companion.app.view.main import warm_kernels
     from companion.app.view.server import LiveSource, serve
     from companion.core.world import build_world
+    from companion.node.keys import for_mission
 
     mission = msgspec.json.decode(Path(argv[0]).read_bytes(), type=Mission)
     warm_kernels()
-    source = LiveSource(build_world(mission, mission.seed, 0), mission.seed)
+    source = LiveSource(build_world(mission, mission.seed, 0), mission.seed, for_mission(mission, "view"))
     serve(source, "127.0.0.1", 0, lambda address: _reply(op="view", url=address.url, pid=os.getpid()))
     return 0
 
@@ -626,6 +685,7 @@ def summarize(t: dict) -> dict:
         "stale": _stats_sum(t, "stale"),
         "lost": _stats_sum(t, "lost"),
         "malformed": _stats_sum(t, "malformed"),
+        "rejected": sum(_stats_sum(t, k) for k in ("spoofed", "unauthenticated", "forged")),
         "received": _stats_sum(t, "received"),
         "swarm_cores": t["swarm_cores"],
         "router_cores": t["router_cores"],
@@ -746,6 +806,11 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="repeat the latency run with a viewer attached (uavsearch view + headless Chromium)",
     )
+    parser.add_argument(
+        "--secured",
+        action="store_true",
+        help="repeat the latency run on a secured mesh (TLS, access control, signed bundles)",
+    )
     parser.add_argument("--skip-latency", action="store_true")
     parser.add_argument("--skip-realtime", action="store_true")
     parser.add_argument("--json", type=Path, help="also write every figure to this file")
@@ -805,6 +870,28 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
                         flush=True,
                     )
                     report["latency_with_viewer"] = s
+                if args.secured:
+                    from companion.node.keys import generate
+
+                    keys = Path(tmp) / "keys"
+                    generate(keys, base.n_uavs)
+                    mission = bench_mission(base, None, "peer", f"{tag}lats", keys)
+                    s = summarize(trial(pool, mission, args.latency_steps, 0.0, Path(tmp)))
+                    print(
+                        "the same on a secured mesh (mutual TLS, access control, Ed25519-signed bundles"
+                        f" checked on receipt); {s['received']} bundles received, {s['rejected']} rejected:",
+                        flush=True,
+                    )
+                    print("\n".join(_fmt_latency(s)), flush=True)
+                    report["latency_secured"] = s
+                    cost = signing_cost(mission)
+                    print(
+                        f"  signing, per bundle of this swarm: sign {cost['seal_us_median']:.0f} us, check"
+                        f" {cost['check_us_median']:.0f} us (medians over {cost['bundles']} bundles, one"
+                        " process, every UAV hearing every other)",
+                        flush=True,
+                    )
+                    report["signing_cost"] = cost
             if not args.skip_realtime:
                 report["realtime"] = {}
                 periods = [period] + ([args.stress_period] if args.stress_period > 0 else [])

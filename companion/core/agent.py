@@ -56,6 +56,39 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True):
     detections: tuple[tuple[float, float], ...] = ()
 
 
+class StepDelta(msgspec.Struct, frozen=True, array_like=True):
+    """What one step changed in an agent's own knowledge (`Agent.last`): every FOV cell applied to its
+    map (its own and its neighbours', in order), the cells newly known to hold a target, and its task
+    and commitments after the step. Replaying the deltas of steps k+1..k' on the snapshot of step k
+    (`Agent.replay`) gives the agent's map, targets, task and trajectory in force of step k'."""
+
+    step: int
+    looks: tuple[int, ...]
+    found: tuple[int, ...]
+    task: int
+    task_reward: float
+    inforce: Trajectory
+    parents: tuple[int, ...]
+
+
+class AgentSnapshot(msgspec.Struct, frozen=True, array_like=True):
+    """An agent's own knowledge after step `step` (`Agent.snapshot`, `Agent.restore`): its uncertainty
+    map (float64, little-endian), the cells it has looked at (packed bits), the target cells it knows
+    of, its task, its trajectory in force and tethers, and the pheromone field (that algorithm only).
+    What it knew of the others is not kept: their next messages tell it again."""
+
+    uav: int
+    step: int
+    eta: bytes
+    seen: bytes
+    found: tuple[int, ...]
+    task: int
+    task_reward: float
+    inforce: Trajectory
+    parents: tuple[int, ...]
+    phi: bytes | None = None
+
+
 class Command(msgspec.Struct, frozen=True, kw_only=True):
     """The first step of the chosen path: turn over the step, and the path for waypoint autopilots."""
 
@@ -172,6 +205,7 @@ class Agent:
         self._labels = np.append(tess.labels, -1) if tess else np.zeros(n + 1, dtype=np.int64)
         self.phi = np.zeros(n) if self.algorithm == "pheromone" else None
         self.commitments = Commitments(world, uav)
+        self.last: StepDelta | None = None  # what the latest step changed (journals keep it)
 
     # -- inbox ---------------------------------------------------------------------------------
     def forget(self, uav: int) -> None:
@@ -344,6 +378,7 @@ class Agent:
         grid, k, a = w.grid, obs.step, m.algorithm
         looks = grid.fov_cell_list((obs.x, obs.y)).tolist()
         own_cells = tuple(looks)
+        known = set(self.found)
         bids = self._ingest(inbox, k, looks)
         self._update_map(looks)
         if obs.detections:
@@ -424,16 +459,64 @@ class Agent:
         head = {"sender": self.uav, "stamp": k, "x": obs.x, "y": obs.y}
         heard, relay = tuple(sorted(self.neighbours)), self._relay()
         self._heard = heard
+        found = tuple(sorted(self.found))  # every target known, not only this step's: late joiners catch up
         outbox: list[Message] = [
             StateMsg(**head, state=me, heard=heard, parents=safety.parents),
-            CoverageMsg(**head, cells=own_cells, detections=own_detections),
+            CoverageMsg(**head, cells=own_cells, detections=found),
         ]
         if relay:
             outbox.append(ClaimsMsg(**head, known=tuple(self.peers[u] for u in relay)))
         if announce:
             assert self.bids is not None
             outbox.append(BidsMsg(**head, rewards=self.bids))
+        new = tuple(c for c in found if c not in known)
+        self.last = StepDelta(k, tuple(looks), new, self.task, self.task_reward, inforce, safety.parents)
         return command, outbox
+
+    # -- snapshot and restore ------------------------------------------------------------------
+    def snapshot(self) -> AgentSnapshot:
+        """This agent's own knowledge after its latest step (`AgentSnapshot`)."""
+        c = self.commitments
+        step = self.last.step if self.last is not None else -1
+        phi = None if self.phi is None else self.phi.astype("<f8").tobytes()
+        return AgentSnapshot(
+            self.uav, step, self.eta.astype("<f8").tobytes(), np.packbits(self.seen).tobytes(),
+            tuple(sorted(self.found)), self.task, self.task_reward, c.inforce, c.parents, phi,
+        )  # fmt: skip
+
+    def restore(self, snap: AgentSnapshot) -> None:
+        """Take back the knowledge of `snap` (of this UAV and world); raises ValueError if it does not fit."""
+        n = self.eta.shape[0]
+        if snap.uav != self.uav or len(snap.eta) != 8 * n or len(snap.seen) != (n + 7) // 8:
+            raise ValueError(f"snapshot of uav {snap.uav} with {len(snap.eta) // 8} cells does not fit")
+        if (snap.phi is None) != (self.phi is None) or (snap.phi is not None and len(snap.phi) != 8 * n):
+            raise ValueError("snapshot of another algorithm")
+        self.eta[:] = np.frombuffer(snap.eta, dtype="<f8")
+        self.seen[:] = np.unpackbits(np.frombuffer(snap.seen, dtype=np.uint8), count=n).astype(bool)
+        if self.covered.size:
+            self.covered[:] = np.bincount(self._labels[:-1][self.seen], minlength=self.covered.size)
+        if snap.phi is not None:
+            self.phi = np.frombuffer(snap.phi, dtype="<f8").copy()
+        self.found = set(snap.found)
+        self._restart(snap.step, snap.task, snap.task_reward, snap.inforce, snap.parents)
+
+    def replay(self, delta: StepDelta) -> None:
+        """Apply a later step's delta to a restored agent, exactly as the step changed it."""
+        self._update_map(list(delta.looks))
+        self.found.update(delta.found)
+        if self.phi is not None:
+            w = self.world
+            self.phi = phero.step_field(
+                w.grid, self.phi, self.eta, w.prior, w.mission.algorithm.pheromone, self._values
+            )
+        self._restart(delta.step, delta.task, delta.task_reward, delta.inforce, delta.parents)
+
+    def _restart(self, step: int, task: int, reward: float, inforce: Trajectory, parents: tuple) -> None:
+        self.task, self.task_reward = task, reward
+        self.bids, self.bid_stamp = None, -1
+        c = self.commitments
+        c.inforce, c.proposal, c.parents = inforce, None, tuple(parents)
+        self.last = StepDelta(step, (), (), task, reward, inforce, tuple(parents))
 
     def _track_of(self, trajectory: Trajectory) -> tuple[tuple[tuple[float, float], ...], tuple[float, ...]]:
         """The first M points of a trajectory (from its anchor on) and the heading at each."""

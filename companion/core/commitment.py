@@ -23,7 +23,7 @@ import numpy as np
 
 from companion.core.geometry import FloatArray
 from companion.core.messages import StateMsg, UavState
-from companion.core.safety import compatible, expand_rows, first_allowed
+from companion.core.safety import compatible, expand_rows, first_allowed, inside_fence
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import World
 
@@ -52,7 +52,11 @@ class Commitments:
         self.fresh: dict[int, StateMsg] = {}
         self.left: set[int] = set()  # reported gone by the mesh (liveliness), until heard again
         self.dead: set[int] = set()
-        self.accepted = self.rejected = 0
+        self.accepted = self.rejected = self.recovered = 0
+        turn, m = plan.limits.reach.loiter_turn, plan.limits.horizon
+        self._contingencies = [
+            ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
+        ]
         self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
         self._disks = np.zeros((0, 4))
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
@@ -64,7 +68,7 @@ class Commitments:
         self.fresh = fresh
         for s in states:
             old = self.latest.get(s.uav)
-            if s.uav != self.uav and (old is None or s.stamp > old.stamp):
+            if s.uav != self.uav and s.stamp < k and (old is None or s.stamp > old.stamp):
                 self.latest[s.uav] = s
         self.left -= fresh.keys()
         self.dead = {
@@ -135,17 +139,19 @@ class Commitments:
         self._step = (k, owners, proposals, pts)
         self._disks = np.array(disks, dtype=float).reshape(-1, 4)
 
-    def _arrays(self, resolving: bool) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    def _arrays(
+        self, resolving: bool, proposals: bool = True
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """From this step's gathering: what a trajectory of this UAV must keep clear of, and keep
         within range of (tethers: parents and children), over the check's window from t_k (the
         resolution of the pending proposal: the others' proposals only for lower ids) or from
-        t_k+1 (a new proposal: everything)."""
-        _, owners, proposals, pts = self._step
+        t_k+1 (a new proposal: everything). Without `proposals`: the trajectories in force only."""
+        _, owners, is_proposal, pts = self._step
         links = (set(self.parents) | self._children()) - self.dead
         rows = [
             i
-            for i, (j, p) in enumerate(zip(owners, proposals, strict=True))
-            if not (resolving and p and j > self.uav)
+            for i, (j, p) in enumerate(zip(owners, is_proposal, strict=True))
+            if not p or (proposals and not (resolving and j > self.uav))
         ]
         tethered = [i for i in rows if owners[i] in links]
         span = pts[:, : pts.shape[1] - 1] if resolving else pts[:, 1:]
@@ -169,9 +175,39 @@ class Commitments:
                 self.accepted += 1
             else:
                 self.rejected += 1
-        self.inforce = chosen.reanchored(k, x, y, heading, turn)
+        self.inforce = self._flyable(k, chosen.reanchored(k, x, y, heading, turn))
         self.proposal = None
         return self.inforce
+
+    def _flyable(self, k: int, trajectory: Trajectory) -> Trajectory:
+        """`trajectory` if it is inside the fence and compatible with the others' trajectories in force
+        and its tethers, else a start contingency from its anchor that is (straight for M >= s >= 0
+        steps, then loiter).
+
+        A UAV that flies its trajectories exactly never needs this (the invariant); a flown vehicle
+        that strayed from its plan (a companion that started late, a gust) is re-anchored where it
+        is, which may put its promise outside the fence or across another's: it then takes the
+        first contingency that is not, or keeps its trajectory if none is."""
+        lim = self.limits
+        # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
+        # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
+        others, _, tethers, _ = self._arrays(resolving=True, proposals=False)
+        no_disks = np.zeros((0, 3))
+        options = [trajectory] + [
+            Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
+            for turns, side in self._contingencies
+        ]
+        rows = lim.rows(options)
+        for option, row in zip(options, rows, strict=True):
+            pts = expand_rows(row[None], k, lim.reach.window, *lim.kinematics_args)[0]
+            flyable = inside_fence(pts, lim.fence_normals, lim.fence_offsets) and compatible(
+                pts, others, no_disks, tethers, no_disks, *lim.clearances
+            )
+            if flyable:
+                if option is not trajectory:
+                    self.recovered += 1
+                return option
+        return trajectory
 
     def next_pose(self, x: float, y: float, heading: float) -> tuple[float, float, float]:
         """The pose at t_k+1 when flying the trajectory in force from (x, y, heading) at t_k."""

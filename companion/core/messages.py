@@ -15,7 +15,7 @@ import msgspec
 from companion.core.trajectory import Trajectory
 from companion.core.wire import MsgpackCodec
 
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 MAX_PLAN = 16
 
 
@@ -60,7 +60,9 @@ class StateMsg(_Header, tag="state"):
 
 
 class CoverageMsg(_Header, tag="coverage"):
-    """Cells in the sender's FOV at `stamp` (eq. 11 looks) and the target cells its camera detected."""
+    """Cells in the sender's FOV at `stamp` (eq. 11 looks) and every target cell it knows of (its camera's
+    detections and those it heard of): each step re-announces them all, so a UAV that joins or
+    restarts late learns every earlier detection from any neighbour."""
 
     cells: tuple[int, ...]
     detections: tuple[int, ...] = ()
@@ -123,6 +125,8 @@ def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
         _check_state(msg.state, n_uavs, n_tasks)
         if msg.state.uav != msg.sender:
             raise MessageError("state of another uav in a state message")
+        if msg.state.stamp != msg.stamp:
+            raise MessageError("state stamped otherwise than its message")
         if len(msg.heard) >= n_uavs or any(not 0 <= u < n_uavs for u in msg.heard):
             raise MessageError("heard list with unknown uavs")
         if len(msg.parents) > 2 or any(not 0 <= u < n_uavs or u == msg.sender for u in msg.parents):
@@ -138,3 +142,5 @@ def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
             raise MessageError("more relayed states than uavs")
         for s in msg.known:
             _check_state(s, n_uavs, n_tasks)
+            if s.stamp > msg.stamp:
+                raise MessageError("relayed state newer than its message")

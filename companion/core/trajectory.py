@@ -89,14 +89,18 @@ def expand(
     dt: float,
     cell: float,
 ) -> FloatArray:
-    """Positions of trajectory `row` at steps first..first+count (count + 1 points); first >= start.
-
-    Turns that are NaN (past the plan) and steps beyond the plan take the loiter turn."""
+    """Positions of trajectory `row` at steps first..first+count (count + 1 points). Turns that are NaN
+    (past the plan) and steps beyond the plan take the loiter turn; steps before the anchor (never
+    asked for by the safety layer, which checks trajectories from their start on) hold the anchor."""
     start = int(row[0])
     x, y, h = row[1], row[2], row[3]
     side = row[4]
     horizon = row.shape[0] - HEAD
     out = np.empty((count + 1, 2))
+    for early in range(min(max(start - first, 0), count + 1)):
+        out[early, 0], out[early, 1] = x, y
+    if start > first + count:
+        return out
     t = start
     while True:
         if t >= first:

@@ -13,6 +13,8 @@ from companion.core.world import Stream, build_world, instance_rng
 from companion.mission import load_mission
 from companion.node.camera_feed import CameraFeed
 from companion.node.frames import LocalFrame
+from companion.node.journal import JournalError
+from companion.node.keys import KeyDirectoryError, for_mission, mavlink_secret, uav_identity, warn_if_insecure
 from companion.node.mesh import Mesh
 from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
 from companion.node.vehicle_link import LinkError, VehicleLink
@@ -26,6 +28,15 @@ def run_companion(args: argparse.Namespace) -> int:
         print(f"error: --uav {args.uav}: the mission has UAVs 0..{mission.n_uavs - 1}", file=sys.stderr)
         return 2
     out = Path(args.out) if args.out else None
+    warn_if_insecure(mission)
+    try:
+        keys = for_mission(mission, uav_identity(args.uav))
+        secret = mavlink_secret(args.mavlink_key) if args.mavlink_key else None
+    except KeyDirectoryError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if secret is None and keys is not None and mission.security.mavlink_signing:
+        secret = keys.mavlink_secret
     opts = CompanionOptions(
         mission=mission,
         uav=args.uav,
@@ -37,6 +48,7 @@ def run_companion(args: argparse.Namespace) -> int:
         seed=args.seed,
         steps=args.steps,
         out=out,
+        journal=Path(args.journal) if args.journal else None,
     )
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
@@ -46,13 +58,22 @@ def run_companion(args: argparse.Namespace) -> int:
     n_tasks = world.tessellation.n_tasks if world.tessellation else 0
     frame = LocalFrame(mission.region.origin)
     loss_rng = instance_rng(seed, 1000 + args.uav, Stream.RADIO)
-    link = VehicleLink(opts.vehicle_url, frame, out / f"uav{args.uav}.tlog" if out else None)
+    tlog = out / f"uav{args.uav}.tlog" if out else None
+    link = VehicleLink(opts.vehicle_url, frame, tlog, signing_secret=secret)
+    restarting = opts.journal is not None and opts.journal.exists() and opts.journal.stat().st_size > 0
     try:
-        with Mesh(mission, args.uav, world.grid.n_cells, n_tasks, loss_rng) as mesh:
+        with Mesh(
+            mission, args.uav, world.grid.n_cells, n_tasks, loss_rng, join=not restarting, keys=keys
+        ) as mesh:
             camera = CameraFeed(
                 mesh.session, camera_key_of(mission, args.uav), args.uav, mission.n_uavs, frame
             )
-            companion = Companion(opts, link, mesh, camera)
+            try:
+                companion = Companion(opts, link, mesh, camera)
+            except JournalError as exc:
+                camera.close()
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
             try:
                 return companion.run(stop)
             except LinkError as exc:

@@ -1,8 +1,9 @@
 """The companion's peer-to-peer mesh over eclipse-zenoh: outbox out, validated and range-gated inbox in.
 
-Each step a UAV puts one `Bundle` (its whole outbox, msgpack) on `{prefix}/{mission}/uav/{i}/msg`.
-Receipt runs in a Zenoh callback thread: every sample is size-checked, decoded and validated
-(`check_bundle`); anything malformed is dropped and counted, nothing raises. Valid bundles wait in
+Each step a UAV puts one `Bundle` (its whole outbox, msgpack) on `{prefix}/{mission}/uav/{i}/msg`;
+in a secured mesh, inside a signed `signing.Envelope`. Receipt runs in a Zenoh callback
+thread: every sample is size-checked, decoded, validated (`check_bundle`) and, in a secured mesh,
+authenticated; anything rejected is dropped and counted, nothing raises. Valid bundles wait in
 a small per-sender buffer until `inbox(k)` takes those stamped k-1 and applies the batch engine's
 radio: range gating at R_c and optional loss. Liveliness tokens on `{prefix}/{mission}/alive/{i}`
 tell who is alive. `run_router`/`router_main` run a Zenoh router for client mode.
@@ -29,7 +30,16 @@ import zenoh
 from companion.core.messages import PROTOCOL_VERSION, Message, MessageError, check
 from companion.core.wire import MsgpackCodec
 from companion.mission import Mission, MissionError, load_mission
-from companion.node.zenoh_config import MeshConfig, open_session, router_config
+from companion.node.keys import KeyDirectoryError, SwarmKeys, for_mission, uav_identity, warn_if_insecure
+from companion.node.signing import Authenticator, Forged, Unauthenticated, decode_envelope
+from companion.node.zenoh_config import (
+    MeshConfig,
+    MeshSecurity,
+    key_base,
+    open_session,
+    router_config,
+    secured_endpoint,
+)
 
 MAX_BUNDLE_MESSAGES = 32
 HELD_STAMPS = 8  # bundles kept per sender (bounds memory whatever peers send)
@@ -66,39 +76,86 @@ def check_bundle(bundle: Bundle, n_uavs: int, n_cells: int, n_tasks: int) -> Non
             raise MessageError("message header differs from its bundle's")
 
 
-def received_bundle(sample: zenoh.Sample, max_bytes: int, n_uavs: int, n_cells: int, n_tasks: int) -> Bundle:
+class Spoofed(MessageError):
+    """A bundle naming another sender than the UAV whose key it was put on."""
+
+
+def received_bundle(
+    sample: zenoh.Sample,
+    max_bytes: int,
+    n_uavs: int,
+    n_cells: int,
+    n_tasks: int,
+    auth: Authenticator | None = None,
+) -> Bundle:
     """The bundle in a sample from `{base}/uav/{i}/msg`: size-checked, decoded, validated
-    (`check_bundle`) and sent by UAV i. Raises MessageError (a ValueError) otherwise."""
+    (`check_bundle`), sent by UAV i and, with `auth`, signed by it (states by their originators).
+    Raises MessageError (a ValueError; `Spoofed`, `Unauthenticated`, `Forged` for what they say)."""
     if len(sample.payload) > max_bytes:
         raise MessageError("oversized bundle")
-    bundle = decode_bundle(sample.payload.to_bytes())
+    data = sample.payload.to_bytes()
+    if auth is None:  # an insecure mesh: the bare bundle
+        bundle = decode_bundle(data)
+    else:
+        try:
+            envelope = decode_envelope(data)
+        except MessageError:
+            decode_bundle(data)  # malformed unless it is a bundle...
+            raise Unauthenticated("unsigned bundle") from None  # ...which is not signed
+        bundle = decode_bundle(envelope.body)
     check_bundle(bundle, n_uavs, n_cells, n_tasks)
     if str(sample.key_expr).split("/")[-2] != str(bundle.sender):
-        raise MessageError("sender differs from key")
+        raise Spoofed("sender differs from key")
+    if auth is not None:
+        auth.check(envelope, bundle.sender, bundle.messages)
     return bundle
+
+
+def mission_authenticator(mission: Mission, keys: SwarmKeys | None) -> Authenticator | None:
+    """What checks (and, with a UAV's keys, signs) bundles in this mission; None if insecure."""
+    if keys is None:
+        return None
+    return Authenticator(keys.public, key_base(mission), keys.signing)
 
 
 @dataclass
 class MeshStats:
     """Receipt counters. Bundles: received (valid, from peers), malformed (dropped samples:
-    oversized, undecodable, wrong version, key or sender, failed validation), stale (too old for
-    their step, or evicted), duplicates (a second bundle for one sender and stamp).
+    oversized, undecodable, wrong version or sender, failed validation), spoofed (put on another
+    UAV's key than the sender it names), unauthenticated (not signed by the sender it names),
+    forged (carrying a state not signed by its UAV), stale (too old for their step, or evicted),
+    duplicates (a second bundle for one sender and stamp).
     Messages: out_of_range (sender beyond R_c), lost (simulated loss)."""
 
     received: int = 0
     malformed: int = 0
+    spoofed: int = 0
+    unauthenticated: int = 0
+    forged: int = 0
     out_of_range: int = 0
     lost: int = 0
     stale: int = 0
     duplicates: int = 0
+
+    @property
+    def samples(self) -> int:
+        """Samples taken or rejected: every sample that reached the subscriber is in one counter
+        (stale also counts evictions of held bundles)."""
+        return (
+            self.received + self.malformed + self.spoofed + self.unauthenticated + self.forged
+            + self.stale + self.duplicates
+        )  # fmt: skip
 
 
 class Mesh:
     """UAV `uav`'s mesh adapter: a context manager holding one Zenoh session.
 
     `n_cells`/`n_tasks` size the validation of incoming messages (n_uavs is `mission.n_uavs`);
-    `rng` draws the simulated loss and is required when `mission.comms.loss > 0`; `config`
-    overrides `MeshConfig.from_mission(mission)`.
+    `rng` draws the simulated loss and is required when `mission.comms.loss > 0`; `keys` (this
+    UAV's, `keys.for_mission`) sign what it sends and check what it receives, and secure the
+    default configuration; `config` overrides `MeshConfig.from_mission(mission, keys=keys)`. With
+    `join=False` the peers see this UAV alive only from `join()` on (a restarted companion joins once
+    it can step: peers in lockstep wait for the bundles of every UAV they see alive).
     """
 
     def __init__(
@@ -109,6 +166,8 @@ class Mesh:
         n_tasks: int,
         rng: np.random.Generator | None = None,
         config: MeshConfig | None = None,
+        join: bool = True,
+        keys: SwarmKeys | None = None,
     ) -> None:
         if not 0 <= uav < mission.n_uavs:
             raise ValueError(f"uav {uav} not in 0..{mission.n_uavs - 1}")
@@ -118,12 +177,15 @@ class Mesh:
         self.comm_range, self.loss, self.rng = mission.comms.range, mission.comms.loss, rng
         self.max_bundle_bytes = mission.mesh.max_bundle_bytes
         base = key_base(mission)
+        if keys is not None and keys.identity != uav_identity(uav):
+            raise ValueError(f"UAV {uav} cannot join the mesh with the keys of {keys.identity}")
+        self._auth = mission_authenticator(mission, keys)
         self._cond = threading.Condition()
         self._stats = MeshStats()
         self._held: dict[int, dict[int, Bundle]] = {}  # sender -> stamp -> bundle
         self._floor = 0  # bundles stamped below this are stale
         self._alive: set[int] = set()
-        self._session = open_session(config or MeshConfig.from_mission(mission))
+        self._session = open_session(config or MeshConfig.from_mission(mission, keys=keys))
         try:  # the declared entities live as long as these references (and the session)
             self._publisher = self._session.declare_publisher(
                 f"{base}/uav/{uav}/msg", congestion_control=zenoh.CongestionControl.BLOCK
@@ -131,14 +193,28 @@ class Mesh:
             self._subscriber = self._session.declare_subscriber(
                 f"{base}/uav/*/msg", self._on_sample, allowed_origin=zenoh.Locality.REMOTE
             )
-            liveliness = self._session.liveliness()
-            self._alive_subscriber = liveliness.declare_subscriber(
+            self._alive_subscriber = self._session.liveliness().declare_subscriber(
                 f"{base}/alive/*", self._on_liveliness, history=True
             )
-            self._token = liveliness.declare_token(f"{base}/alive/{uav}")  # last: see docs/mesh.md
+            self._token_key = f"{base}/alive/{uav}"
+            self._token: zenoh.LivelinessToken | None = None
+            if join:
+                self.join()  # last: see docs/mesh.md
         except BaseException:
             self._session.close()
             raise
+
+    def join(self) -> None:
+        """Declare this UAV alive (its liveliness token); idempotent."""
+        if self._token is None:
+            self._token = self._session.liveliness().declare_token(self._token_key)
+
+    def leave(self) -> None:
+        """Withdraw the liveliness token (a companion that cannot steer): peers take this UAV as gone
+        until `join`; idempotent."""
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
 
     # -- lifecycle ---------------------------------------------------------------------------------
     def __enter__(self) -> Mesh:
@@ -176,6 +252,8 @@ class Mesh:
             if not messages:
                 raise ValueError("an empty outbox needs the sender's position")
             position = (messages[0].x, messages[0].y)
+        if self._auth is not None:
+            messages = self._auth.relayable(messages)
         bundle = Bundle(
             sender=self.uav,
             stamp=step,
@@ -185,6 +263,8 @@ class Mesh:
         )
         check_bundle(bundle, self.n_uavs, self.n_cells, self.n_tasks)
         data = encode_bundle(bundle)
+        if self._auth is not None:
+            data = self._auth.seal(data, bundle.messages)
         if len(data) > self.max_bundle_bytes:
             raise ValueError(f"bundle of {len(data)} bytes exceeds mesh.max_bundle_bytes")
         self._publisher.put(data)
@@ -193,16 +273,29 @@ class Mesh:
     def _on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh callback thread: validate, then hold; never raises, never blocks for long."""
         try:
-            bundle = received_bundle(sample, self.max_bundle_bytes, self.n_uavs, self.n_cells, self.n_tasks)
+            bundle = received_bundle(
+                sample, self.max_bundle_bytes, self.n_uavs, self.n_cells, self.n_tasks, self._auth
+            )
             if bundle.sender == self.uav:
-                raise MessageError("a bundle claiming our id")
-        except (ValueError, msgspec.MsgspecError):  # MessageError is a ValueError
+                raise Spoofed("a bundle claiming our id")
+        except (ValueError, msgspec.MsgspecError) as exc:  # MessageError is a ValueError
             with self._cond:
-                self._stats.malformed += 1
+                self._count_rejected(exc)
             return
         with self._cond:
             self._hold(bundle)
             self._cond.notify_all()
+
+    def _count_rejected(self, exc: Exception) -> None:
+        s = self._stats
+        if isinstance(exc, Spoofed):
+            s.spoofed += 1
+        elif isinstance(exc, Unauthenticated):
+            s.unauthenticated += 1
+        elif isinstance(exc, Forged):
+            s.forged += 1
+        else:
+            s.malformed += 1
 
     def _hold(self, bundle: Bundle) -> None:
         s = self._stats
@@ -252,11 +345,12 @@ class Mesh:
 
     def wait_for(self, step: int, peers: set[int], timeout: float) -> set[int]:
         """Block until bundles stamped `step` from all `peers` are held (call it before
-        `inbox(step + 1)` takes them) or `timeout` s pass; return the peers still missing."""
+        `inbox(step + 1)` takes them), or those missing have left, or `timeout` s pass; return the
+        peers still missing (and alive)."""
         deadline = time.monotonic() + timeout
         with self._cond:
             while True:
-                missing = {p for p in peers if step not in self._held.get(p, {})}
+                missing = {p for p in peers if step not in self._held.get(p, {}) and p in self._alive}
                 remaining = deadline - time.monotonic()
                 if not missing or remaining <= 0 or self._session.is_closed():
                     return missing
@@ -294,18 +388,14 @@ class Mesh:
                 self._cond.wait(remaining)
 
 
-def key_base(mission: Mission) -> str:
-    """`{prefix}/{mission}`: the mission's key space; raises ValueError if not a plain key."""
-    base = f"{mission.mesh.key_prefix}/{mission.name}"
-    chunks = base.split("/")
-    if any(not c or any(ch in c for ch in "*$?#") for c in chunks):
-        raise ValueError(f"mesh key prefix and mission name must make a plain Zenoh key: {base!r}")
-    return base
-
-
 # -- router ----------------------------------------------------------------------------------------
-def run_router(endpoint: str = DEFAULT_ROUTER_ENDPOINT, stop: threading.Event | None = None) -> None:
-    """Run a Zenoh router on `endpoint` until SIGINT/SIGTERM (main thread only) or `stop` is set."""
+def run_router(
+    endpoint: str = DEFAULT_ROUTER_ENDPOINT,
+    stop: threading.Event | None = None,
+    security: MeshSecurity | None = None,
+) -> None:
+    """Run a Zenoh router on `endpoint` until SIGINT/SIGTERM (main thread only) or `stop` is set;
+    with `security` (the router's keys) over TLS with the mesh's access control."""
     if stop is None:
         stop = threading.Event()
     previous: dict[signal.Signals, Any] = {}
@@ -317,8 +407,9 @@ def run_router(endpoint: str = DEFAULT_ROUTER_ENDPOINT, stop: threading.Event | 
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, on_signal)
     try:
-        with zenoh.open(router_config(endpoint)):
-            print(f"router listening on {endpoint}", flush=True)
+        with zenoh.open(router_config(endpoint, security)):
+            shown = f"{secured_endpoint(endpoint)} (mutual TLS, access control)" if security else endpoint
+            print(f"router listening on {shown}", flush=True)
             stop.wait()
     finally:
         for sig, handler in previous.items():
@@ -335,11 +426,16 @@ def router_main(argv: Sequence[str] | None = None) -> int:
     group.add_argument("--mission", help="mission file: listen on its mesh.router endpoint")
     args = parser.parse_args(argv)
     endpoint = args.endpoint or DEFAULT_ROUTER_ENDPOINT
+    security = None
     try:
         if args.mission:
-            endpoint = load_mission(args.mission).mesh.router
-        run_router(endpoint)
-    except MissionError as exc:
+            mission = load_mission(args.mission)
+            endpoint = mission.mesh.router
+            warn_if_insecure(mission)
+            keys = for_mission(mission, "router")
+            security = None if keys is None else MeshSecurity.of(keys, mission)
+        run_router(endpoint, security=security)
+    except (MissionError, KeyDirectoryError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except zenoh.ZError as exc:

@@ -14,6 +14,11 @@ guards the region (`tracking`).
 In lockstep the bundled simulator advances only when every companion has reported that its step
 is done (MAV_CMD_USER_1, see docs/simulator.md), and each step waits for the pose, the camera frame
 and the peers' messages of that step, so a distributed run reproduces the batch engine's.
+
+With a journal (`journal`) every step is written to disk before its bundle goes out; a companion
+started again on the same journal (after a kill, say) restores what its agent knew, joins the mesh
+only once it can step, and goes on from its vehicle's current step with its journaled trajectory
+in force re-anchored at the vehicle's pose (docs/reliability.md, "Restart without loss").
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -33,14 +39,16 @@ from companion.batch.engine import warm_up
 from companion.core.agent import Agent, Command, Observation
 from companion.core.geometry import ConvexPolygon
 from companion.core.kinematics import arc_advance
-from companion.core.world import build_world
+from companion.core.world import Stream, build_world, instance_rng
 from companion.mission import Mission
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.camera_feed import CameraFeed
 from companion.node.detections import camera_key
+from companion.node.faults import InjectedFaults
 from companion.node.fence import fence_margin, fence_polygon, upload_fence
 from companion.node.frames import LocalFrame
 from companion.node.guidance import Guidance
+from companion.node.journal import Journal, Recovered, header_of
 from companion.node.mesh import Mesh
 from companion.node.takeover import steerable, take_over
 from companion.node.tracking import Guard, PlanError, PlanTracker, RegionGuard
@@ -55,6 +63,22 @@ LEAD = 0.25
 LINK_TIMEOUT_S = 3.0  # wall seconds without HEARTBEAT before the link counts as lost
 PEER_WAIT_S = 30.0  # lockstep: how long to wait for a live peer's messages before going on
 SIMULATOR_PARAM_WAIT_S = 3.0  # the airframe's parameters have answered by then: others need no longer
+LOG_COLUMNS = [
+    "step",
+    "time",
+    "x",
+    "y",
+    "heading",
+    "task",
+    "mean_eta",
+    "found",
+    "steered",
+    "turn",
+    "cmd_x",
+    "cmd_y",
+    "peers",
+    "up",
+]
 PLAN_COLUMNS = [
     "step",
     "planned_x",
@@ -66,6 +90,22 @@ PLAN_COLUMNS = [
     "error_m",
     "error_deg",
 ]
+
+
+def _open_log(path: Path, columns: list[str], append: bool) -> tuple[TextIO, Any]:
+    """A CSV step log: new with its header row, or continued (after a line a kill cut short)."""
+    if append and path.exists() and path.stat().st_size > 0:
+        with path.open("rb") as f:
+            f.seek(-1, 2)
+            torn = f.read(1) != b"\n"
+        f = path.open("a", newline="")
+        if torn:
+            f.write("\n")
+        return f, csv.writer(f)
+    f = path.open("w", newline="")
+    writer = csv.writer(f)
+    writer.writerow(columns)
+    return f, writer
 
 
 class Refused(RuntimeError):
@@ -84,6 +124,7 @@ class CompanionOptions:
     seed: int | None = None
     steps: int | None = None
     out: Path | None = None
+    journal: Path | None = None  # the journal file (docs/reliability.md, "Restart without loss")
 
 
 def default_vehicle_url(mission: Mission, uav: int) -> str:
@@ -100,6 +141,20 @@ class Companion:
         seed = m.seed if opts.seed is None else opts.seed
         self.world = build_world(m, seed, 0)
         self.agent = Agent(self.world, opts.uav)
+        self.faults = InjectedFaults(m, opts.uav, instance_rng(seed, 2000 + opts.uav, Stream.RADIO))
+        self.journal: Journal | None = None
+        self.recovered: Recovered | None = None
+        if opts.journal is not None:  # JournalError (a ValueError) for a journal of another mission
+            header = header_of(m, opts.uav, seed)
+            self.journal, self.recovered = Journal.open(opts.journal, header, self.agent)
+            if self.recovered is not None:
+                r = self.recovered
+                log.warning(
+                    "uav %d: restarted from journal %s: step %d, %d targets known, mean uncertainty %.4f "
+                    "(%d torn bytes dropped)",
+                    opts.uav, opts.journal, r.step, len(self.agent.found), float(self.agent.eta.mean()),
+                    r.torn_bytes,
+                )  # fmt: skip
         self.frame = LocalFrame(m.region.origin)
         self.dt = m.kinematics.step
         self.steps_done = 0
@@ -118,33 +173,16 @@ class Companion:
         self.fence_uploaded = False
         self._seen_alive: set[int] = set()
         self._departed: set[int] = set()
+        self._resync = False  # lockstep: the link was lost, the vehicle may have gone on without us
         self._log_file = self._plan_file = None
         self._log = self._plan_log = None
         if opts.out is not None:
             opts.out.mkdir(parents=True, exist_ok=True)
-            self._log_file = (opts.out / f"uav{opts.uav}.csv").open("w", newline="")
-            self._log = csv.writer(self._log_file)
-            self._log.writerow(
-                [
-                    "step",
-                    "time",
-                    "x",
-                    "y",
-                    "heading",
-                    "task",
-                    "mean_eta",
-                    "found",
-                    "steered",
-                    "turn",
-                    "cmd_x",
-                    "cmd_y",
-                    "peers",
-                    "up",
-                ]
+            append = self.recovered is not None  # a restarted companion goes on with its logs
+            self._log_file, self._log = _open_log(opts.out / f"uav{opts.uav}.csv", LOG_COLUMNS, append)
+            self._plan_file, self._plan_log = _open_log(
+                opts.out / f"uav{opts.uav}_plan.csv", PLAN_COLUMNS, append
             )
-            self._plan_file = (opts.out / f"uav{opts.uav}_plan.csv").open("w", newline="")
-            self._plan_log = csv.writer(self._plan_file)
-            self._plan_log.writerow(PLAN_COLUMNS)
 
     # -- vehicle ---------------------------------------------------------------------------------
     def _steerable(self) -> bool:
@@ -238,10 +276,12 @@ class Companion:
         x, y, heading = self._pose(ahead)
         seen = self.camera.take(round(k * self.dt * 1e6))
         own = self.last_position if self.last_position is not None else np.array([x, y])
-        inbox = self.mesh.inbox(k, (float(own[0]), float(own[1])))
+        inbox = self.faults.filter(k, self.mesh.inbox(k, (float(own[0]), float(own[1]))))
         command, outbox = self.agent.step(
             Observation(step=k, x=x, y=y, heading=heading, detections=seen), inbox
         )
+        if self.journal is not None:
+            self.journal.append(self.agent)  # durable before any peer hears of this step
         self.mesh.publish(k, outbox, position=(x, y))
         self.last_position = np.array([x, y])
         steered = self.steering and self._steerable() and self._guard(k, x, y)
@@ -311,14 +351,22 @@ class Companion:
 
     # -- loops -----------------------------------------------------------------------------------
     def _check_link(self) -> bool:
+        """Whether the vehicle link is up. A companion whose link is lost cannot steer: it leaves the
+        mesh (its peers take its UAV as gone, flying its last commitments and then its failsafe)
+        and joins again when the link is back (in lockstep, once it has caught up: `_catch_up`)."""
         alive = self.link.link_alive(time.monotonic(), LINK_TIMEOUT_S)
         if alive != self.steering:
             self.steering = alive
             log.warning(
                 "uav %d: vehicle link %s",
                 self.opts.uav,
-                "restored: steering again" if alive else "lost: not steering, state kept",
+                "restored: steering again" if alive else "lost: not steering, state kept, left the mesh",
             )
+            if not alive:
+                self.mesh.leave()
+                self._resync = True
+            elif not self.opts.lockstep:
+                self.mesh.join()
         return alive
 
     def run(self, stop: threading.Event) -> int:
@@ -345,9 +393,17 @@ class Companion:
             self._run_realtime(stop, budget)
         return 0
 
+    @property
+    def _journaled(self) -> int:
+        """The last step this companion's journal holds (-1: none)."""
+        return self.recovered.step if self.recovered is not None else -1
+
     def _run_realtime(self, stop: threading.Event, budget: int) -> None:
         next_k: int | None = None
         last_beat = 0.0
+        self.mesh.join()
+        if self.recovered is not None:
+            self.steps_done = self.recovered.steps
         while not stop.is_set() and self.steps_done < budget:
             self.link.poll(0.02)
             now = time.monotonic()
@@ -360,24 +416,49 @@ class Companion:
             t = self.link.state.time_s
             lead = LEAD * self.dt
             if next_k is None:
-                next_k = math.ceil((t + lead) / self.dt - 1e-9)
+                next_k = max(math.ceil((t + lead) / self.dt - 1e-9), self._journaled + 1)
             if t + lead + 1e-6 >= next_k * self.dt:
                 k = math.floor((t + lead) / self.dt + 1e-6)
                 self.step(k, ahead=k * self.dt - t)
                 next_k = k + 1
 
+    def _lockstep_start(self) -> int:
+        """The first step to fly in lockstep: the simulator's current step, or the one after the last
+        journaled step when the journal already holds the current one (its bundle may not have gone
+        out: an empty bundle stands in, so that no peer waits for it)."""
+        now = round(self.link.state.time_s / self.dt)
+        k = max(now, self._journaled + 1)
+        if k > now:
+            s = self.link.state
+            self.mesh.publish(now, [], position=(s.x, s.y))
+            self.link.command_long(LOCKSTEP_COMMAND, k)
+        return k
+
     def _run_lockstep(self, stop: threading.Event, budget: int) -> None:
         self.link.on_poll = None  # one command per step: nothing repeated between steps
-        k = 0
+        k = self._lockstep_start()
+        self.mesh.join()
+        joined = k  # the peers' bundles of the step before we joined went out before we listened
         while not stop.is_set() and k < budget:
+            said = time.monotonic()
             while not stop.is_set() and self.link.state.time_s + 1e-6 < k * self.dt:
                 self.link.poll(0.05)
-                self._check_link()
+                if time.monotonic() - said < 1.0:
+                    continue
+                said = time.monotonic()
+                self.link.send_heartbeat()  # stay the vehicle's peer however long the swarm waits
+                if self._check_link() and self._resync:
+                    # back after a lost link: say "ready" again (a restarted simulator has not heard
+                    # it; duplicates are harmless) and ask for the current step's state
+                    self.link.command_long(LOCKSTEP_COMMAND, k)
+                    self.link.command_long(LOCKSTEP_COMMAND, 0)
             if stop.is_set():
                 return
+            if self._resync:
+                k = joined = self._catch_up(k)
             self.camera.wait_until(round(k * self.dt * 1e6), PEER_WAIT_S)
             peers = self.mesh.alive_peers() - {self.opts.uav}
-            if k > 0 and peers:
+            if k > joined and peers:
                 missing = self.mesh.wait_for(k - 1, peers, PEER_WAIT_S)
                 if missing:
                     log.warning("uav %d: step %d: no messages from %s", self.opts.uav, k, sorted(missing))
@@ -387,6 +468,22 @@ class Companion:
             self.link.send_heartbeat()
             k += 1
 
+    def _catch_up(self, k: int) -> int:
+        """After a lost link, in lockstep: the step the vehicle is at now (it may have flown on
+        without its companion), announced to the peers by an empty bundle of the step before, then
+        join the mesh again."""
+        now = round(self.link.state.time_s / self.dt)
+        if now > k:
+            log.warning(
+                "uav %d: the vehicle went on without us: steps %d..%d not flown", self.opts.uav, k, now - 1
+            )
+            s = self.link.state
+            self.mesh.publish(now - 1, [], position=(s.x, s.y))
+            k = now
+        self._resync = False
+        self.mesh.join()
+        return k
+
     def report(self) -> dict:
         """The companion's end-of-run record (what it learned, what it dropped)."""
         return {
@@ -395,6 +492,8 @@ class Companion:
             "found_cells": sorted(int(c) for c in self.agent.found),
             "task": self.agent.task,
             "rejected_mavlink": self.link.rejected,
+            "mavlink_signed": self.link.signed,
+            "mavlink_unauthenticated": self.link.unauthenticated,
             "rejected_camera": self.camera.rejected,
             "mesh": asdict(self.mesh.stats),
             "plan_vs_flight": self.tracker.summary(),
@@ -403,9 +502,14 @@ class Companion:
             "fence_uploaded": self.fence_uploaded,
             "fence_exits": self.guard.exits,
             "guard": self.guard.state.value,
+            "restarted_from_step": self._journaled,
+            "fault_dropped": self.faults.dropped,
+            "journal_records": None if self.journal is None else self.journal.records,
         }
 
     def close(self) -> None:
+        if self.journal is not None:
+            self.journal.close()
         for f in (self._log_file, self._plan_file):
             if f is not None:
                 f.close()

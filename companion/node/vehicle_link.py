@@ -12,6 +12,11 @@ PX4 differs in ways the link hides: its integer parameters travel byte-wise in P
 UNSUPPORTED without the change-mode flag, and its fixed-wing (the SIH model at least) flies with
 sideslip, so on PX4 the heading is the course over ground (GLOBAL_POSITION_INT's velocity) whenever
 the vehicle moves, not ATTITUDE's yaw.
+
+With a signing secret (the vehicle's, from the mission's key directory or `--mavlink-key`) every
+frame sent is MAVLink2-signed and only frames signed with the same secret are accepted (besides the
+radio's RADIO_STATUS), as between ArduPilot and a ground station once signing is set up; rejected
+frames are counted in `unauthenticated`.
 """
 
 from __future__ import annotations
@@ -58,7 +63,13 @@ STREAMS_HZ = {
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
 }
+UNSIGNED_ALLOWED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLINK_MSG_ID_RADIO})
 REPLIES = frozenset({"COMMAND_ACK", "PARAM_VALUE", "MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK"})
+
+
+def signing_timestamp(now: float | None = None) -> int:
+    """A MAVLink signing timestamp: 10 us units since 2015-01-01 UTC."""
+    return int(((time.time() if now is None else now) - 1420070400) * 1e5)
 
 
 class LinkError(RuntimeError):
@@ -105,7 +116,7 @@ class TlogWriter:
 
     def __init__(self, path: Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._f: BinaryIO = path.open("wb")
+        self._f: BinaryIO = path.open("ab")  # a restarted companion appends
 
     def write(self, buf: bytes) -> None:
         self._f.write(struct.pack(">Q", int(time.time() * 1e6)) + buf)
@@ -118,11 +129,17 @@ class VehicleLink:
     """One autopilot over MAVLink."""
 
     def __init__(
-        self, url: str, frame: LocalFrame, tlog: Path | None = None, component: int = COMPANION_COMPONENT
+        self,
+        url: str,
+        frame: LocalFrame,
+        tlog: Path | None = None,
+        component: int = COMPANION_COMPONENT,
+        signing_secret: bytes | None = None,
     ) -> None:
         self.url, self.frame = url, frame
         self.state = VehicleState()
         self.rejected = 0
+        self.unauthenticated = 0
         self.replies: deque[mavlink.MAVLink_message] = deque(maxlen=256)
         self.param_types: dict[str, int] = {}  # MAV_PARAM_TYPE of every parameter seen
         # Called after every poll, also while a request waits for its reply: what must go on
@@ -139,6 +156,18 @@ class VehicleLink:
         if self._tlog:
             tlog_writer = self._tlog
             self._conn.mav.set_send_callback(lambda m: tlog_writer.write(m.get_msgbuf()))
+        if signing_secret is not None:
+            self._conn.setup_signing(
+                signing_secret,
+                sign_outgoing=True,
+                allow_unsigned_callback=lambda _mav, msg_id: msg_id in UNSIGNED_ALLOWED,
+                link_id=0,
+            )
+
+    @property
+    def signed(self) -> bool:
+        """True when the link signs what it sends and accepts only signed frames."""
+        return self._conn.mav.signing.secret_key is not None
 
     # -- connection --------------------------------------------------------------------------------
     def wait_heartbeat(self, timeout: float, should_stop: Callable[[], bool] = lambda: False) -> None:
@@ -184,7 +213,10 @@ class VehicleLink:
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
         kind = msg.get_type()
         if kind == "BAD_DATA":
-            self.rejected += 1
+            if "signature" in str(getattr(msg, "reason", "")):
+                self.unauthenticated += 1
+            else:
+                self.rejected += 1
             return
         if self._tlog:
             self._tlog.write(msg.get_msgbuf())
@@ -459,6 +491,13 @@ class VehicleLink:
 
     def arm(self) -> None:
         self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+    def provision_signing(self, secret: bytes) -> None:
+        """SETUP_SIGNING: give the autopilot its signing secret (ArduPilot stores it and from then on
+        refuses unsigned commands on every link but its first, the USB one). The secret travels in
+        clear: only over a link that cannot be overheard (USB, or SITL on loopback)."""
+        autopilot = mavlink.MAV_COMP_ID_AUTOPILOT1
+        self._conn.mav.setup_signing_send(self.state.system, autopilot, secret, signing_timestamp())
 
     def close(self) -> None:
         with contextlib.suppress(OSError, AttributeError):  # pymavlink's TCP link after a failed reconnect

@@ -23,6 +23,7 @@ def assert_clean(specs: list) -> None:
         assert row.separation_losses == 0, row
         assert row.link_losses == 0, row
         assert row.closest_approach > spec.mission.comms.safety
+        assert row.recovered == 0, row  # the invariant held: no trajectory in force had to be replaced
 
 
 @pytest.mark.slow

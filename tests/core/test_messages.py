@@ -44,7 +44,7 @@ header = {"sender": uav, "stamp": stamp, "x": finite, "y": finite}
 messages = st.one_of(
     states.flatmap(
         lambda s: st.builds(
-            StateMsg, sender=st.just(s.uav), stamp=stamp, x=finite, y=finite, state=st.just(s)
+            StateMsg, sender=st.just(s.uav), stamp=st.just(s.stamp), x=finite, y=finite, state=st.just(s)
         )
     ),
     st.builds(

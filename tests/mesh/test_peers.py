@@ -148,22 +148,25 @@ def test_malformed_and_hostile_payloads_are_dropped_and_counted(open_mesh: OpenM
         ("uav/1/msg", b""),
         ("uav/1/msg", bundle(v=PROTOCOL_VERSION + 1)),
         ("uav/1/msg", b"\x91" + b"\x00" * 4096),  # over max_bundle_bytes
-        ("uav/1/msg", bundle(sender=2)),  # sender differs from the key
-        ("uav/0/msg", bundle(sender=0)),  # claims the receiver's id
         ("uav/9/msg", bundle(sender=9)),  # no such UAV
-        ("uav/x/msg", bundle()),
         ("uav/1/msg", bundle(x=math.nan)),
         ("uav/1/msg", bundle(messages=(msg(detections=(N_CELLS,)),))),  # cell index out of range
         ("uav/1/msg", bundle(messages=(ClaimsMsg(sender=1, stamp=0, x=0.0, y=0.0, known=too_many),))),
         ("uav/1/msg", bundle(messages=(msg(),), stamp=1)),  # message stamp differs from the bundle's
     ]
+    spoofed = [
+        ("uav/1/msg", bundle(sender=2)),  # sender differs from the key
+        ("uav/0/msg", bundle(sender=0)),  # claims the receiver's id
+        ("uav/x/msg", bundle()),
+    ]
     with _raw_session(mission, 1) as raw:
-        for key, payload in hostile:
+        for key, payload in hostile + spoofed:
             raw.put(f"{base}/{key}", payload)
         raw.delete(f"{base}/uav/1/msg")
         raw.put(f"{base}/uav/1/msg", bundle())
         assert a.wait_for(0, {1}, 10.0) == set()
         assert until(lambda: a.stats.malformed == len(hostile) + 1)
+        assert until(lambda: a.stats.spoofed == len(spoofed))
     assert a.inbox(1, (0.0, 0.0)) == outbox(1, 0, 0.0, 0.0)
     assert a.stats.received == 1
 

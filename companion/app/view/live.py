@@ -7,7 +7,9 @@ seed endpoint: it listens on `mesh.listen` and connects to the seed, retrying un
 holds it. Samples go through Zenoh ring channels, which drop the oldest when the listener falls
 behind instead of blocking Zenoh's network threads, so a slow viewer never holds up the swarm.
 Every bundle is checked with the mesh's own `received_bundle`; anything malformed is counted and
-dropped.
+dropped. In a secured mesh the listener joins with the view's own certificate (access control lets
+it subscribe and nothing else) and checks every bundle's signatures like a companion; what fails
+is counted as unauthenticated and dropped.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ import zenoh
 
 from companion.app.view.swarm_model import Report, SwarmModel
 from companion.core.world import World
-from companion.node.mesh import key_base, received_bundle
+from companion.node.keys import SwarmKeys
+from companion.node.mesh import Spoofed, key_base, mission_authenticator, received_bundle
+from companion.node.signing import Forged, Unauthenticated
 from companion.node.zenoh_config import MeshConfig, open_session
 
 RING_PER_UAV = 64  # samples buffered per UAV before the oldest are dropped
@@ -30,22 +34,24 @@ TICK_S = 0.2  # how often steps waiting for silent UAVs are re-examined
 MAX_FRAMES = 100_000  # steps kept for the pages (about 10 MB for 4 UAVs)
 
 
-def listener_config(world: World) -> MeshConfig:
+def listener_config(world: World, keys: SwarmKeys | None = None) -> MeshConfig:
     """The mission's mesh, joined without claiming the seed: a peer listens on `mesh.listen` and
-    connects to the seed endpoint; a client connects to the router."""
+    connects to the seed endpoint; a client connects to the router. `keys`: the view's own."""
     m = world.mission.mesh
     if m.mode == "client":
-        return MeshConfig.from_mission(world.mission)
-    return MeshConfig.from_mission(world.mission, listen=(m.listen,), connect=(m.seed_endpoint,))
+        return MeshConfig.from_mission(world.mission, keys=keys)
+    return MeshConfig.from_mission(world.mission, listen=(m.listen,), connect=(m.seed_endpoint,), keys=keys)
 
 
 class MeshListener:
     """Follows the mesh of `world.mission` on background threads; `frames_since` and `status` are
-    safe to call from any thread. `close` ends the session and the threads."""
+    safe to call from any thread. `close` ends the session and the threads. `keys`: the view's
+    own (`keys.for_mission(mission, "view")`) for a secured mesh."""
 
-    def __init__(self, world: World) -> None:
+    def __init__(self, world: World, keys: SwarmKeys | None = None) -> None:
         m = world.mission
-        self.world, self.base = world, key_base(m)
+        self.world, self.base, self.keys = world, key_base(m), keys
+        self._auth = mission_authenticator(m, keys)
         self.n_cells = world.grid.n_cells
         self.n_tasks = world.tessellation.n_tasks if world.tessellation else 0
         self.model = SwarmModel(
@@ -61,7 +67,7 @@ class MeshListener:
         self._frames: list[str] = []
         self._first = 0  # index of _frames[0] among all frames made
         self.alive: set[int] = set()
-        self.received = self.malformed = 0
+        self.received = self.malformed = self.unauthenticated = 0
         self.session: zenoh.Session | None = None
         self.error = ""
         self._threads = [threading.Thread(target=self._run, name="view-mesh", daemon=True)]
@@ -69,7 +75,7 @@ class MeshListener:
 
     # -- threads -----------------------------------------------------------------------------------
     def _open(self) -> zenoh.Session | None:
-        cfg = listener_config(self.world)
+        cfg = listener_config(self.world, self.keys)
         while not self._stop.is_set():
             try:
                 return open_session(cfg)
@@ -115,7 +121,12 @@ class MeshListener:
         n = self.world.mission.n_uavs
         for sample in sub.handler:  # ends when the session closes
             try:
-                report = Report.of(received_bundle(sample, max_bytes, n, self.n_cells, self.n_tasks))
+                bundle = received_bundle(sample, max_bytes, n, self.n_cells, self.n_tasks, self._auth)
+                report = Report.of(bundle)
+            except (Spoofed, Unauthenticated, Forged):
+                with self._lock:
+                    self.unauthenticated += 1
+                continue
             except (ValueError, msgspec.MsgspecError):
                 with self._lock:
                     self.malformed += 1
@@ -160,6 +171,8 @@ class MeshListener:
                 "alive": sorted(self.alive),
                 "received": self.received,
                 "malformed": self.malformed,
+                "unauthenticated": self.unauthenticated,
+                "secured": self.keys is not None,
                 "late": self.model.late,
                 "step": self.model.closed,
             }

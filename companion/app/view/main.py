@@ -13,6 +13,7 @@ from companion.app.view.server import Address, LiveSource, ReplaySource, Source,
 from companion.core.uncertainty import apply_looks
 from companion.core.world import build_world
 from companion.mission import load_mission
+from companion.node.keys import for_mission, warn_if_insecure
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -45,8 +46,10 @@ def run_view(args: argparse.Namespace) -> int:
     elif args.mission:
         mission = load_mission(args.mission)
         seed = mission.seed if args.seed is None else args.seed
+        warn_if_insecure(mission)
+        keys = for_mission(mission, "view")
         warm_kernels()
-        source = LiveSource(build_world(mission, seed, 0), seed)
+        source = LiveSource(build_world(mission, seed, 0), seed, keys)
     else:
         print("error: give --mission FILE (live) or --replay DIR", file=sys.stderr)
         return 2

@@ -26,6 +26,7 @@ from companion.app.view.live import MeshListener
 from companion.app.view.replay import Replay, ReplayError, load_replay
 from companion.app.view.scene import scene_json
 from companion.core.world import World
+from companion.node.keys import SwarmKeys
 
 STATIC = Path(str(resources.files("companion.app.view") / "static"))
 PUSH_S = 0.2  # how often live clients get the new frames
@@ -49,8 +50,8 @@ class LiveSource:
 
     live = True
 
-    def __init__(self, world: World, seed: int) -> None:
-        self.listener = MeshListener(world)
+    def __init__(self, world: World, seed: int, keys: SwarmKeys | None = None) -> None:
+        self.listener = MeshListener(world, keys)
         self._scene = scene_json(world, "live", seed=seed)
 
     def scene(self, query: dict[str, str]) -> dict[str, Any]:

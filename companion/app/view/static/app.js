@@ -445,7 +445,8 @@
     else text = `mesh: ${s.alive.length} alive (${s.alive.map((u) => "U" + u).join(" ") || "none"})`;
     $("connection").textContent = text;
     if (st.live && s.connected !== undefined)
-      $("counters").textContent = `bundles received ${s.received}, malformed ${s.malformed}, late ${s.late}`;
+      $("counters").textContent = `bundles received ${s.received}, malformed ${s.malformed}, `
+        + `unauthenticated ${s.unauthenticated}, late ${s.late}${s.secured ? "" : " (INSECURE mesh)"}`;
     document.body.dataset.malformed = s.malformed ?? "";
   }
 

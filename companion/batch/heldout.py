@@ -1,0 +1,140 @@
+"""`uavsearch evaluate`: the proposed method against each baseline on a held-out set of missions.
+
+Every algorithm flies R runs of every mission, run r being the same instance for all three
+(`paired`). For each mission, baseline and metric (`paired.METRICS`, both lower-is-better) the
+paired differences proposed - baseline over the R runs give the mission's mean difference and its
+Student t 95 % interval; the proposed method *wins* the mission when that mean is below 0. Overall,
+the missions are the sample: the mean of the per-mission mean differences with its t interval over
+the N missions (and the same for the differences relative to the baseline's mission mean), and the
+win rate with its Wilson interval.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from companion.batch import plots
+from companion.batch.executors import RunExecutor
+from companion.batch.paired import METRICS, measure, specs_grid, write_json
+from companion.batch.stats import mean_ci, wilson
+from companion.mission import ALGORITHMS, Mission
+
+PROPOSED = "proposed"
+MIN_RUNS = 2  # a per-mission interval needs two paired runs
+RUN_COLUMNS = ("mission", "algorithm", "run", *METRICS)
+
+
+def paired_table(values: np.ndarray, algorithms: Sequence[str], names: Sequence[str]) -> dict:
+    """Per-mission and overall paired comparisons of `algorithms[0]` against each other algorithm.
+
+    `values[m, a, r, q]` is metric q of run r of algorithm a on mission m (`names[m]`). Returns
+    {"missions": [...], "overall": [...]}, one row per (mission, baseline, metric) and per (baseline,
+    metric)."""
+    n_missions, n_algorithms, runs, n_metrics = values.shape
+    if n_algorithms < 2 or len(names) != n_missions or n_metrics != len(METRICS):
+        raise ValueError("need values[mission, algorithm, run, metric] with two or more algorithms")
+    rows, overall = [], []
+    for b in range(1, n_algorithms):
+        for q, metric in enumerate(METRICS):
+            diffs = values[:, 0, :, q] - values[:, b, :, q]  # (missions, runs)
+            base = values[:, b, :, q].mean(axis=1)
+            per_mission = [mean_ci(d) for d in diffs]
+            for m in range(n_missions):
+                ci = per_mission[m]
+                rows.append(
+                    {
+                        "mission": names[m],
+                        "baseline": algorithms[b],
+                        "metric": metric,
+                        "runs": runs,
+                        algorithms[0]: float(values[m, 0, :, q].mean()),
+                        "baseline_value": float(base[m]),
+                        **ci.as_dict("difference"),
+                    }
+                )
+            means = np.array([ci.estimate for ci in per_mission])
+            relative = means / np.where(base > 0, base, np.nan)
+            wins, ties = int(np.sum(means < 0)), int(np.sum(means == 0))
+            overall.append(
+                {
+                    "baseline": algorithms[b],
+                    "metric": metric,
+                    "missions": n_missions,
+                    "runs": runs,
+                    **mean_ci(means).as_dict("difference"),
+                    **mean_ci(relative[np.isfinite(relative)]).as_dict("relative_difference"),
+                    "wins": wins,
+                    "ties": ties,
+                    "losses": n_missions - wins - ties,
+                    **wilson(wins, n_missions).as_dict("win_rate"),
+                    "significantly_better": sum(ci.high < 0 for ci in per_mission),
+                    "significantly_worse": sum(ci.low > 0 for ci in per_mission),
+                }
+            )
+    return {"missions": rows, "overall": overall}
+
+
+def evaluate(
+    missions: Sequence[Mission],
+    runs: int,
+    steps: int,
+    out: Path,
+    executor: RunExecutor | None = None,
+    layouts: tuple[str, ...] = (),
+    meta: dict | None = None,
+    advance: Callable[[], object] | None = None,
+) -> dict:
+    """Run the three algorithms on the missions (on `executor`, default a local pool) and write
+    evaluate.json, missions.csv, overall.csv, runs.csv and evaluate.png into `out`; returns the
+    evaluate.json content."""
+    if runs < MIN_RUNS:
+        raise ValueError(f"--runs must be at least {MIN_RUNS} (a per-mission interval needs two paired runs)")
+    algorithms = (PROPOSED, *(a for a in ALGORITHMS if a != PROPOSED))
+    specs = specs_grid(missions, algorithms, runs, steps, layouts)
+    values = measure(specs, executor, advance).reshape(len(missions), len(algorithms), runs, len(METRICS))
+    names = [m.name for m in missions]
+    table = paired_table(values, algorithms, names)
+    result = {
+        "meta": {
+            "missions": len(missions),
+            "runs": runs,
+            "steps": steps,
+            "algorithms": list(algorithms),
+            "start_layouts": list(layouts) or "each mission's",
+            "metrics": {
+                "target_time": "mean over targets of the step each was first seen (unfound: steps)",
+                "mean_uncertainty": "eq. 30 averaged over the run's steps",
+            },
+            "difference": "proposed - baseline (negative: the proposed method is better)",
+            "win": "the proposed method's mean over the mission's runs is below the baseline's",
+            **(meta or {}),
+        },
+        "mission_info": [
+            {"mission": m.name, "uavs": m.n_uavs, "mode": m.kinematics.mode, "seed": m.seed} for m in missions
+        ],
+        **table,
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "evaluate.json", result)
+    _write_csv(out / "missions.csv", table["missions"])
+    _write_csv(out / "overall.csv", table["overall"])
+    with (out / "runs.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(RUN_COLUMNS)
+        for m, name in enumerate(names):
+            for a, algorithm in enumerate(algorithms):
+                for r in range(runs):
+                    w.writerow([name, algorithm, r, *(f"{v:.10g}" for v in values[m, a, r])])
+    plots.plot_paired(out / "evaluate.png", table, METRICS)
+    return result
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)

@@ -1,0 +1,175 @@
+"""End-to-end signatures on the mesh: which UAV said what, however many hops it travelled.
+
+Each bundle travels in an `Envelope`: the encoded bundle, its sender's Ed25519 signature over it,
+and one originator signature per UAV state it carries (the sender's own `StateMsg` state first,
+then every state relayed in a `ClaimsMsg`, in order). A receiver checks the bundle's signature with
+the public key of the sender it names, and every state's with the key of the UAV the state is
+about, so a state relayed over any number of UAVs still proves its origin, and a member cannot put
+words in another's mouth. The signed texts name the mission's key space, so nothing signed for one
+mission is accepted by another. Detections and bids are first-hand only: the bundle's signature
+covers them.
+
+Signatures are kept (bounded) so that a state relayed by several neighbours is checked once, and
+so that this UAV can relay a state with its originator's signature. What a sender says about
+itself is vouched for by its bundle's signature, so the signature of its own state is only checked
+when that state is about to be relayed (one Ed25519 check per received bundle in the common case).
+A state whose signature is not held (none ever arrived, or the state came back from a restart
+journal) or does not check is not relayed. See docs/reliability.md.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+
+import msgspec
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+
+from companion.core.messages import ClaimsMsg, Message, MessageError, StateMsg, UavState
+from companion.core.wire import MsgpackCodec
+
+SIGNATURE_BYTES = 64
+KEPT_PER_UAV = 16  # checked state signatures kept per UAV (a relay needs only the latest few)
+
+
+class Unauthenticated(MessageError):
+    """A bundle without a valid signature of the sender it names."""
+
+
+class Forged(MessageError):
+    """A bundle carrying a state whose originator's signature does not check."""
+
+
+class Envelope(msgspec.Struct, frozen=True, array_like=True):
+    """What goes on the wire in a secured mesh: the encoded bundle, its sender's signature and the
+    originators' signatures of the states in it (an insecure mesh sends the bare bundle)."""
+
+    body: bytes
+    sig: bytes
+    state_sigs: tuple[bytes, ...]
+
+
+_codec: MsgpackCodec[Envelope] = MsgpackCodec(Envelope, MessageError, "envelope")
+encode_envelope = _codec.encode
+decode_envelope = _codec.decode
+_state_bytes = msgspec.msgpack.Encoder().encode
+
+
+def carried_states(messages: Sequence[Message]) -> list[UavState]:
+    """The UAV states in a bundle's messages, in the order their signatures travel."""
+    states: list[UavState] = []
+    for msg in messages:
+        if isinstance(msg, StateMsg):
+            states.append(msg.state)
+        elif isinstance(msg, ClaimsMsg):
+            states.extend(msg.known)
+    return states
+
+
+class Authenticator:
+    """Signs this UAV's bundles (with `signing`, its private key) and checks everyone's.
+
+    `public[i]` is UAV i's key; `base` the mission's key space (bound into every signed text).
+    A listener without a key of its own (the live view) passes `signing=None`: it only checks.
+    A sender's signature of its own state is kept unchecked (the bundle's signature already
+    vouches for what the sender says about itself) and checked only if the state is to be relayed.
+    """
+
+    def __init__(
+        self, public: Sequence[Ed25519PublicKey], base: str, signing: Ed25519PrivateKey | None = None
+    ) -> None:
+        self.public, self.signing = tuple(public), signing
+        self._bundle_domain = b"uavsearch bundle\0" + base.encode() + b"\0"
+        self._state_domain = b"uavsearch state\0" + base.encode() + b"\0"
+        self._lock = threading.Lock()
+        # per UAV: state bytes -> (its signature, checked)
+        self._sigs: list[dict[bytes, tuple[bytes, bool]]] = [{} for _ in self.public]
+
+    # -- sending -------------------------------------------------------------------------------
+    def relayable(self, messages: list[Message]) -> list[Message]:
+        """`messages` without the relayed states whose originator's signature we do not hold, or
+        which does not check."""
+        out: list[Message] = []
+        for msg in messages:
+            if isinstance(msg, ClaimsMsg):
+                known = tuple(s for s in msg.known if self._relay_sig(s, _state_bytes(s)) is not None)
+                if not known:
+                    continue
+                if len(known) != len(msg.known):
+                    msg = msgspec.structs.replace(msg, known=known)
+            out.append(msg)
+        return out
+
+    def seal(self, body: bytes, messages: Sequence[Message]) -> bytes:
+        """The envelope of an encoded bundle: signed, with the originators' state signatures.
+
+        Call `relayable` first: every relayed state must have a checked signature held here.
+        """
+        if self.signing is None:
+            raise ValueError("a listener without a signing key cannot send")
+        sigs: list[bytes] = []
+        for state in carried_states(messages):
+            data = _state_bytes(state)
+            held = self._held(state.uav, data)
+            if held is None:  # our own state: sign it, and keep it like any other
+                held = (self.signing.sign(self._state_domain + data), True)
+                self._keep(state.uav, data, held)
+            sigs.append(held[0])
+        return encode_envelope(Envelope(body, self.signing.sign(self._bundle_domain + body), tuple(sigs)))
+
+    # -- receiving -----------------------------------------------------------------------------
+    def check(self, envelope: Envelope, sender: int, messages: Sequence[Message]) -> None:
+        """Raise Unauthenticated unless `sender` signed the envelope's body, Forged unless every
+        carried state about another UAV is signed by that UAV; keep the states' signatures for
+        relaying (the sender's own unchecked)."""
+        try:
+            self.public[sender].verify(envelope.sig, self._bundle_domain + envelope.body)
+        except InvalidSignature:
+            raise Unauthenticated(f"bundle not signed by uav {sender}") from None
+        states = carried_states(messages)
+        if len(states) != len(envelope.state_sigs):
+            raise Forged(f"{len(states)} states, {len(envelope.state_sigs)} signatures")
+        for state, sig in zip(states, envelope.state_sigs, strict=True):
+            data = _state_bytes(state)
+            held = self._held(state.uav, data)
+            if held is not None and held[0] == sig and (held[1] or state.uav == sender):
+                continue
+            if state.uav == sender:
+                self._keep(state.uav, data, (sig, False))
+                continue
+            if not self._verify(state.uav, data, sig):
+                raise Forged(f"state of uav {state.uav} (stamp {state.stamp}) not signed by it")
+            self._keep(state.uav, data, (sig, True))
+
+    # -- held signatures ---------------------------------------------------------------------------
+    def _relay_sig(self, state: UavState, data: bytes) -> bytes | None:
+        """The checked signature of a state to relay (checking it now if need be), else None."""
+        held = self._held(state.uav, data)
+        if held is None:
+            return None
+        if not held[1]:
+            if not self._verify(state.uav, data, held[0]):
+                with self._lock:
+                    self._sigs[state.uav].pop(data, None)
+                return None
+            self._keep(state.uav, data, (held[0], True))
+        return held[0]
+
+    def _verify(self, uav: int, data: bytes, sig: bytes) -> bool:
+        try:
+            self.public[uav].verify(sig, self._state_domain + data)
+        except InvalidSignature:
+            return False
+        return True
+
+    def _held(self, uav: int, data: bytes) -> tuple[bytes, bool] | None:
+        with self._lock:
+            return self._sigs[uav].get(data)
+
+    def _keep(self, uav: int, data: bytes, entry: tuple[bytes, bool]) -> None:
+        with self._lock:
+            held = self._sigs[uav]
+            held[data] = entry
+            if len(held) > KEPT_PER_UAV:
+                del held[next(iter(held))]
