@@ -8,7 +8,9 @@ sea level: PX4's altitude reference then reaches the ground 15 s after boot
 differ. PX4 instances are numbered from a random
 free one above 100 (PX4 holds /tmp/px4_lock-I while it runs), so that tests running at the same
 time, and a developer's instances 0, 1, ..., do not collide. PX4 runs at SPEEDUP times real time
-(PX4_SIM_SPEED_FACTOR). Processes are started and stopped by PID (tests.e2e.conftest.Proc).
+(PX4_SIM_SPEED_FACTOR; SIH steps PX4's clock in lockstep with its controllers, so a busy machine
+slows PX4's time down rather than its flight), a swarm at SWARM_SPEEDUP. Processes are started
+and stopped by PID (tests.e2e.conftest.Proc).
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ from tests.e2e.conftest import ROOT, Proc
 from tests.sitl.conftest import GCS_COMPONENT, free_bases
 
 SCENARIO = ROOT / "mission_files" / "scenario1_px4.toml"
-SPEEDUP = 4.0
+SPEEDUP = 8.0
+SWARM_SPEEDUP = 4.0  # three instances, three companions and the camera on two cores
 FIRST_INSTANCE = 100
 ORIGIN_ALT = 30.0
 

@@ -4,14 +4,14 @@
   as planned: the companion takes over, uploads the fence, steers every step, the aircraft ends
   each step closer to the planned point than straight on, and the plan-versus-flight errors stay
   small.
-- What PX4 cannot fly is refused with a clear message: the heading command mode and grid
-  kinematics (by the companion on connecting, and by `uavsearch run --autopilot px4-sitl`; the
-  turn-rate refusal's message: tests/node).
+- What PX4 cannot fly is refused with a clear message: the heading command mode by the companion
+  on connecting (PX4 says who it is), grid kinematics by `uavsearch run --autopilot px4-sitl`
+  before it starts anything (every refusal's message: tests/node).
 - Conformance: one scripted command sequence (OFFBOARD refused without a setpoint stream, entered
   with one, a position setpoint flown to and orbited, the stream stopped, the failsafe's Hold, a
-  DO_REPOSITION flown to and circled) on PX4 and on the bundled simulator's PX4 flavour; the
-  results, timings and flown tracks, relative to each vehicle's pose at the start, agree within
-  the tolerances below.
+  DO_REPOSITION flown to and circled) on PX4 and on the bundled simulator's PX4 flavour, both at
+  once; the results, timings and flown tracks, relative to each vehicle's pose at the start,
+  agree within the tolerances below.
 """
 
 from __future__ import annotations
@@ -20,7 +20,9 @@ import json
 import math
 import statistics
 import subprocess
+import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -39,9 +41,9 @@ LOSS_TIMING_S, OFFBOARD_LEG_M = 1.5, 25.0
 SHAPE_TOLERANCES = {"hold_extent_m": 25.0, "leg_course_deg": 6.0, "circle_radius_m": 8.0, "circle_sense": 0.0}
 
 
-def _companion(airborne: Px4Airborne, out: Path, *args: str, mission: Path | None = None) -> Proc:
+def _companion(airborne: Px4Airborne, out: Path, *args: str) -> Proc:
     ports = airborne.mission.ports(0)
-    argv = [PY, "-m", "companion.app.cli", "companion", "--mission", str(mission or airborne.mission.path)]
+    argv = [PY, "-m", "companion.app.cli", "companion", "--mission", str(airborne.mission.path)]
     argv += ["--uav", "0", "--vehicle", ports.url(ports.companion), "--out", str(out), *args]
     out.mkdir(parents=True, exist_ok=True)
     return Proc("companion", argv, out / "companion.log")
@@ -73,8 +75,8 @@ def test_command_mode_turns_the_aircraft_as_planned(
     assert all("FW_AIRSPD" not in w and "FW_R_LIM" not in w for w in report["airframe_warnings"]), report
 
 
-def _refused(airborne: Px4Airborne, out: Path, *args: str, mission: Path | None = None) -> str:
-    proc = _companion(airborne, out, "--steps", "3", *args, mission=mission)
+def _refused(airborne: Px4Airborne, out: Path, *args: str) -> str:
+    proc = _companion(airborne, out, "--steps", "3", *args)
     try:
         assert proc.wait(timeout=120) == 2, proc.text()
     finally:
@@ -86,18 +88,12 @@ def test_what_px4_cannot_fly_is_refused(px4_airborne: Px4Airborne, tmp_path: Pat
     text = _refused(px4_airborne, tmp_path / "heading", "--command-mode", "heading")
     assert "PX4 has no MAV_CMD_GUIDED_CHANGE_HEADING" in text, text
     grid = tmp_path / "grid.toml"
-    grid.write_text(px4_airborne.mission.path.read_text().replace('mode = "continuous"', 'mode = "grid"'))
-    text = _refused(px4_airborne, tmp_path / "grid", "--command-mode", "position-target", mission=grid)
-    assert 'use kinematics.mode = "continuous"' in text, text
-    heading = ("--command-mode", "heading")
-    for mission, args, why in (
-        (grid, (), 'use kinematics.mode = "continuous"'),
-        (px4_airborne.mission.path, heading, "PX4 has no MAV_CMD_GUIDED_CHANGE_HEADING"),
-    ):
-        argv = [PY, "-m", "companion.app.cli", "run", str(mission), "--autopilot", "px4-sitl", *args]
-        argv += ["--out", str(tmp_path)]
-        run = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120)
-        assert run.returncode == 2 and why in run.stderr, run.stderr
+    text = px4_airborne.mission.path.read_text()
+    grid.write_text(text.replace('mode = "continuous"', 'mode = "grid"'))
+    argv = [PY, "-m", "companion.app.cli", "run", str(grid), "--autopilot", "px4-sitl"]
+    argv += ["--out", str(tmp_path / "run")]
+    run = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert run.returncode == 2 and 'use kinematics.mode = "continuous"' in run.stderr, run.stderr
 
 
 # -- conformance -----------------------------------------------------------------------------------
@@ -110,14 +106,14 @@ LOSS_S = 2.0  # COM_OF_LOSS_T, set on both
 class Script:
     """The scripted sequence on one vehicle (PX4 SITL or the bundled simulator's PX4 flavour), from
     straight flight north: rows (t, ahead, left, heading change) every 0.5 s relative to the pose
-    at its start, and what happened. The simulator flies the script at the speed PX4 flew its
-    OFFBOARD leg (PX4's speed varies with its mode, the simulator's does not)."""
+    at its start, and what happened. `leg_flown` is set once the OFFBOARD leg is over."""
 
     def __init__(self, link: VehicleLink, altitude: float) -> None:
         self.link, self.altitude = link, altitude
         self.rows: list[tuple[float, float, float, float]] = []
         self.events: dict[str, float] = {}
         self.t0 = self.x0 = self.y0 = self.h0 = 0.0
+        self.leg_flown = threading.Event()
 
     def run(self, seconds: float, each: Callable[[], None] | None = None) -> None:
         s = self.link.state
@@ -142,11 +138,13 @@ class Script:
         x, y = self.x0 + c * ahead - sn * left, self.y0 + sn * ahead + c * left
         return self.link.frame.to_geodetic(x, y)[:2]
 
-    def fly(self) -> None:
+    def fly(self, before: Callable[[], None] = lambda: None) -> None:
+        """The script, after straight flight north and then `before`."""
         link, s = self.link, self.link.state
         lat, lon, _ = link.frame.to_geodetic(s.x, s.y + 1200.0)
         link.reposition(lat, lon, self.altitude)  # straight north (inside a companion's fence)
         self.run(25.0, lambda: None)
+        before()
         self.t0, self.x0, self.y0, self.h0 = s.time_s, s.x, s.y, s.heading
         link.set_mode(PX4_OFFBOARD)  # no setpoint stream yet
         ack = link.await_reply(lambda m: m.get_type() == "COMMAND_ACK" and m.command == 176, 2.0)
@@ -163,6 +161,7 @@ class Script:
         link.set_mode(PX4_OFFBOARD)
         self.until(STREAM_END, stream)
         self.events["offboard"] = s.custom_mode == PX4_OFFBOARD
+        self.leg_flown.set()
         stopped = s.time_s
 
         def lost() -> None:
@@ -186,15 +185,12 @@ def _prepare(link: VehicleLink) -> None:
 
 
 def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tmp_path: Path) -> None:
+    """Both fly at once: the simulator starts its script once PX4 has flown the OFFBOARD leg, at the
+    leg's speed (PX4's speed varies with its mode, the simulator's does not)."""
     px4_airborne.fly_to(0.0, -700.0, within=300.0)
     altitude = px4_airborne.mission.mission.altitude_of(0)
-    link = px4_airborne.link
-    _prepare(link)
-    px4 = Script(link, altitude)
-    px4.fly()
-    a = px4.track()
-    speed = _leg_speed(a)  # PX4's speed varies with its mode: the simulator flies the leg's
-    assert 9.0 < speed < 16.0, speed
+    _prepare(px4_airborne.link)
+    px4 = Script(px4_airborne.link, altitude)
 
     m = px4_airborne.mission
     sim_mission = tmp_path / "sim.toml"
@@ -208,22 +204,36 @@ def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tm
         [PY, "-m", "sim_vehicles", "--mission", str(sim_mission), "--speedup", "8", "--no-camera"],
         tmp_path / "sim.log",
     )
-    try:
-        sim.wait_for_text("vehicle 0 sysid")
-        bundled = VehicleLink(f"udpout:127.0.0.1:{port}", px4_airborne.frame)
-        bundled.wait_heartbeat(60)
-        bundled.request_streams()
-        _prepare(bundled)
-        assert bundled.set_param("FW_AIRSPD_TRIM", round(speed, 2))
-        while not bundled.state.has_pose:
-            bundled.poll(0.2)
-        assert bundled.command_ack(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
-        ours = Script(bundled, altitude)
-        ours.fly()
-        bundled.close()
-    finally:
-        sim.stop()
+    speeds: list[float] = []
+    with ThreadPoolExecutor(1) as pool:
+        try:
+            sim.wait_for_text("vehicle 0 sysid")
+            bundled = VehicleLink(f"udpout:127.0.0.1:{port}", px4_airborne.frame)
+            bundled.wait_heartbeat(60)
+            bundled.request_streams()
+            _prepare(bundled)
+            while not bundled.state.has_pose:
+                bundled.poll(0.2)
+            assert bundled.command_ack(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+            flight = pool.submit(px4.fly)
 
+            def at_px4s_speed() -> None:
+                while not px4.leg_flown.is_set():
+                    if flight.done():
+                        flight.result()  # PX4's script failed: its error
+                    bundled.poll(0.05)
+                speeds.append(_leg_speed(px4.track()))
+                assert 9.0 < speeds[0] < 16.0, speeds
+                assert bundled.set_param("FW_AIRSPD_TRIM", round(speeds[0], 2))
+
+            ours = Script(bundled, altitude)
+            ours.fly(before=at_px4s_speed)
+            bundled.close()
+            flight.result()
+        finally:
+            sim.stop()
+
+    a = px4.track()
     b = ours.track()
     (tmp_path / "tracks.json").write_text(json.dumps({"px4": a.tolist(), "bundled": b.tolist()}))
     for key in ("refused", "offboard", "hold"):
