@@ -7,7 +7,7 @@ STUDY_RUNS ?= 1000
 STUDY_OUT ?= out/study
 SWEEP_RUNS ?= 50
 
-.PHONY: install browser run run-sitl mc study test bench clean
+.PHONY: install browser run run-sitl run-px4 mc study test bench clean
 
 $(BIN)/uavsearch: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,12 @@ run: install
 run-sitl: install
 	$(BIN)/uavsearch run mission_files/scenario1_continuous.toml --autopilot ardupilot-sitl --speedup 4 \
 		--steps 300 --out out/scenario1_sitl
+
+# The same on PX4: one PX4 SITL (SIH fixed-wing) per UAV (build from $PX4_SITL_DIR or ../shared/px4),
+# sped up 4x (docs/companion.md, "Flying PX4 SITL").
+run-px4: install
+	$(BIN)/uavsearch run mission_files/scenario1_px4.toml --autopilot px4-sitl --speedup 4 \
+		--steps 300 --out out/scenario1_px4
 
 # The paper's Monte Carlo comparison on scenario 1 (summary table and plots).
 mc: install

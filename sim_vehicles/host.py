@@ -430,7 +430,10 @@ class Host:
             d = self._demand = Demand.empty(len(hosted))
             for i, hv in enumerate(hosted):
                 v = hv.vehicle
+                mode = v.mode
                 turn = v.steer(t, float(fl.x[i]), float(fl.y[i]), float(fl.heading[i]))
+                if v.mode != mode:  # a failsafe or the fence changed it: say so at once
+                    hv.broadcast(hv.build(M.MAVLINK_MSG_ID_HEARTBEAT))
                 d.by_bank[i], d.bank[i] = turn.bank is not None, turn.bank or 0.0
                 d.rate[i], d.bank_limit[i] = turn.rate, turn.limit
                 d.moving[i], d.speed[i], d.turn_limit[i], d.roll_limit[i] = (

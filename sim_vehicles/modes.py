@@ -44,6 +44,8 @@ class Flavour:
     rtl: str
     mission_end: str
     home_is_item0: bool  # ArduPilot keeps home as mission item 0
+    nav_period: float  # s: the period and damping of its lateral guidance (dynamics.navigation)
+    nav_damping: float
 
     def by_custom(self, custom_mode: int) -> Mode | None:
         return next((m for m in self.modes if m.custom_mode == custom_mode), None)
@@ -78,6 +80,8 @@ ARDUPLANE = Flavour(
     rtl="RTL",
     mission_end="RTL",
     home_is_item0=True,
+    nav_period=15.0,  # plane.parm's NAVL1_PERIOD, NAVL1_DAMPING
+    nav_damping=0.75,
 )
 
 PX4 = Flavour(
@@ -99,6 +103,8 @@ PX4 = Flavour(
     rtl="AUTO.RTL",
     mission_end="AUTO.LOITER",
     home_is_item0=False,
+    nav_period=10.0,  # PX4's NPFG_PERIOD, NPFG_DAMPING
+    nav_damping=0.7,
 )
 
 FLAVOURS = {f.name: f for f in (ARDUPLANE, PX4)}

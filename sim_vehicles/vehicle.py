@@ -20,6 +20,15 @@ direct turn-rate command; the flight model limits and integrates it (see `dynami
   nothing; in RTL 4 AUTO; in the other modes 2 FBWA, 4 AUTO, 3 nothing, else RTL. It clears when
   HEARTBEATs are back within FS_SHORT_TIMEOUT (FS_LONG_TIMEOUT if FS_SHORT_ACTN is 3), leaving the
   mode as it is.
+- PX4 (the flavour's semantics, as checked on PX4 SITL): OFFBOARD needs a setpoint stream to enter,
+  and after COM_OF_LOSS_T without setpoints switches to the mode COM_OBL_RC_ACT names (Position
+  mode by default: wings level, straight on, without RC); a position setpoint is flown to and
+  orbited at the tightest turn (no acceptance radius); Hold and DO_REPOSITION circle their point at
+  NAV_LOITER_RAD, clockwise (DO_REPOSITION's radius is ignored); a DO_REPOSITION without the
+  change-mode flag is UNSUPPORTED, yet flown in Hold; a fence is in force once uploaded if it
+  contains home and the vehicle (else "Geofence invalid") and GF_ACTION is not 0, a breach
+  switching to Hold where the vehicle is (GF_ACTION 2, and 4, 5: no termination or landing here)
+  or to Return (3).
 """
 
 from __future__ import annotations
@@ -50,6 +59,8 @@ ITEM_NAMES = {  # ArduPilot's short names of mission commands ("Mission: 1 LoitU
     mavlink.MAV_CMD_NAV_LOITER_TIME: "LoitTime",
     mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: "RTL",
 }
+PX4_OFFBOARD_LOSS = {0: "POSCTL", 1: "ALTCTL", 2: "MANUAL", 3: "AUTO.RTL"}  # COM_OBL_RC_ACT; else Hold
+PX4_GEOFENCE_WARN, PX4_GEOFENCE_RETURN = 1, 3  # GF_ACTION
 
 
 @dataclass(frozen=True)
@@ -123,8 +134,9 @@ class Vehicle:
     ) -> None:
         self.index, self.sysid = index, index + 1
         self.flavour, self.params = flavour, params
+        self._nav = (flavour.nav_period, flavour.nav_damping)
         self.home = home
-        self.last_xy = home
+        self.last_xy, self.last_heading = home, 0.0
         self.step = step
         self.armed = False
         self.mode: Mode = flavour.by_name(flavour.initial)
@@ -158,8 +170,14 @@ class Vehicle:
         return math.radians(self.params.value("roll_limit"))
 
     @property
+    def px4(self) -> bool:
+        return self.flavour.name == "px4"
+
+    @property
     def fence_enabled(self) -> bool:
         p = self.params
+        if self.px4:
+            return bool(self.fence) and p.value("geofence_action") != 0
         return bool(self.fence) and p.value("fence_enable", 0.0) == 1 and (
             int(p.value("fence_type", 0.0)) & FENCE_POLYGON_BIT > 0
         )
@@ -204,18 +222,22 @@ class Vehicle:
         self, x: float, y: float, target: tuple[float, float], up: float | None, radius: float,
         change_mode: bool,
     ) -> int:
-        """MAV_CMD_DO_REPOSITION: fly to `target` and circle it (ArduPlane GUIDED / PX4 Hold);
-        `radius` 0 means WP_LOITER_RAD, its sign the direction."""
+        """MAV_CMD_DO_REPOSITION: fly to `target` and circle it (ArduPlane GUIDED: `radius` 0 means
+        WP_LOITER_RAD, its sign the direction; PX4 Hold: at NAV_LOITER_RAD clockwise, and without the
+        change-mode flag UNSUPPORTED, yet flown when in Hold)."""
         go_to = self.flavour.by_name(self.flavour.reposition)
+        refused = mavlink.MAV_RESULT_UNSUPPORTED if self.px4 else mavlink.MAV_RESULT_FAILED
+        result = mavlink.MAV_RESULT_ACCEPTED if change_mode or not self.px4 else refused
         if self.mode != go_to and not change_mode:
-            return mavlink.MAV_RESULT_FAILED
+            return refused
         if self.mode != go_to:
             self._enter(go_to, x, y)
-        self.guided_point = Loiter(target[0], target[1], radius or self.loiter_radius)
+        radius = self.loiter_radius if self.px4 or not radius else radius
+        self.guided_point = Loiter(target[0], target[1], radius)
         self.nav = self.guided_point
         if up is not None:
             self.alt_target = up
-        return mavlink.MAV_RESULT_ACCEPTED
+        return result
 
     def change_heading(self, t: float, x: float, y: float, kind: int, heading: float, accel: float) -> int:
         """MAV_CMD_GUIDED_CHANGE_HEADING (ArduPlane): hold a heading with at most `accel` m/s^2
@@ -249,6 +271,13 @@ class Vehicle:
         return ok
 
     def set_fence(self, polygons: list[ConvexPolygon]) -> None:
+        """The inclusion polygons uploaded (PX4 ignores a fence without home or the vehicle in it)."""
+        if self.px4 and polygons:
+            for where, point in (("Home position", self.home), ("current vehicle position", self.last_xy)):
+                if not all(p.contains(*point) for p in polygons):
+                    self.say(f"Geofence invalid, doesn't contain {where}", mavlink.MAV_SEVERITY_WARNING)
+                    polygons = []
+                    break
         self.fence, self.fence_breached = polygons, False
 
     def turn_rate(self, t: float, rate: float) -> bool:
@@ -272,7 +301,7 @@ class Vehicle:
             if target is not None:
                 old = self.offboard_nav
                 if not (isinstance(old, Loiter) and (old.x, old.y) == target):
-                    self.offboard_nav = Loiter(target[0], target[1], self.loiter_radius)
+                    self.offboard_nav = Loiter(target[0], target[1], self._orbit_radius(target))
             if self.mode.behaviour is not Behaviour.OFFBOARD:
                 return False
             self.nav = self.offboard_nav or self.nav
@@ -299,7 +328,7 @@ class Vehicle:
     # ---- guidance -----------------------------------------------------------------------
     def steer(self, t: float, x: float, y: float, heading: float) -> Turn:
         """Apply the fence and failsafes, then the turn the current guidance asks for."""
-        self.last_xy = (x, y)
+        self.last_xy, self.last_heading = (x, y), heading
         self._fence_check(x, y)
         self._failsafes(t, x, y)
         v = max(self.speed, 1.0)
@@ -315,9 +344,9 @@ class Vehicle:
             self._check_arrival(target, x, y, heading)
             if self.nav is not target:
                 return self.steer(t, x, y, heading)
-            accel = nav.track(x, y, heading, v, target.start, (target.x, target.y))
+            accel = nav.track(x, y, heading, v, target.start, (target.x, target.y), *self._nav)
         else:
-            accel = nav.loiter(x, y, heading, v, (target.x, target.y), target.radius)
+            accel = nav.loiter(x, y, heading, v, (target.x, target.y), target.radius, *self._nav)
         return Turn(math.atan(accel / nav.GRAVITY))
 
     def _check_arrival(self, leg: Leg, x: float, y: float, heading: float) -> None:
@@ -341,11 +370,21 @@ class Vehicle:
             return
         outside = not all(p.contains(x, y) for p in self.fence)
         if outside and not self.fence_breached and self.armed:
-            self.say("Fence breached", mavlink.MAV_SEVERITY_CRITICAL)
-            rtl = self.flavour.by_name(self.flavour.rtl)
+            self.say("Geofence violation" if self.px4 else "Fence breached", mavlink.MAV_SEVERITY_CRITICAL)
+            self._fence_action(x, y)
+        self.fence_breached = outside
+
+    def _fence_action(self, x: float, y: float) -> None:
+        rtl = self.flavour.by_name(self.flavour.rtl)
+        if not self.px4:
             if self.params.value("fence_action", 0.0) == FENCE_ACTION_RTL and self.mode != rtl:
                 self._enter(rtl, x, y)
-        self.fence_breached = outside
+            return
+        action = self.params.value("geofence_action")
+        if action == PX4_GEOFENCE_RETURN:
+            self._enter(rtl, x, y)
+        elif action > PX4_GEOFENCE_WARN:  # Hold where it is (also for termination and landing)
+            self._enter(self.flavour.by_name(self.flavour.hold), x, y, again=True)
 
     def _failsafes(self, t: float, x: float, y: float) -> None:
         self._gcs_failsafe(t, x, y)
@@ -355,8 +394,10 @@ class Vehicle:
         elif self.mode.behaviour is Behaviour.OFFBOARD and (
             not self.setpoints or t - self.setpoints[-1] > self.params.value("guided_timeout")
         ):
-            self._enter(self.flavour.by_name(self.flavour.hold), x, y)
-            self.say("Offboard setpoints lost: HOLD", mavlink.MAV_SEVERITY_WARNING)
+            action = int(self.params.value("offboard_loss_action", 5.0))
+            to = self.flavour.by_name(PX4_OFFBOARD_LOSS.get(action, self.flavour.hold))
+            self._enter(to, x, y)
+            self.say(f"Offboard setpoints lost: {to.name}", mavlink.MAV_SEVERITY_WARNING)
 
     def _gcs_failsafe(self, t: float, x: float, y: float) -> None:
         p = self.params
@@ -395,7 +436,19 @@ class Vehicle:
             len(s) == s.maxlen and t - s[0] <= SETPOINT_RATE_WINDOW and t - s[-1] <= SETPOINT_MAX_GAP
         )
 
-    def _enter(self, mode: Mode, x: float, y: float) -> None:
+    def _orbit_radius(self, target: tuple[float, float]) -> float:
+        """PX4 orbits an OFFBOARD position setpoint at its tightest turn, v^2 / (g tan(FW_R_LIM)), on
+        the side the point now lies (counter-clockwise: negative)."""
+        radius = max(self.speed, 1.0) ** 2 / (nav.GRAVITY * math.tan(self.roll_limit))
+        x, y = self.last_xy
+        h = self.last_heading
+        left = math.cos(h) * (target[1] - y) - math.sin(h) * (target[0] - x) > 0
+        return -radius if left else radius
+
+    def _enter(self, mode: Mode, x: float, y: float, again: bool = False) -> None:
+        """Enter `mode` at (x, y) (`again`: also if already in it, from here)."""
+        if mode == self.mode and not again:
+            return
         self.mode, self.last_xy = mode, (x, y)
         b = mode.behaviour
         if b is Behaviour.STRAIGHT:

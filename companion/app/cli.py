@@ -414,6 +414,7 @@ def _run(args: argparse.Namespace) -> int:
         camera_links=_links(args.camera_links),
         sitl_binary=args.sitl_binary,
         sitl_defaults=args.sitl_defaults,
+        sitl_instance=args.sitl_instance,
     )
     try:
         return run_mission(options)
@@ -719,14 +720,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--command-mode",
         choices=COMMAND_MODES,
         default=None,
-        help="default: turn-rate on the bundled simulator, heading on other vehicles",
+        help="default: turn-rate on the bundled simulator, position-target on PX4 SITL, heading otherwise",
     )
     ru.add_argument("--flavour", choices=("ardupilot", "px4"), default=None)
     ru.add_argument(
         "--autopilot",
-        choices=("bundled", "ardupilot-sitl"),
+        choices=("bundled", "ardupilot-sitl", "px4-sitl"),
         default="bundled",
-        help="the bundled simulator, or one ArduPlane SITL per UAV at its start pose",
+        help="the bundled simulator, or one ArduPlane or PX4 SITL per UAV at its start pose",
     )
     ru.add_argument(
         "--vehicles", default=None, help="fly vehicles that exist: one pymavlink URL per UAV, comma-separated"
@@ -734,7 +735,14 @@ def build_parser() -> argparse.ArgumentParser:
     ru.add_argument(
         "--camera-links", default=None, help="with --vehicles: links for the stand-alone simulated camera"
     )
-    ru.add_argument("--sitl-binary", default=None, help="ArduPlane SITL binary (default: $ARDUPLANE_SITL)")
+    ru.add_argument(
+        "--sitl-binary",
+        default=None,
+        help="ArduPlane SITL binary (default: $ARDUPLANE_SITL), PX4 bin/px4 (default: $PX4_SITL_DIR/bin/px4)",
+    )
+    ru.add_argument(
+        "--sitl-instance", type=int, default=0, help="PX4: the first instance number tried (MAV_SYS_ID - 1)"
+    )
     ru.add_argument(
         "--sitl-defaults", default=None, help="SITL parameter defaults (default: plane.parm by it)"
     )

@@ -105,9 +105,10 @@ def evaluate(
     the closest approach between sampling moments: the separation record where there is one
     (`read_approach`), else the logged poses' distance at the sampling moments.
 
-    Step 0 of the result is the first step every companion logged. A UAV whose log stops (a killed
-    companion) keeps its last logged pose for the link metrics, and its last mean uncertainty; the
-    vehicle itself keeps flying under its autopilot (the physics-rate record sees it).
+    Step 0 of the result is the first step every companion logged. A UAV with no row for a step (a
+    companion that skipped it, a killed one whose log stops) keeps its latest logged pose for the
+    link metrics, and its mean uncertainty; the vehicle itself keeps flying under its autopilot (the
+    physics-rate record sees it).
     """
     m = world.mission
     n = m.n_uavs
@@ -116,7 +117,7 @@ def evaluate(
     traj = np.zeros((steps, n, 3))
     tasks = np.full((steps, n), -1, dtype=np.int64)
     unc = np.zeros(steps)
-    last: dict[int, dict[str, float]] = {}
+    last = {i: rows[max(k for k in rows if k <= span.start)] for i, rows in logs.items() if steps}
     for k, step in enumerate(span):
         etas = []
         for i in range(n):

@@ -6,16 +6,17 @@ steps; stops every child; scores the run against the mission's ground truth and 
 engine's files (summary.json, trajectories.csv, plots), the plan-versus-flight figures
 (tracking.json) and one MAVLink .tlog per vehicle. Exits 1 when the mission's pass criteria fail.
 
-The vehicles are the bundled simulator (default); or ArduPlane SITL, one instance per UAV at its
-start pose (`--autopilot ardupilot-sitl`), with the stand-alone simulated camera reading their
-positions; or vehicles that already exist (`--vehicles URL,...`, optionally with the stand-alone
-camera on `--camera-links URL,...`).
+The vehicles are the bundled simulator (default); or ArduPlane SITL or PX4 SITL, one instance per
+UAV at its start pose (`--autopilot ardupilot-sitl`, `--autopilot px4-sitl`), with the stand-alone
+simulated camera reading their positions; or vehicles that already exist (`--vehicles URL,...`,
+optionally with the stand-alone camera on `--camera-links URL,...`).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.app import sitl
+from companion.app import px4_sitl, sitl
 from companion.app.evaluation import (
     CompanionLogs,
     evaluate,
@@ -47,6 +48,7 @@ from sim_vehicles import camera as cam
 
 START_TIMEOUT_S = 120.0
 STOP_TIMEOUT_S = 15.0
+SITL_FLAVOURS = {"ardupilot-sitl": "ardupilot", "px4-sitl": "px4"}
 
 
 @dataclass(frozen=True)
@@ -63,11 +65,12 @@ class RunOptions:
     keep_going: bool = False  # fly all the steps even when every target is found
     view: bool = False  # serve the live map (`uavsearch view`) while the swarm flies
     view_port: int = 0
-    autopilot: str = "bundled"  # or "ardupilot-sitl"
+    autopilot: str = "bundled"  # or "ardupilot-sitl", "px4-sitl"
     vehicles: tuple[str, ...] = ()  # external vehicles, one pymavlink URL per UAV
     camera_links: tuple[str, ...] = ()  # the stand-alone camera's links to the external vehicles
     sitl_binary: str | None = None
     sitl_defaults: str | None = None
+    sitl_instance: int = 0  # PX4: the first instance number tried
 
     @property
     def external(self) -> bool:
@@ -75,7 +78,11 @@ class RunOptions:
 
     @property
     def mode(self) -> str:
-        return self.command_mode or ("heading" if self.external else "turn-rate")
+        if self.command_mode:
+            return self.command_mode
+        if self.autopilot == "px4-sitl":
+            return "position-target"
+        return "heading" if self.external else "turn-rate"
 
 
 class Children:
@@ -85,8 +92,16 @@ class Children:
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs: dict[str, Path] = {}
 
-    def start(self, name: str, argv: list[str], log: Path, cwd: Path | None = None) -> subprocess.Popen:
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    def start(
+        self,
+        name: str,
+        argv: list[str],
+        log: Path,
+        cwd: Path | None = None,
+        extra: dict[str, str] | None = None,
+    ) -> subprocess.Popen:
+        """Start `argv` in its own session, output to `log`, with `extra` added to the environment."""
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", **(extra or {})}
         with log.open("w") as f:
             proc = subprocess.Popen(
                 argv, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True, cwd=cwd
@@ -157,12 +172,18 @@ def _check_options(opts: RunOptions, mission: Mission) -> str | None:
         return f"--vehicles: {len(opts.vehicles)} links for the mission's {mission.n_uavs} UAVs"
     if opts.camera_links and len(opts.camera_links) != mission.n_uavs:
         return f"--camera-links: {len(opts.camera_links)} links for the mission's {mission.n_uavs} UAVs"
-    if opts.autopilot == "ardupilot-sitl":
+    if opts.autopilot in SITL_FLAVOURS:
         if opts.vehicles:
-            return "--vehicles and --autopilot ardupilot-sitl exclude each other"
-        problem = refusal(mission, Airframe("ardupilot", {}, simulator=False), opts.mode)
+            return f"--vehicles and --autopilot {opts.autopilot} exclude each other"
+        airframe = Airframe(SITL_FLAVOURS[opts.autopilot], {}, simulator=False)
+        problem = refusal(mission, airframe, opts.mode)
         if problem:
-            return f"--autopilot ardupilot-sitl: {problem}"
+            return f"--autopilot {opts.autopilot}: {problem}"
+        if opts.autopilot == "px4-sitl" and mission.secured and mission.security.mavlink_signing:
+            return (
+                "--autopilot px4-sitl: the PX4 SITL links are not MAVLink2-signed (PX4 is given no secret): "
+                "set [security] mavlink_signing = false for it"
+            )
     return None
 
 
@@ -241,6 +262,27 @@ def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: in
     signing = mavlink_secrets(mission) is not None
     _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs, signing)
     return [p.url(p.serial1) for p in ports]
+
+
+def _start_px4(children: Children, opts: RunOptions, mission: Mission, seed: int) -> list[str]:
+    """One PX4 SITL per UAV (its own working directory, made afresh) and the stand-alone camera on
+    their camera links; returns the companions' links."""
+    build = px4_sitl.find_build(opts.sitl_binary)
+    px4 = px4_sitl.link_folder(build, opts.out / "px4_bin")
+    instances = px4_sitl.free_instances(mission.n_uavs, opts.sitl_instance)
+    for i, instance in enumerate(instances):
+        workdir = opts.out / f"px4_{i}"
+        shutil.rmtree(workdir, ignore_errors=True)
+        workdir.mkdir()
+        env = px4_sitl.px4_env(mission, i, opts.speedup)
+        argv = px4_sitl.px4_argv(px4, build, instance, workdir)
+        children.start(f"px4_{i}", argv, opts.out / f"px4_{i}.log", cwd=workdir, extra=env)
+    for i in range(mission.n_uavs):
+        name = f"px4_{i}"
+        _wait_for_line(opts.out / f"{name}.log", px4_sitl.STARTED, children.procs[name], START_TIMEOUT_S)
+    ports = [px4_sitl.px4_ports(mission, i) for i in range(mission.n_uavs)]
+    _start_camera(children, opts, [p.url(p.camera) for p in ports], seed, mission.n_uavs)
+    return [p.url(p.companion) for p in ports]
 
 
 def _start_bundled(children: Children, opts: RunOptions, mission: Mission, seed: int) -> None:
@@ -330,6 +372,8 @@ def run_mission(opts: RunOptions) -> int:
         urls: list[str | None] = [None] * mission.n_uavs
         if opts.autopilot == "ardupilot-sitl":
             urls = list(_start_sitl(children, opts, mission, seed))
+        elif opts.autopilot == "px4-sitl":
+            urls = list(_start_px4(children, opts, mission, seed))
         elif opts.vehicles:
             urls = list(opts.vehicles)
             if opts.camera_links:

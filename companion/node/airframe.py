@@ -111,8 +111,9 @@ def refusal(mission: Mission, airframe: Airframe, command_mode: str) -> str | No
             'kinematics.mode = "continuous"'
         )
     if command_mode == "turn-rate":
+        instead = "position-target or reposition" if px4 else "heading or reposition"
         return (
             "--command-mode turn-rate is the bundled simulator's yaw-rate target, which this autopilot "
-            f"does not fly: use --command-mode {'reposition' if px4 else 'heading or reposition'}"
+            f"does not fly: use --command-mode {instead}"
         )
     return None

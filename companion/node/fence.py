@@ -5,14 +5,17 @@ The fence is the region's convex polygon with every edge pushed out by the margi
 `mission.safety.margin` when the mission has one, else `DEFAULT_MARGIN_M`.
 
 `upload_fence` sends the fence to the autopilot with the MAVLink mission protocol (mission type
-FENCE, one MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION item per vertex) and enables it
-(FENCE_TYPE gains the polygon bit, FENCE_ACTION "report only" becomes RTL, MAV_CMD_DO_FENCE_ENABLE),
-so the autopilot itself keeps the aircraft in the area if the companion fails.
+FENCE, one MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION item per vertex) and enables it, so the
+autopilot itself keeps the aircraft in the area if the companion fails. ArduPilot: FENCE_TYPE gains
+the polygon bit, FENCE_ACTION "report only" becomes RTL, MAV_CMD_DO_FENCE_ENABLE. PX4: a fence is
+active once uploaded (it has no DO_FENCE_ENABLE) unless it does not contain home or the vehicle,
+which PX4 reports ("Geofence invalid") and ignores; GF_ACTION "none" or "warning" becomes Return.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -29,6 +32,8 @@ DEFAULT_MARGIN_M = 100.0
 FENCE_TYPE_POLYGON = 4
 FENCE_ACTION_REPORT, FENCE_ACTION_RTL = 0, 1
 VERTEX = mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION  # param1: the polygon's vertex count
+GF_ACTION_WARNING, GF_ACTION_RETURN = 1, 3  # PX4's (0 none, 2 Hold, 4 terminate, 5 land)
+PX4_VERDICT_S = 2.0  # how long PX4 gets to call an uploaded fence invalid
 
 
 def fence_margin(mission: Mission) -> float:
@@ -76,6 +81,7 @@ def nearest_inside(region: ConvexPolygon, x: float, y: float, depth: float) -> t
 
 def upload_fence(link: VehicleLink, frame: LocalFrame, polygon: ConvexPolygon) -> str | None:
     """Upload `polygon` as the autopilot's inclusion fence and enable it; the reason on failure."""
+    seen = link.state.text_count
     count = len(polygon.vertices)
     corners = [frame.to_geodetic(float(x), float(y))[:2] for x, y in polygon.vertices]
     items = [
@@ -85,6 +91,8 @@ def upload_fence(link: VehicleLink, frame: LocalFrame, polygon: ConvexPolygon) -
     error = upload(link, mavlink.MAV_MISSION_TYPE_FENCE, items, "fence")
     if error:
         return error
+    if link.state.px4:
+        return _px4_fence_in_force(link, seen)
     params = link.read_params(["FENCE_TYPE", "FENCE_ACTION"])
     if "FENCE_TYPE" in params and not int(params["FENCE_TYPE"]) & FENCE_TYPE_POLYGON:
         link.set_param("FENCE_TYPE", float(int(params["FENCE_TYPE"]) | FENCE_TYPE_POLYGON))
@@ -97,3 +105,17 @@ def upload_fence(link: VehicleLink, frame: LocalFrame, polygon: ConvexPolygon) -
             f"the autopilot did not enable the fence (DO_FENCE_ENABLE result {result}, FENCE_ENABLE not set)"
         )
     return None
+
+
+def _px4_fence_in_force(link: VehicleLink, seen: int) -> str | None:
+    """PX4, after the upload: GF_ACTION none/warning becomes Return; the reason if PX4 rejects the fence."""
+    action = link.read_params(["GF_ACTION"]).get("GF_ACTION")
+    if action is not None and action <= GF_ACTION_WARNING:
+        log.info("fence: GF_ACTION was %d (no action); setting Return", action)
+        link.set_param("GF_ACTION", GF_ACTION_RETURN)
+    deadline = time.monotonic() + PX4_VERDICT_S
+    while time.monotonic() < deadline:
+        link.poll(0.1)
+    invalid = [t for t in link.state.texts_since(seen) if "Geofence invalid" in t]
+    return f"PX4 ignores the fence: {invalid[0]}" if invalid else None
+

@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from companion.core.agent import Command
+from companion.core.geometry import ConvexPolygon
 from companion.mission import Mission
 from companion.node.airframe import turn_accel
 from companion.node.frames import LocalFrame, heading_to_yaw
@@ -28,6 +31,7 @@ COMMAND_MODES = ("turn-rate", "heading", "reposition", "position-target")
 STREAM_PERIOD_S = {"turn-rate": 0.5, "heading": 0.5, "position-target": 0.2}
 LEAD_STEPS, LEAD_MIN_M = 5, 200.0  # waypoint modes fly to a point this far ahead (see lead_point)
 REASSERT_STEPS = 10
+FENCE_CLEARANCE_M = 5.0  # how far inside the fence a lead point stays
 WITHOUT_ALTITUDE = ("turn-rate", "heading")
 
 
@@ -46,6 +50,8 @@ class Guidance:
         self.set_speed = False  # the autopilot cruises at another speed: command the mission's
         self.last_send = -math.inf  # vehicle time of the latest guidance
         self.last: tuple[Command, tuple[float, float]] | None = None
+        self.point: tuple[float, float] | None = None  # position-target: a point flown to (go_to)
+        self.fence: ConvexPolygon | None = None  # lead points stay inside it
         self._since_assert: int | None = None  # steps since the altitude and speed were asserted
 
     def step(self, command: Command, position: tuple[float, float]) -> None:
@@ -53,7 +59,7 @@ class Guidance:
         if self._since_assert is None or self._since_assert >= REASSERT_STEPS:
             self.assert_flight()
         self._since_assert = (self._since_assert or 0) + 1
-        self.last = (command, position)
+        self.last, self.point = (command, position), None
         self._send(command, position)
 
     def paused(self) -> None:
@@ -63,10 +69,13 @@ class Guidance:
     def due(self, now: float) -> bool:
         """Whether the current command should be repeated at vehicle time `now` (streamed modes)."""
         period = STREAM_PERIOD_S.get(self.mode)
-        return period is not None and self.last is not None and now - self.last_send >= period
+        current = self.last is not None or self.point is not None
+        return period is not None and current and now - self.last_send >= period
 
     def repeat(self) -> None:
-        if self.last is not None:
+        if self.point is not None:
+            self.hold(*self.point)
+        elif self.last is not None:
             self._send(*self.last)
 
     def assert_flight(self) -> None:
@@ -76,13 +85,28 @@ class Guidance:
             self.link.change_speed(self.speed)
 
     def go_to(self, x: float, y: float) -> None:
-        """DO_REPOSITION to local (x, y) at the UAV's altitude: the autopilot flies there and circles."""
+        """Fly to local (x, y) at the UAV's altitude and circle there, instead of the plan: the position
+        target, streamed from now on, in `position-target` (PX4 OFFBOARD: a DO_REPOSITION would switch
+        to Hold); DO_REPOSITION in the other modes."""
+        self.last = None
+        if self.mode == "position-target":
+            self.point = (x, y)
+            self.hold(x, y)
+            return
+        self.point = None
         lat, lon, _ = self.frame.to_geodetic(x, y)
         self.link.reposition(lat, lon, self.altitude)
         self.last_send = self.link.state.time_s
 
+    def hold_course(self, x: float, y: float, heading: float) -> None:
+        """Fly on along `heading` from (x, y) until the first step: the position target a lead ahead,
+        streamed from now on (what PX4 needs streamed before it accepts OFFBOARD, and after)."""
+        self.last = None
+        self.point = (x + self.lead * math.cos(heading), y + self.lead * math.sin(heading))
+        self.hold(*self.point)
+
     def hold(self, x: float, y: float) -> None:
-        """A position setpoint at (x, y) (what PX4 needs streamed before it accepts OFFBOARD)."""
+        """A position setpoint at (x, y)."""
         lat, lon, _ = self.frame.to_geodetic(x, y)
         self.link.position_target(lat, lon, self.altitude)
         self.last_send = self.link.state.time_s
@@ -99,12 +123,33 @@ class Guidance:
         self.last_send = self.link.state.time_s
 
     def lead_point(self, command: Command, position: tuple[float, float]) -> tuple[float, float]:
-        """Where the waypoint modes fly: ahead of the step's position on the commanded heading.
+        return lead_point(position, command.heading, self.lead, self.fence)
 
-        The next planned path point is one step (v dT) away, inside the acceptance radius of an
-        autopilot (WP_RADIUS, NAV_ACC_RAD): it would count as reached at once and the vehicle
-        would loiter around it. A point LEAD_STEPS steps (at least LEAD_MIN_M) out on the heading
-        the plan reaches after its first step turns the vehicle onto that heading now.
-        """
-        x, y = position
-        return x + self.lead * math.cos(command.heading), y + self.lead * math.sin(command.heading)
+
+def lead_point(
+    position: tuple[float, float], heading: float, lead: float, fence: ConvexPolygon | None
+) -> tuple[float, float]:
+    """Where the waypoint modes fly: `lead` ahead of the step's position on the commanded heading.
+
+    The next planned path point is one step (v dT) away, inside the acceptance radius of an
+    autopilot (WP_RADIUS, NAV_ACC_RAD): it would count as reached at once and the vehicle would
+    loiter around it. A point LEAD_STEPS steps (at least LEAD_MIN_M) out on the heading the plan
+    reaches after its first step turns the vehicle onto that heading now. It stays inside the
+    fence (PX4 refuses a DO_REPOSITION beyond its geofence): nearer the vehicle when the heading
+    points out of the area.
+    """
+    x, y = position
+    c, s = math.cos(heading), math.sin(heading)
+    if fence is not None:
+        lead = min(lead, _exit_distance(fence, x, y, c, s))
+    return x + lead * c, y + lead * s
+
+def _exit_distance(fence: ConvexPolygon, x: float, y: float, c: float, s: float) -> float:
+    """How far from (x, y) along (c, s) the fence is left, less FENCE_CLEARANCE_M (inf if never;
+    the full lead from outside it: the region guard acts there)."""
+    along = fence.normals @ np.array([c, s])
+    room = fence.offsets - fence.normals @ np.array([x, y])
+    if np.any(room < 0):
+        return math.inf
+    out = along > 1e-12
+    return float(np.min(room[out] / along[out])) - FENCE_CLEARANCE_M if np.any(out) else math.inf

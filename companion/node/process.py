@@ -168,6 +168,7 @@ class Companion:
         self.tracker = PlanTracker(opts.uav, k.speed, k.step, bound_m=k.speed * k.step)
         margin = fence_margin(m)
         self.fence = fence_polygon(m, margin)
+        self.guidance.fence = self.fence
         region = ConvexPolygon.from_vertices(m.region.polygon)
         self.guard = RegionGuard(opts.uav, region, self.fence, depth=margin, step_length=k.speed * k.step)
         self.airframe_warnings: list[str] = []
@@ -190,6 +191,18 @@ class Companion:
     # -- vehicle ---------------------------------------------------------------------------------
     def _steerable(self) -> bool:
         return steerable(self.link, self.opts.command_mode)
+
+    def _keep_streaming(self) -> None:
+        """Repeat the streamed guidance when due, also while a request waits for its reply (PX4
+        leaves OFFBOARD when its setpoints stop for COM_OF_LOSS_T)."""
+        s = self.link.state
+        if (
+            self.steering
+            and self.guard.state is not Guard.RELEASED
+            and self._steerable()
+            and self.guidance.due(s.time_s)
+        ):
+            self.guidance.repeat()  # the plan's command, or the way back inside
 
     def _check_airframe(self) -> None:
         """Read the airframe's parameters, warn about what the mission asks beyond them, refuse
@@ -397,6 +410,7 @@ class Companion:
         self.link.wait_heartbeat(120.0, stop.is_set)
         log.info("uav %d: vehicle system %d is up", self.opts.uav, self.link.state.system)
         self.link.request_streams()
+        self.link.on_poll = self._keep_streaming  # from the take-over on, whatever waits
         self._check_airframe()
         if self.opts.lockstep:
             self.link.command_long(LOCKSTEP_COMMAND, 0)  # the simulator resends the current step's state
@@ -438,13 +452,6 @@ class Companion:
                 k = math.floor((t + lead) / self.dt + 1e-6)
                 self.step(k, ahead=k * self.dt - t)
                 next_k = k + 1
-            elif (
-                self.steering
-                and self.guard.state is Guard.INSIDE
-                and self._steerable()
-                and self.guidance.due(t)
-            ):
-                self.guidance.repeat()
 
     def _lockstep_start(self) -> int:
         """The first step to fly in lockstep: the simulator's current step, or the one after the last
@@ -459,6 +466,7 @@ class Companion:
         return k
 
     def _run_lockstep(self, stop: threading.Event, budget: int) -> None:
+        self.link.on_poll = None  # one command per step: nothing repeated between steps
         k = self._lockstep_start()
         self.mesh.join()
         joined = k  # the peers' bundles of the step before we joined went out before we listened

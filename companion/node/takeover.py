@@ -2,12 +2,16 @@
 
 Without `--takeover` the companion never arms the vehicle or changes its mode. With it:
 
-- an ArduPilot vehicle that is disarmed on the ground (relative altitude below `ON_GROUND_M`) takes
-  off first: TKOFF_ALT = the UAV's altitude, mode TAKEOFF, arm (retried until the pre-arm checks
-  pass), climb until `CLIMBED` of that altitude;
+- a vehicle that is disarmed on the ground (relative altitude below `ON_GROUND_M`) takes off first,
+  then climbs until `CLIMBED` of the UAV's altitude. ArduPilot: TKOFF_ALT = the UAV's altitude,
+  mode TAKEOFF, arm (retried until the pre-arm checks pass). PX4: arm (retried until PX4 accepts),
+  MAV_CMD_NAV_TAKEOFF to that altitude (AUTO.TAKEOFF, a runway take-off for a fixed-wing); first
+  it waits, if need be, until PX4's altitude reference has climbed to the ground (`px4_ready_at`);
+- PX4 OFFBOARD: the OFFBOARD-loss failsafe becomes Hold if it was a stick-flown mode;
 - then the guided mode (ArduPilot GUIDED; PX4 OFFBOARD, or Hold for `reposition`) and arming,
   retried every second until the HEARTBEAT shows both. PX4 refuses OFFBOARD without a setpoint
-  stream, so for OFFBOARD the current position is streamed first and while waiting.
+  stream, so for OFFBOARD a point ahead on the current heading is streamed first, while waiting,
+  and on until the first step replaces it.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from companion.node.vehicle_link import (
     ARDUPILOT_TAKEOFF,
     PX4_HOLD,
     PX4_OFFBOARD,
+    PX4_TAKEOFF,
     VehicleLink,
 )
 
@@ -32,6 +37,9 @@ TAKEOVER_TIMEOUT_S = 30.0  # wall seconds to get the guided mode and arming once
 TAKEOFF_TIMEOUT_S = 300.0  # wall seconds for a take-off (GPS, EKF and pre-arm checks first)
 ON_GROUND_M = 10.0
 CLIMBED = 0.8
+PX4_REFERENCE_RATE = "FW_T_CLMB_R_SP"  # m/s: how fast PX4's altitude reference climbs before take-off
+PX4_REFERENCE_MARGIN_S = 5.0
+OFFBOARD_LOSS, OFFBOARD_LOSS_MANUAL, OFFBOARD_LOSS_HOLD = "COM_OBL_RC_ACT", 2, 5
 
 
 def guided_mode(link: VehicleLink, command_mode: str) -> int:
@@ -52,11 +60,15 @@ def steerable(link: VehicleLink, command_mode: str) -> bool:
 def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.Event) -> bool:
     """Airborne (if needed), guided and armed; False if it did not happen in time."""
     s = link.state
-    if not s.px4 and not s.armed and s.up < ON_GROUND_M and not take_off(link, guidance.altitude, uav, stop):
-        return False
+    if not s.armed and s.up < ON_GROUND_M:
+        lift = take_off_px4 if s.px4 else take_off
+        if not lift(link, guidance.altitude, uav, stop):
+            return False
     mode = guidance.mode
     want = guided_mode(link, mode)
     offboard = want == PX4_OFFBOARD
+    if offboard:
+        hold_on_offboard_loss(link, uav)
     deadline = time.monotonic() + TAKEOVER_TIMEOUT_S
     sent, last_wall, last_try = 0, -math.inf, -math.inf
     while not stop.is_set() and not (steerable(link, mode) and s.armed):
@@ -66,7 +78,7 @@ def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.E
             return False
         period = STREAM_PERIOD_S["position-target"]
         if offboard and (s.time_s - guidance.last_send >= period or now - last_wall >= period):
-            guidance.hold(s.x, s.y)
+            guidance.hold_course(s.x, s.y, s.heading)
             last_wall, sent = now, sent + 1
         if (not offboard or sent >= 3) and now - last_try >= 1.0:
             link.set_mode(want)
@@ -74,6 +86,20 @@ def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.E
             last_try = now
         link.poll(0.02)
     return not stop.is_set()
+
+
+def hold_on_offboard_loss(link: VehicleLink, uav: int) -> None:
+    """PX4: make the OFFBOARD-loss failsafe Hold (COM_OBL_RC_ACT 5) where it is Position, Altitude or
+    Manual mode (0-2): flown from sticks, without them a fixed-wing flies straight on."""
+    action = link.read_params([OFFBOARD_LOSS]).get(OFFBOARD_LOSS)
+    if action is not None and action <= OFFBOARD_LOSS_MANUAL:
+        link.set_param(OFFBOARD_LOSS, OFFBOARD_LOSS_HOLD)
+        log.info(
+            "uav %d: %s was %d; set to Hold (5): the vehicle circles if the companion stops",
+            uav,
+            OFFBOARD_LOSS,
+            action,
+        )
 
 
 def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event) -> bool:
@@ -93,6 +119,12 @@ def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event
             link.arm()
             last_try = time.monotonic()
         link.poll(0.1)
+    return climb(link, altitude, uav, stop, deadline)
+
+
+def climb(link: VehicleLink, altitude: float, uav: int, stop: threading.Event, deadline: float) -> bool:
+    """Wait until the vehicle has climbed `CLIMBED` of `altitude`; False if it did not in time."""
+    s = link.state
     while not stop.is_set() and not s.up >= CLIMBED * altitude:
         if time.monotonic() > deadline or not s.armed:
             log.warning("uav %d: take-off failed at %.0f m (armed %s)", uav, s.up, s.armed)
@@ -100,3 +132,52 @@ def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event
         link.poll(0.1)
     log.info("uav %d: airborne at %.0f m", uav, s.up)
     return not stop.is_set()
+
+
+def px4_ready_at(home_amsl: float, rate: float) -> float:
+    """The vehicle time (s since boot) from which a PX4 fixed-wing may take off.
+
+    PX4 (seen with the SIH fixed-wing of July 2025; PX4 issue 27344) starts the altitude reference
+    of its energy controller (TECS) at 0 m AMSL at boot and raises it by FW_T_CLMB_R_SP per second
+    while the vehicle waits on the ground; taking off before it has reached the ground makes the
+    aircraft dive after the take-off, down to where the reference then is. Harmless when fixed:
+    a vehicle booted long enough ago never waits.
+    """
+    return max(home_amsl, 0.0) / max(rate, 0.1) + PX4_REFERENCE_MARGIN_S
+
+
+def take_off_px4(link: VehicleLink, altitude: float, uav: int, stop: threading.Event) -> bool:
+    """PX4: arm, MAV_CMD_NAV_TAKEOFF to `altitude` above home (AUTO.TAKEOFF); True once it has climbed."""
+    s = link.state
+    deadline = time.monotonic() + TAKEOFF_TIMEOUT_S
+    while not stop.is_set() and not (s.gps_fix >= 3 and math.isfinite(s.home_amsl)):
+        if time.monotonic() > deadline:
+            log.warning("uav %d: take-off failed: GPS fix %d", uav, s.gps_fix)
+            return False
+        link.poll(0.1)
+    rate = link.read_params([PX4_REFERENCE_RATE]).get(PX4_REFERENCE_RATE, 3.0)
+    ready = px4_ready_at(s.home_amsl, rate)
+    if s.time_s < ready:
+        log.info(
+            "uav %d: waiting until PX4's altitude reference reaches the ground (%.0f m AMSL at %.1f m/s): "
+            "take-off at %.0f s of vehicle time",
+            uav,
+            s.home_amsl,
+            rate,
+            ready,
+        )
+        deadline += ready - s.time_s  # real time at least
+    log.info("uav %d: on the ground: taking off to %.0f m", uav, altitude)
+    last_try = -math.inf
+    while not stop.is_set() and not (s.armed and s.custom_mode == PX4_TAKEOFF):
+        if time.monotonic() > deadline:
+            log.warning("uav %d: take-off failed: armed %s, mode %#x", uav, s.armed, s.custom_mode)
+            return False
+        if s.time_s >= ready and time.monotonic() - last_try >= 1.0:
+            last_try = time.monotonic()
+            if not s.armed:
+                link.arm()
+            else:
+                link.takeoff(altitude)
+        link.poll(0.1)
+    return climb(link, altitude, uav, stop, deadline)

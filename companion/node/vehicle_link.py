@@ -11,6 +11,12 @@ It never changes the vehicle's mode or arms it unless asked to (`companion.node.
 Replies to requests (COMMAND_ACK, PARAM_VALUE, the mission protocol's requests and acks) are kept
 for the code that waits for them (`await_reply`).
 
+PX4 differs in ways the link hides: its integer parameters travel byte-wise in PARAM_VALUE's float
+(ArduPilot casts them), it reads DO_REPOSITION's altitude as AMSL whatever the frame and answers it
+UNSUPPORTED without the change-mode flag, and its fixed-wing (the SIH model at least) flies with
+sideslip, so on PX4 the heading is the course over ground (GLOBAL_POSITION_INT's velocity) whenever
+the vehicle moves, not ATTITUDE's yaw.
+
 With a signing secret (the vehicle's, from the mission's key directory or `--mavlink-key`) every
 frame sent is MAVLink2-signed and only frames signed with the same secret are accepted (besides the
 radio's RADIO_STATUS), as between ArduPilot and a ground station once signing is set up; rejected
@@ -47,6 +53,18 @@ ARDUPILOT_GUIDED = 15
 ARDUPILOT_TAKEOFF = 13
 PX4_OFFBOARD = 6 << 16
 PX4_HOLD = (4 << 16) | (3 << 24)  # AUTO.LOITER
+PX4_TAKEOFF = (4 << 16) | (2 << 24)  # AUTO.TAKEOFF
+COURSE_MIN_SPEED = 3.0  # m/s: slower than this the heading is ATTITUDE's yaw (PX4)
+INTEGER_PARAMS = frozenset(
+    {
+        mavlink.MAV_PARAM_TYPE_UINT8,
+        mavlink.MAV_PARAM_TYPE_INT8,
+        mavlink.MAV_PARAM_TYPE_UINT16,
+        mavlink.MAV_PARAM_TYPE_INT16,
+        mavlink.MAV_PARAM_TYPE_UINT32,
+        mavlink.MAV_PARAM_TYPE_INT32,
+    }
+)
 
 STREAMS_HZ = {
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
@@ -80,16 +98,23 @@ class VehicleState:
     x: float = math.nan
     y: float = math.nan
     up: float = math.nan
+    home_amsl: float = math.nan  # the altitude of home (m AMSL), from GLOBAL_POSITION_INT
     heading: float = math.nan
     turn_rate: float = 0.0  # heading rate (rad/s, CCW positive) from ATTITUDE
+    moving: bool = False  # PX4: fast enough for the heading to be the course over ground
     last_heartbeat: float = -math.inf  # wall clock (time.monotonic) of the latest HEARTBEAT
     gps_fix: int = 0  # GPS_RAW_INT.fix_type (3: 3D)
     prearm_ok: bool = False  # SYS_STATUS: pre-arm checks present and passing
-    texts: list[str] = field(default_factory=list)
+    texts: list[str] = field(default_factory=list)  # the latest STATUSTEXTs
+    text_count: int = 0  # STATUSTEXTs received so far
 
     @property
     def px4(self) -> bool:
         return self.autopilot == mavlink.MAV_AUTOPILOT_PX4
+
+    def texts_since(self, count: int) -> list[str]:
+        """The STATUSTEXTs kept that came after the first `count`."""
+        return self.texts[max(len(self.texts) - (self.text_count - count), 0) :]
 
     @property
     def has_pose(self) -> bool:
@@ -133,6 +158,10 @@ class VehicleLink:
         self._own_system = system
         self._heartbeat = heartbeat
         self._beat_wall, self._beat_vehicle = -math.inf, -math.inf
+        self.param_types: dict[str, int] = {}  # MAV_PARAM_TYPE of every parameter seen
+        # Called after every poll, also while a request waits for its reply: what must go on
+        # meanwhile (a setpoint stream that PX4 OFFBOARD must not lose).
+        self.on_poll: Callable[[], None] | None = None
         self._tlog = TlogWriter(tlog) if tlog else None
         self._conn = mavutil.mavlink_connection(
             url,
@@ -207,6 +236,8 @@ class VehicleLink:
             time.sleep(timeout)
         if self._heartbeat:
             self._beat_if_due()
+        if self.on_poll is not None:
+            self.on_poll()
         return count
 
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
@@ -232,11 +263,16 @@ class VehicleLink:
         elif kind == "GLOBAL_POSITION_INT":
             s.x, s.y = self.frame.to_local(msg.lat * 1e-7, msg.lon * 1e-7)
             s.up = msg.relative_alt * 1e-3
-            if not math.isfinite(s.heading) and msg.hdg != 65535:
+            s.home_amsl = (msg.alt - msg.relative_alt) * 1e-3
+            s.moving = s.px4 and math.hypot(msg.vx, msg.vy) * 0.01 >= COURSE_MIN_SPEED
+            if s.moving:  # vx north, vy east (cm/s)
+                s.heading = math.atan2(msg.vx, msg.vy)
+            elif not math.isfinite(s.heading) and msg.hdg != 65535:
                 s.heading = yaw_to_heading(math.radians(msg.hdg * 0.01))
             s.time_s = msg.time_boot_ms * 1e-3
         elif kind == "ATTITUDE":
-            s.heading = yaw_to_heading(msg.yaw)
+            if not s.moving:
+                s.heading = yaw_to_heading(msg.yaw)
             # body yaw rate = heading rate * cos(roll) * cos(pitch) in a level turn; CW positive
             s.turn_rate = -msg.yawspeed / max(math.cos(msg.roll) * math.cos(msg.pitch), 0.2)
         elif kind == "GPS_RAW_INT":
@@ -246,8 +282,11 @@ class VehicleLink:
             s.prearm_ok = bool(msg.onboard_control_sensors_present & msg.onboard_control_sensors_health & bit)
         elif kind == "STATUSTEXT":
             s.texts.append(msg.text)
+            s.text_count += 1
             del s.texts[:-50]
         elif kind in REPLIES:
+            if kind == "PARAM_VALUE":
+                self.param_types[msg.param_id] = msg.param_type
             self.replies.append(msg)
 
     def await_reply(
@@ -289,25 +328,41 @@ class VehicleLink:
             while time.monotonic() < ask_again:
                 msg = self.await_reply(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id in missing, 0.1)
                 if msg is not None:
-                    found[msg.param_id] = float(msg.param_value)
+                    found[msg.param_id] = self._param_value(msg)
                     if all(n in found for n in names):
                         break
         return found
 
     def set_param(self, name: str, value: float, timeout: float = 1.5, tries: int = 3) -> bool:
-        """PARAM_SET until the PARAM_VALUE echo shows `value`."""
+        """PARAM_SET (in the parameter's own type, once it has been read) until the PARAM_VALUE echo
+        shows `value`."""
+        kind = self.param_types.get(name, mavlink.MAV_PARAM_TYPE_REAL32)
         for _ in range(tries):
             self._conn.mav.param_set_send(
                 self.state.system,
                 mavlink.MAV_COMP_ID_AUTOPILOT1,
                 name.encode(),
-                value,
-                mavlink.MAV_PARAM_TYPE_REAL32,
+                self._encode_param(value, kind),
+                kind,
             )
             echo = self.await_reply(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name, timeout)
-            if echo is not None and math.isclose(echo.param_value, value, rel_tol=1e-6, abs_tol=1e-6):
+            if echo is not None and math.isclose(self._param_value(echo), value, rel_tol=1e-6, abs_tol=1e-6):
                 return True
         return False
+
+    def _bytewise(self, kind: int) -> bool:
+        """PX4 sends integer parameters byte-wise in PARAM_VALUE's float; ArduPilot casts them."""
+        return self.state.px4 and kind in INTEGER_PARAMS
+
+    def _param_value(self, msg: mavlink.MAVLink_message) -> float:
+        if self._bytewise(msg.param_type):
+            return float(struct.unpack("<i", struct.pack("<f", msg.param_value))[0])
+        return float(msg.param_value)
+
+    def _encode_param(self, value: float, kind: int) -> float:
+        if self._bytewise(kind):
+            return float(struct.unpack("<f", struct.pack("<i", round(value)))[0])
+        return value
 
     # -- guidance ----------------------------------------------------------------------------------
     def command_long(self, command: int, *params: float) -> None:
@@ -360,14 +415,33 @@ class VehicleLink:
         )
 
     def reposition(self, lat: float, lon: float, up: float) -> None:
-        """MAV_CMD_DO_REPOSITION as COMMAND_INT (relative altitude), without the change-mode flag."""
+        """MAV_CMD_DO_REPOSITION as COMMAND_INT to `up` metres above home. ArduPilot: relative
+        altitude, without the change-mode flag (it flies it in GUIDED). PX4: AMSL (it reads the
+        altitude as AMSL whatever the frame) with the change-mode flag (without it PX4 answers
+        UNSUPPORTED; with it, it switches to Hold)."""
+        s = self.state
+        if s.px4:
+            frame, flags, z = (
+                mavlink.MAV_FRAME_GLOBAL_INT,
+                mavlink.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE,
+                s.home_amsl + up,
+            )
+        else:
+            frame, flags, z = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0, up
         self.command_int(
             mavlink.MAV_CMD_DO_REPOSITION,
-            mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-            (-1.0, 0.0, 0.0, math.nan),
+            frame,
+            (-1.0, float(flags), 0.0, math.nan),
             round(lat * 1e7),
             round(lon * 1e7),
-            up,
+            z,
+        )
+
+    def takeoff(self, up: float) -> int | None:
+        """MAV_CMD_NAV_TAKEOFF to `up` metres above home (PX4: AMSL in param7; it switches to
+        AUTO.TAKEOFF); the MAV_RESULT, or None."""
+        return self.command_ack(
+            mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, self.state.home_amsl + up
         )
 
     def position_target(self, lat: float, lon: float, up: float) -> None:

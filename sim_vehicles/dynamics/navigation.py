@@ -13,7 +13,10 @@ the core's sense), which ArduPlane flies as the bank angle atan(a / g) (its nav_
   tracking: feed-forward v_t^2 / R plus PD on the radial error and velocity (natural frequency
   2 pi / T, damping zeta), switching to circle tracking where it turns harder in the loiter sense.
 
-T and zeta are plane.parm's NAVL1_PERIOD = 15 s and NAVL1_DAMPING = 0.75.
+T and zeta are plane.parm's NAVL1_PERIOD = 15 s and NAVL1_DAMPING = 0.75 by default; the PX4 flavour
+flies the same laws with PX4's NPFG_PERIOD = 10 s and NPFG_DAMPING = 0.7 (PX4's guidance, NPFG,
+is another law; with its period and damping these fly PX4 SITL's tracks closely enough, see
+docs/simulator.md).
 """
 
 from __future__ import annotations
@@ -24,15 +27,14 @@ GRAVITY = 9.80665
 GUIDED_P = 50.0  # bank degrees per radian of heading error (ArduPlane GUIDED_P = 5000 cd/rad)
 MIN_HEADING_ACCEL = 0.05  # m/s^2: ArduPlane's lower clamp of GUIDED_CHANGE_HEADING's param3
 L1_PERIOD, L1_DAMPING = 15.0, 0.75
-_K_L1 = 4.0 * L1_DAMPING**2
 
 
 def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-def l1_distance(v: float) -> float:
-    return L1_DAMPING * L1_PERIOD * max(v, 1.0) / math.pi
+def l1_distance(v: float, period: float = L1_PERIOD, damping: float = L1_DAMPING) -> float:
+    return damping * period * max(v, 1.0) / math.pi
 
 
 def heading_bank_limit(accel: float) -> float:
@@ -46,31 +48,50 @@ def heading_hold(heading: float, target: float, accel: float) -> float:
     return max(-limit, min(limit, math.radians(GUIDED_P) * _wrap(target - heading)))
 
 
-def _l1_towards(x: float, y: float, heading: float, v: float, tx: float, ty: float) -> float:
+def _l1_towards(
+    x: float, y: float, heading: float, v: float, tx: float, ty: float, period: float, damping: float
+) -> float:
     eta = _wrap(math.atan2(ty - y, tx - x) - heading)
     eta = max(-math.pi / 2, min(math.pi / 2, eta))
-    return _K_L1 * v * v / l1_distance(v) * math.sin(eta)
+    return 4.0 * damping**2 * v * v / l1_distance(v, period, damping) * math.sin(eta)
 
 
 def track(
-    x: float, y: float, heading: float, v: float, a: tuple[float, float], b: tuple[float, float]
+    x: float,
+    y: float,
+    heading: float,
+    v: float,
+    a: tuple[float, float],
+    b: tuple[float, float],
+    period: float = L1_PERIOD,
+    damping: float = L1_DAMPING,
 ) -> float:
     """Lateral acceleration following the leg from `a` to `b`."""
-    l1 = l1_distance(v)
+    l1 = l1_distance(v, period, damping)
     ux, uy = b[0] - a[0], b[1] - a[1]
     length = math.hypot(ux, uy)
     if length < 1e-6:
-        return _l1_towards(x, y, heading, v, *b)
+        return _l1_towards(x, y, heading, v, *b, period, damping)
     ux, uy = ux / length, uy / length
     px, py = x - a[0], y - a[1]
     along, cross = px * ux + py * uy, ux * py - uy * px
     if along < 0 and math.hypot(px, py) > l1:  # well behind the start of the leg: go to it first
-        return _l1_towards(x, y, heading, v, *a)
+        return _l1_towards(x, y, heading, v, *a, period, damping)
     ahead = math.sqrt(max(l1 * l1 - cross * cross, 0.0))
-    return _l1_towards(x, y, heading, v, a[0] + ux * (along + ahead), a[1] + uy * (along + ahead))
+    tx, ty = a[0] + ux * (along + ahead), a[1] + uy * (along + ahead)
+    return _l1_towards(x, y, heading, v, tx, ty, period, damping)
 
 
-def loiter(x: float, y: float, heading: float, v: float, centre: tuple[float, float], radius: float) -> float:
+def loiter(
+    x: float,
+    y: float,
+    heading: float,
+    v: float,
+    centre: tuple[float, float],
+    radius: float,
+    period: float = L1_PERIOD,
+    damping: float = L1_DAMPING,
+) -> float:
     """Lateral acceleration circling `centre`; `radius` > 0 clockwise (ArduPlane's default), < 0
     counter-clockwise."""
     sense = -1.0 if radius > 0 else 1.0  # +1: counter-clockwise
@@ -84,12 +105,12 @@ def loiter(x: float, y: float, heading: float, v: float, centre: tuple[float, fl
     vx, vy = v * math.cos(heading), v * math.sin(heading)
     outward = vx * ox + vy * oy
     tangential = sense * (ox * vy - oy * vx)  # speed along the circle in the loiter sense
-    omega = 2 * math.pi / L1_PERIOD
-    pd = (d - r) * omega * omega + outward * 2 * L1_DAMPING * omega  # > 0: towards the centre
+    omega = 2 * math.pi / period
+    pd = (d - r) * omega * omega + outward * 2 * damping * omega  # > 0: towards the centre
     if outward > 0 and tangential < 0:  # flying outwards the wrong way round: do not turn away
         pd = max(pd, 0.0)
     circle = sense * (pd + tangential * tangential / max(0.5 * r, d))
-    capture = _l1_towards(x, y, heading, v, *centre)
+    capture = _l1_towards(x, y, heading, v, *centre, period, damping)
     if d > r and sense * capture < sense * circle:
         return capture
     return circle

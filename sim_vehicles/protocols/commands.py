@@ -106,7 +106,8 @@ def _reposition(hv: HostedVehicle, c: Command, addr: Address, follow: list[int])
         target = hv.local_target(lat, lon)
         if target is None:
             return M.MAV_RESULT_DENIED
-    ok, up = hv.altitude(alt, c.frame)
+    px4 = hv.vehicle.flavour.name == "px4"
+    ok, up = hv.altitude(alt, M.MAV_FRAME_GLOBAL if px4 else c.frame)  # PX4: AMSL whatever the frame
     if not ok:
         return M.MAV_RESULT_DENIED
     radius = c.p[2] if math.isfinite(c.p[2]) else 0.0

@@ -1,11 +1,11 @@
 """The MAVLink mission protocol: upload, download, clear, set current, for missions and fences.
 
 ArduPilot flavour keeps home as item 0 (an "empty" mission downloads as one item, home, and an
-uploaded item 0 is replaced by home); PX4 flavour has no such item. The ArduPilot flavour stores a
-fence (mission type FENCE): its inclusion polygons (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
-items, param1 = the polygon's vertex count) are what the vehicle enforces; other fence items are
-stored and downloaded but not enforced. Rally lists (and PX4's fences) are always empty: downloads
-report 0 items, uploads of items are refused with MAV_MISSION_UNSUPPORTED. The vehicle drives
+uploaded item 0 is replaced by home); PX4 flavour has no such item. Both store a fence (mission
+type FENCE): its inclusion polygons (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION items, param1 = the
+polygon's vertex count) are what the vehicle enforces; other fence items are stored and downloaded
+but not enforced. Rally lists are always empty: downloads report 0 items, uploads of items are
+refused with MAV_MISSION_UNSUPPORTED. The vehicle drives
 uploads (MISSION_REQUEST_INT per item); the client retries lost messages.
 """
 
@@ -135,9 +135,7 @@ class MissionProtocol:
         self.upload = None
         kind = msg.mission_type
         known = (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE, M.MAV_MISSION_TYPE_RALLY)
-        stored = (M.MAV_MISSION_TYPE_MISSION,) + (
-            (M.MAV_MISSION_TYPE_FENCE,) if hv.vehicle.flavour.name == "ardupilot" else ()
-        )
+        stored = (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE)
         if kind not in known:
             self._ack(hv, msg, addr, M.MAV_MISSION_UNSUPPORTED)
         elif msg.count == 0:

@@ -1,8 +1,13 @@
-"""The parameter set (names per flavour, ranges, read-only rules) and the parameter protocol."""
+"""The parameter set (names and defaults per flavour, ranges, read-only rules) and the parameter protocol.
+
+Values travel as REAL32, except the PX4 flavour's integer parameters, which go as INT32 with their
+bytes in PARAM_VALUE's float, as PX4 sends them (ArduPilot casts).
+"""
 
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -15,20 +20,25 @@ if TYPE_CHECKING:
     from sim_vehicles.mavlink_endpoint import Address
 
 ROLL_LIMIT_DEG = 45.0  # ArduPlane's default bank limit
+# PX4's defaults (checked on PX4 SITL's SIH fixed-wing)
+PX4_ROLL_LIMIT_DEG, PX4_LOITER_RADIUS, PX4_ACCEPTANCE_RADIUS, PX4_OFFBOARD_LOSS_S = 50.0, 80.0, 10.0, 1.0
+PX4_GEOFENCE_HOLD = 2  # GF_ACTION: 0 none, 1 warning, 2 Hold, 3 Return, 4 terminate, 5 land
 
 
 @dataclass(frozen=True)
 class ParamSpec:
     """One parameter: internal key, its name in each flavour (None: the flavour has none), default
-    and accepted range."""
+    (`px4_default`: another one in the PX4 flavour) and accepted range."""
 
     key: str
-    ardupilot: str
+    ardupilot: str | None
     px4: str | None
     default: float
     lo: float
     hi: float
     fixed_in_grid: bool = False  # grid kinematics pins it (one cell per step)
+    px4_default: float | None = None
+    integer: bool = False  # PX4 sends it as INT32
 
 
 def param_specs(mission: Mission) -> tuple[ParamSpec, ...]:
@@ -42,13 +52,15 @@ def param_specs(mission: Mission) -> tuple[ParamSpec, ...]:
         ParamSpec("airspeed_max", "AIRSPEED_MAX", "FW_AIRSPD_MAX", round(1.5 * k.speed, 1), 1.0, 100.0),
         ParamSpec("turn_limit", "SIM_TURN_LIMIT", "SIM_TURN_LIMIT", k.turn_limit_deg,
                   45.0 if grid else 1.0, 180.0),
-        ParamSpec("roll_limit", "ROLL_LIMIT_DEG", "FW_R_LIM", ROLL_LIMIT_DEG, 5.0, 85.0),
+        ParamSpec("roll_limit", "ROLL_LIMIT_DEG", "FW_R_LIM", ROLL_LIMIT_DEG, 5.0, 85.0,
+                  px4_default=PX4_ROLL_LIMIT_DEG),
         ParamSpec("guided_timeout", "SIM_GUIDED_TMO", "COM_OF_LOSS_T", mission.sim.guided_timeout,
-                  0.1, 600.0),
+                  0.1, 600.0, px4_default=PX4_OFFBOARD_LOSS_S),
         ParamSpec("wp_radius", "WP_RADIUS", "NAV_ACC_RAD",
-                  round(max(mission.region.cell_size, 30.0), 1), 1.0, 1000.0),
+                  round(max(mission.region.cell_size, 30.0), 1), 1.0, 1000.0,
+                  px4_default=PX4_ACCEPTANCE_RADIUS),
         ParamSpec("loiter_radius", "WP_LOITER_RAD", "NAV_LOITER_RAD",
-                  round(max(60.0, 1.5 * turn_radius), 1), 10.0, 5000.0),
+                  round(max(60.0, 1.5 * turn_radius), 1), 10.0, 5000.0, px4_default=PX4_LOITER_RADIUS),
         ParamSpec("fence_enable", "FENCE_ENABLE", None, 0.0, 0.0, 1.0),
         ParamSpec("fence_action", "FENCE_ACTION", None, 1.0, 0.0, 1.0),
         ParamSpec("fence_type", "FENCE_TYPE", None, 4.0, 0.0, 15.0),
@@ -59,6 +71,8 @@ def param_specs(mission: Mission) -> tuple[ParamSpec, ...]:
         ParamSpec("short_timeout", "FS_SHORT_TIMEOUT", None, 1.5, 1.0, 100.0),
         ParamSpec("long_action", "FS_LONG_ACTN", None, 0.0, 0.0, 4.0),
         ParamSpec("long_timeout", "FS_LONG_TIMEOUT", None, 5.0, 1.0, 300.0),
+        ParamSpec("geofence_action", None, "GF_ACTION", PX4_GEOFENCE_HOLD, 0.0, 5.0, integer=True),
+        ParamSpec("offboard_loss_action", None, "COM_OBL_RC_ACT", 0.0, 0.0, 7.0, integer=True),
     )
 
 
@@ -66,10 +80,13 @@ class ParamStore:
     """Current parameter values of one vehicle, addressed by flavour name or index."""
 
     def __init__(self, specs: tuple[ParamSpec, ...], flavour: str, grid: bool) -> None:
-        self.specs = tuple(s for s in specs if flavour != "px4" or s.px4 is not None)
-        self.names = [str(s.px4 if flavour == "px4" else s.ardupilot) for s in self.specs]
+        px4 = flavour == "px4"
+        self.specs = tuple(s for s in specs if (s.px4 if px4 else s.ardupilot) is not None)
+        self.names = [str(s.px4 if px4 else s.ardupilot) for s in self.specs]
         self.values = {s.key: float(s.default) for s in self.specs}
-        self.grid = grid
+        if px4:
+            self.values |= {s.key: float(s.px4_default) for s in self.specs if s.px4_default is not None}
+        self.grid, self.px4 = grid, px4
 
     def value(self, key: str, default: float | None = None) -> float:
         """The value of `key`; `default` if the flavour does not have it (KeyError without one)."""
@@ -85,16 +102,33 @@ class ParamStore:
         spec = self.specs[index]
         if not (math.isfinite(value) and spec.lo <= value <= spec.hi):
             return False
+        if spec.integer and value != round(value):
+            return False
         if spec.fixed_in_grid and self.grid and value != self.values[spec.key]:
             return False
         self.values[spec.key] = float(value)
         return True
 
+    def bytewise(self, index: int) -> bool:
+        """Whether parameter `index` travels as INT32 bytes (the PX4 flavour's integers)."""
+        return self.px4 and self.specs[index].integer
+
     def message(self, index: int) -> mavlink.MAVLink_param_value_message:
+        value = self.values[self.specs[index].key]
+        kind = mavlink.MAV_PARAM_TYPE_REAL32
+        if self.bytewise(index):
+            value, kind = _int_bytes(round(value)), mavlink.MAV_PARAM_TYPE_INT32
         return mavlink.MAVLink_param_value_message(
-            self.names[index].encode(), self.values[self.specs[index].key],
-            mavlink.MAV_PARAM_TYPE_REAL32, len(self.specs), index,
+            self.names[index].encode(), value, kind, len(self.specs), index,
         )
+
+
+def _int_bytes(value: int) -> float:
+    return struct.unpack("<f", struct.pack("<i", value))[0]
+
+
+def _bytes_int(value: float) -> int:
+    return struct.unpack("<i", struct.pack("<f", value))[0]
 
 
 def handle_param(hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address) -> None:
@@ -115,7 +149,10 @@ def handle_param(hv: HostedVehicle, msg: mavlink.MAVLink_message, addr: Address)
     if kind == "PARAM_REQUEST_READ":
         hv.reply(store.message(index), addr)
         return
-    if not hv.vehicle.set_param(index, msg.param_value):
+    value = float(msg.param_value)
+    if store.bytewise(index) and msg.param_type == mavlink.MAV_PARAM_TYPE_INT32:
+        value = float(_bytes_int(msg.param_value))
+    if not hv.vehicle.set_param(index, value):
         hv.stats.rejected += 1
-        hv.vehicle.say(f"{store.names[index]}: {msg.param_value:g} refused", mavlink.MAV_SEVERITY_WARNING)
+        hv.vehicle.say(f"{store.names[index]}: {value:g} refused", mavlink.MAV_SEVERITY_WARNING)
     hv.broadcast(store.message(index))

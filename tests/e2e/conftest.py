@@ -141,10 +141,16 @@ class Proc:
     """A subprocess with its output in a log file; its descendants are tracked while it runs."""
 
     def __init__(
-        self, name: str, argv: list[str], log: Path, cwd: Path = ROOT, stdin: int | None = subprocess.DEVNULL
+        self,
+        name: str,
+        argv: list[str],
+        log: Path,
+        cwd: Path = ROOT,
+        stdin: int | None = subprocess.DEVNULL,
+        env: dict[str, str] | None = None,
     ) -> None:
         self.name, self.argv, self.log = name, argv, log
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", "MAVLINK20": "1"}
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "MAVLINK20": "1", **(env or {})}
         with log.open("w") as f:
             self.popen = subprocess.Popen(
                 argv,

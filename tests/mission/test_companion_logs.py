@@ -1,4 +1,4 @@
-"""Following the companions' CSV logs while they grow (companion.app.evaluation.CompanionLogs)."""
+"""Following the companions' CSV logs while they grow, and scoring them (companion.app.evaluation)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,14 @@ import csv
 import io
 from pathlib import Path
 
-from companion.app.evaluation import CompanionLogs
+import numpy as np
+import pytest
+
+from companion.app.evaluation import CompanionLogs, evaluate
+from companion.core.world import build_world
+from companion.mission import load_mission
+
+ROOT = Path(__file__).resolve().parents[2]
 
 COLUMNS = ["step", "x", "y", "heading", "task", "mean_eta"]
 
@@ -64,3 +71,25 @@ def test_damaged_lines_are_skipped_and_the_rest_is_read(tmp_path: Path) -> None:
     append(log, line(*COLUMNS) + b"garbage,\xff\xfe\r\n" + line(3, 1.0, 2.0, 0.0, -1, 0.5) + b"1,2\r\n")
     logs = CompanionLogs(tmp_path, 1)
     assert [r["step"] for r in logs.poll()[0]] == [3]
+
+
+def test_a_uav_missing_a_step_keeps_its_latest_pose(tmp_path: Path) -> None:
+    """Companions that start at different steps and skip some (a busy machine, a real autopilot
+    taking off) are scored at their latest logged pose, never at the origin."""
+    mission = load_mission(ROOT / "mission_files" / "scenario1_px4.toml")
+    world = build_world(mission, mission.seed, 0)
+    starts = [(v.x, v.y) for v in mission.vehicles]  # 400 m apart in a row
+    first = {0: 10, 1: 8, 2: 12, 3: 12}
+    logs = {
+        i: {
+            k: {"x": x, "y": y + 10.0 * k, "heading": 1.57, "task": -1.0, "mean_eta": 1.0}
+            for k in range(first[i], 20)
+            if not (i == 1 and k in (12, 13))  # uav 1 skips the first scored step and the next
+        }
+        for i, (x, y) in enumerate(starts)
+    }
+    result = evaluate(world, logs, np.zeros(0, dtype=np.int64), 1.0, mission.seed)
+    assert result.steps == 8
+    assert result.trajectory[0, 1, 1] == pytest.approx(starts[1][1] + 110.0)  # its step 11
+    assert result.min_distance.min() == pytest.approx(400.0, abs=1.0), result.min_distance
+    assert result.lambda2.min() > 0, result.lambda2

@@ -1,5 +1,6 @@
 """The companion's pure pieces for real flight: the fence polygon, the way back inside, plan versus
-flight, the region guard, and the airframe check (what ArduPlane can fly)."""
+flight, the region guard, the airframe check (what ArduPlane and PX4 can fly), and the waypoint
+modes' lead point inside the fence."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from companion.core.geometry import ConvexPolygon
 from companion.mission import load_mission
 from companion.node.airframe import Airframe, bank_for, check_mission, refusal, turn_accel
 from companion.node.fence import DEFAULT_MARGIN_M, fence_margin, fence_polygon, nearest_inside, offset_polygon
+from companion.node.guidance import FENCE_CLEARANCE_M, lead_point
 from companion.node.tracking import Guard, PlanTracker, RegionGuard
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -97,3 +99,16 @@ def test_what_a_real_autopilot_cannot_fly_is_refused() -> None:
     assert "ArduPlane takes only the altitude" in str(refusal(CONTINUOUS, bundled, "position-target"))
     px4 = Airframe.from_params("px4", {})
     assert "no MAV_CMD_GUIDED_CHANGE_HEADING" in str(refusal(CONTINUOUS, px4, "heading"))
+    assert "use --command-mode position-target or reposition" in str(refusal(CONTINUOUS, px4, "turn-rate"))
+    assert refusal(CONTINUOUS, px4, "position-target") is None
+    assert refusal(CONTINUOUS, px4, "reposition") is None
+
+
+def test_lead_points_stay_inside_the_fence() -> None:
+    fence = fence_polygon(CONTINUOUS)  # the region (+-1000 m) plus 100 m
+    assert lead_point((0.0, 0.0), 0.0, 200.0, fence) == (200.0, 0.0)  # far from the fence: the full lead
+    x, y = lead_point((1000.0, 0.0), 0.0, 200.0, fence)  # heading out at the region's edge
+    assert (x, y) == (1100.0 - FENCE_CLEARANCE_M, 0.0)
+    x, y = lead_point((1000.0, 0.0), math.pi, 200.0, fence)  # heading in: the full lead
+    assert math.isclose(x, 800.0) and abs(y) < 1e-9
+    assert lead_point((1200.0, 0.0), 0.0, 200.0, fence) == (1400.0, 0.0)  # outside: the guard's business

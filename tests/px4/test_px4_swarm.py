@@ -1,0 +1,55 @@
+"""A swarm on PX4 SITL with one command: `uavsearch run --autopilot px4-sitl`.
+
+Three PX4 instances (SIH fixed-wing, SWARM_SPEEDUP times real time), the stand-alone camera, three
+companions taking off by themselves to their altitude layers and flying the plan in OFFBOARD
+(position-target). The run ends after STEPS steps and is scored: targets found, every logged pose
+inside the fence, each UAV at its altitude layer, the plan kept within the mission's safety buffer
+(on 95 % of steps), and the horizontal separation R_s kept between every two UAVs at every step.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import statistics
+from pathlib import Path
+
+from companion.app.px4_sitl import Px4Build
+from tests.e2e.conftest import PY, Procs, read_csv
+from tests.px4.conftest import SWARM_SPEEDUP, first_instance, write_mission
+
+UAVS, STEPS = 3, 40
+
+
+def test_swarm_on_px4_sitl(px4_build: Px4Build, tmp_path: Path) -> None:
+    mission = write_mission(tmp_path, UAVS)
+    m = mission.mission
+    out = tmp_path / "out"
+    procs = Procs(tmp_path)
+    argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--autopilot", "px4-sitl"]
+    argv += ["--speedup", f"{SWARM_SPEEDUP:g}", "--steps", str(STEPS), "--out", str(out), "--quiet"]
+    argv += ["--keep-going", "--sitl-instance", str(first_instance())]
+    try:
+        run = procs.start("run", argv)
+        assert run.wait(timeout=600) == 0, run.text()
+    finally:
+        procs.stop_all()
+
+    assert "pass criteria met" in run.text(), run.text()
+    summary = json.loads((out / "summary.json").read_text())["proposed"]
+    assert summary["targets_found_fraction"] > 0, summary
+    tracking = json.loads((out / "tracking.json").read_text())
+    assert tracking["outside_fence"] == 0 and tracking["steps"] >= UAVS * (STEPS - 10), tracking
+    assert tracking["position_m"]["p95"] <= m.safety.buffer, (tracking["position_m"], m.safety.buffer)
+    logs = {i: {int(r["step"]): r for r in read_csv(out / f"uav{i}.csv")} for i in range(UAVS)}
+    for i, rows in logs.items():
+        flown = [r for r in rows.values() if r["steered"]][5:]
+        assert len(flown) >= STEPS - 10, f"uav{i} steered {len(flown)} steps"
+        assert abs(statistics.median(r["up"] for r in flown) - m.altitude_of(i)) < 5.0, (
+            f"uav{i} off its layer"
+        )
+    for (i, a), (j, b) in itertools.combinations(logs.items(), 2):
+        for k in a.keys() & b.keys():
+            d = math.dist((a[k]["x"], a[k]["y"]), (b[k]["x"], b[k]["y"]))
+            assert d > m.comms.safety, f"uav{i} and uav{j} {d:.0f} m apart at step {k}"
