@@ -15,11 +15,26 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 class RealTimeClock:
     """Ticks of `tick_dt` simulated seconds, `speedup` times faster than the wall clock, counted from
-    tick `origin_tick` at `wall_start` (a resumed simulator starts from its saved tick)."""
+    tick `origin_tick` at `wall_start` (a resumed simulator starts from its saved tick).
 
-    def __init__(self, tick_dt: float, speedup: float, wall_start: float) -> None:
+    Simulated time never runs ahead in a burst: when the host falls more than `max_lag` simulated
+    seconds behind (the process was not scheduled, the machine is busy), the clock slips, as
+    ArduPilot's SITL does under load, so that every vehicle's clients are heard at least every
+    `max_lag` seconds of simulated time (an autopilot's GCS failsafe counts simulated time).
+    `slipped` is the simulated time given up so far."""
+
+    def __init__(self, tick_dt: float, speedup: float, wall_start: float, max_lag: float = 0.5) -> None:
         self.tick_dt, self.speedup, self.wall_start = tick_dt, speedup, wall_start
         self.origin_tick = 0
+        self.max_lag_ticks = max(1, math.floor(max_lag / tick_dt))
+        self.slipped = 0.0
+
+    def slip(self, wall: float, tick: int) -> None:
+        """Re-anchor so that tick `tick` is at most `max_lag` behind at `wall`."""
+        behind = self.target(wall) - tick
+        if behind > self.max_lag_ticks:
+            self.slipped += (behind - self.max_lag_ticks) * self.tick_dt
+            self.origin_tick, self.wall_start = tick + self.max_lag_ticks, wall
 
     def target(self, wall: float) -> int:
         return self.origin_tick + math.floor((wall - self.wall_start) * self.speedup / self.tick_dt + 1e-9)

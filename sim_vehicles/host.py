@@ -71,6 +71,7 @@ class RunStats:
     wall_time: float = 0.0
     cpu_time: float = 0.0
     frames_published: int = 0
+    slipped: float = 0.0  # simulated seconds given up to a busy machine (RealTimeClock.slip)
     input: InputStats = field(default_factory=InputStats)
 
 
@@ -374,6 +375,8 @@ class Host:
         next_second = wall0
         while not self.stopping:
             now = time.monotonic()
+            if isinstance(self.clock, RealTimeClock):
+                self.clock.slip(now, self.tick)
             target = self.clock.target(now)
             budget = MAX_TICKS_PER_LOOP
             while self.tick < target and budget:
@@ -393,6 +396,8 @@ class Host:
             behind = self.tick < target
             self._serve(0.0 if behind else max(0.0, min(self.clock.sleep(now, self.tick), next_second - now)))
         self.stats.sim_time = self.t
+        if isinstance(self.clock, RealTimeClock):
+            self.stats.slipped = self.clock.slipped
         self.stats.wall_time = time.monotonic() - wall0
         self.stats.cpu_time = time.process_time() - cpu0
         for hv in self.hosted:

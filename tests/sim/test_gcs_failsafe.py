@@ -6,11 +6,15 @@ nothing happens; when it falls silent the vehicle flies on for FS_LONG_TIMEOUT, 
 On: AUTO" and circles the point it reached at its altitude layer, with the failsafe's radius; a
 ground station's HEARTBEATs (another system) do not stop that. When the link speaks again the
 failsafe clears and the mode stays AUTO. With FS_LONG_ACTN 0 the vehicle stays in GUIDED.
+A simulator that was not scheduled for a while (a busy machine) slips its clock rather than running
+ahead in a burst, so a companion that kept speaking does not trip the failsafe.
 """
 
 from __future__ import annotations
 
 import math
+import signal
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -27,7 +31,7 @@ GUIDED, AUTO = 15, 10
 
 
 @pytest.fixture
-def flying(tmp_path: Path) -> Iterator[tuple[VehicleLink, Mav, Path]]:
+def flying(tmp_path: Path) -> Iterator[tuple[VehicleLink, Mav, Path, SimProcess]]:
     path, ports, _ = write_mission(tmp_path, n=1, starts=[(0.0, -600.0)])
     sim = SimProcess(path, "--speedup", "10", "--no-camera")
     link = None
@@ -43,7 +47,7 @@ def flying(tmp_path: Path) -> Iterator[tuple[VehicleLink, Mav, Path]]:
         link.request_streams()
         assert ground.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
         assert ground.command(M.MAV_CMD_DO_SET_MODE, 1, GUIDED) == M.MAV_RESULT_ACCEPTED
-        yield link, ground, path
+        yield link, ground, path, sim
     finally:
         if link is not None:
             link.close()
@@ -68,7 +72,7 @@ def _text(ground: Mav, text: str, timeout: float = 30.0) -> float:
 
 
 def test_silent_companion_makes_the_vehicle_loiter_where_it_is(flying) -> None:
-    link, ground, path = flying
+    link, ground, path, _ = flying
     mission = load_mission(path)
     link.change_heading(90.0, 5.0)  # east, straight on
     assert arm_failsafe(link, mission, 0) is None
@@ -109,3 +113,24 @@ def test_silent_companion_makes_the_vehicle_loiter_where_it_is(flying) -> None:
     _poll_for(link, 1.0)
     _text(ground, "GCS Failsafe On: GUIDED")
     assert ground.need("HEARTBEAT").custom_mode == GUIDED
+
+
+def test_a_stalled_simulator_slips_instead_of_tripping_the_failsafe(flying) -> None:
+    link, ground, path, sim = flying
+    mission = load_mission(path)
+    link.change_heading(90.0, 5.0)
+    assert arm_failsafe(link, mission, 0) is None
+    _poll_for(link, 3.0)
+    stall = 2 * mission.safety.failsafe_timeout / 10  # wall seconds: twice the timeout at 10x
+    sim.proc.send_signal(signal.SIGSTOP)
+    try:
+        end = time.monotonic() + stall
+        while time.monotonic() < end:  # the companion goes on speaking to a stopped simulator
+            link.poll(0.05)
+    finally:
+        sim.proc.send_signal(signal.SIGCONT)
+    _poll_for(link, 2 * mission.safety.failsafe_timeout)
+    assert not any("Failsafe" in t for t in link.state.texts), link.state.texts
+    assert ground.need("HEARTBEAT").custom_mode == GUIDED
+    _, stats = sim.stop()
+    assert stats["slipped"] >= 0.5 * stall * 10, stats  # simulated time given up, not run in a burst
