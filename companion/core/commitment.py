@@ -157,7 +157,8 @@ class Commitments:
         span = pts[:, : pts.shape[1] - 1] if resolving else pts[:, 1:]
         disks = self._disks
         tether_disks = [d for d in range(len(disks)) if int(disks[d, 0]) in links]
-        return span[rows], disks[:, 1:], span[tethered], disks[tether_disks, 1:]
+        # contiguous copies: the kernels are compiled for C-ordered arrays (warm_up), never in flight
+        return span[rows], np.ascontiguousarray(disks[:, 1:]), span[tethered], disks[tether_disks, 1:]
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
