@@ -11,9 +11,9 @@ against the other's old trajectory, the higher id against both of the other's. A
 message was not heard is represented by everything it could be flying: a disk around where it was
 last known, growing by a step per step of silence, or, once silent for `peer_timeout_steps`,
 what it last published plus the disks its aircraft's failsafe circles in (it is taken as gone):
-its companion kept the failsafe on its trajectory in force's loiter, so a new proposal must get
-out of those disks and stay out. Rejecting a proposal is always safe: the trajectory in force
-ends in a loiter inside the fence.
+its companion kept the failsafe on its trajectory in force's loiter, so a new proposal must stay
+out of those disks, or, from inside one, head out of it. Rejecting a proposal is always safe: the
+trajectory in force ends in a loiter inside the fence.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from companion.core.world import World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
+LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
 
 
 class Commitments:
@@ -62,6 +63,7 @@ class Commitments:
         self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
         self._disks = np.zeros((0, 4))
         self._loiters = np.zeros((0, 3))  # where gone UAVs' aircraft circle (`failsafe_loiters`)
+        self.progress = LEAVING_PROGRESS * plan.limits.reach.step  # per planned step, leaving a disk
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._shapes = world.safety.shapes
 
@@ -188,7 +190,7 @@ class Commitments:
             others, disks, tethers, tether_disks = self._arrays(resolving=True)
             pts = lim.expand(lim.rows([self.proposal]), k)[0]
             if compatible(pts, others, disks, tethers, tether_disks, *lim.clearances) and clears_loiters(
-                pts, self._loiters, lim.disk_separation
+                pts, self._loiters, lim.disk_separation, lim.horizon, self.progress
             ):
                 chosen = self.proposal
                 self.accepted += 1
@@ -299,6 +301,7 @@ class Commitments:
             tethers,
             tether_disks,
             self._loiters,
+            self.progress,
             *lim.clearances,
         )
 

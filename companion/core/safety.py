@@ -186,12 +186,15 @@ def compatible(
 
 
 @njit(cache=True)
-def clears_loiters(pts: FloatArray, loiters: FloatArray, disk_separation: float) -> bool:
-    """Whether the trajectory at `pts` (window + 1 positions) gets out of every disk (cx, cy, r) in
-    `loiters`, farther than `disk_separation` from it, and from then on keeps that clearance between
-    sampling moments too (for good: its loiter repeats within the window). The disks are where
-    silent UAVs' aircraft circle (`Commitments`): a UAV inside one must leave it, one outside it
-    must stay out."""
+def clears_loiters(
+    pts: FloatArray, loiters: FloatArray, disk_separation: float, horizon: int, progress: float
+) -> bool:
+    """Whether the trajectory at `pts` (window + 1 positions, its M = `horizon` planned steps first)
+    keeps clear of every disk (cx, cy, r) in `loiters`, the disks where silent UAVs' aircraft circle
+    (`Commitments`): either it is out of the disk, farther than `disk_separation` from it, from some
+    step on and for good (its loiter repeats within the window), or it starts within that distance
+    and every planned step takes it at least `progress` farther from the centre (a UAV deep inside
+    cannot get out within one plan: it gets out plan by plan)."""
     for d in range(loiters.shape[0]):
         cx, cy, r = loiters[d, 0], loiters[d, 1], loiters[d, 2]
         out = -1
@@ -199,8 +202,14 @@ def clears_loiters(pts: FloatArray, loiters: FloatArray, disk_separation: float)
             if math.hypot(pts[t, 0] - cx, pts[t, 1] - cy) - r > disk_separation:
                 out = t
                 break
-        if out < 0 or point_clearance(pts[out:], cx, cy) - r <= disk_separation:
+        if out >= 0 and point_clearance(pts[out:], cx, cy) - r > disk_separation:
+            continue
+        if out == 0:
             return False
+        for t in range(horizon):
+            before = math.hypot(pts[t, 0] - cx, pts[t, 1] - cy)
+            if math.hypot(pts[t + 1, 0] - cx, pts[t + 1, 1] - cy) < before + progress:
+                return False
     return True
 
 
@@ -231,13 +240,14 @@ def first_allowed(
     tethers: FloatArray,
     tether_disks: FloatArray,
     loiters: FloatArray,
+    progress: float,
     separation: float,
     disk_separation: float,
     link: float,
 ) -> tuple[int, int]:
     """The first candidate path in `order` whose trajectory, with one of the loiter sides, stays in the
-    fence, is compatible with everything given and clears the `loiters` (`clears_loiters`): (path,
-    side +1 or -1), or (-1, 0) if none.
+    fence, is compatible with everything given and clears the `loiters` (`clears_loiters`, with
+    `progress`): (path, side +1 or -1), or (-1, 0) if none.
     `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
     (`Limits.shapes`), placed at (x, y) and turned by the heading (cos_h, sin_h). The side that
     turns towards `centre` (the region's centroid) at the plan's end is tried first."""
@@ -259,7 +269,7 @@ def first_allowed(
             if (
                 inside_fence(pts, normals, offsets)
                 and compatible(pts, others, disks, tethers, tether_disks, separation, disk_separation, link)
-                and clears_loiters(pts, loiters, disk_separation)
+                and clears_loiters(pts, loiters, disk_separation, horizon, progress)
             ):
                 return i, 1 if side == 0 else -1
     return -1, 0

@@ -3,8 +3,11 @@ obstacle"), in the batch engine: generated missions (any convex region, 3-10 UAV
 continuous kinematics, all three algorithms), one or two companions dying at random steps; their
 vehicles fly on along their trajectories in force. No pair, the dead UAVs included, ever comes
 within R_s (closest approach between sampling moments), and no trajectory in force had to be
-replaced; the survivors' new proposals are checked against the dead UAVs' frozen commitments and
-must clear their failsafe loiter disks (`Commitments.failsafe_loiters`)."""
+replaced. The survivors' new proposals are checked against the dead UAVs' frozen commitments and
+must clear their failsafe loiter disks (`Commitments.failsafe_loiters`): every survivor gets out
+of each disk (widened by R_s) soon after it takes the UAV as gone, and stays out, so that a real
+aircraft circling there at a phase of its own cannot come within R_s of it (measured: at most 15
+steps after the death in 30 generated missions; `LEAVE_STEPS` is a generous bound)."""
 
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ from companion.core.world import build_world
 from companion.mission import ALGORITHMS
 
 STEPS = 1000
+LEAVE_STEPS = 60  # after a death (and the peer timeout), by when every survivor is out of its disk
 
 
 def loiter_centre(track: np.ndarray) -> tuple[float, float]:
@@ -55,7 +59,12 @@ def test_no_uav_comes_within_r_s_of_a_dead_one(
     assert r.extras["recovered"] == 0  # the invariant held: no trajectory in force was replaced
     # the dead vehicles end circling their loiters (the circles their failsafes would fly)
     assert r.trajectory is not None
+    wide = world.safety.failsafe_reach + m.comms.safety
     for j in dead:
         cx, cy = loiter_centre(r.trajectory[:, j, :2])
         ring = np.hypot(r.trajectory[-10:, j, 0] - cx, r.trajectory[-10:, j, 1] - cy)
         assert np.allclose(ring, world.safety.loiter_radius, atol=1e-6)
+        by = kills[j] + m.comms.peer_timeout_steps + LEAVE_STEPS
+        for i in set(range(n)) - set(dead):
+            near = np.hypot(r.trajectory[by:, i, 0] - cx, r.trajectory[by:, i, 1] - cy) <= wide
+            assert not near.any(), f"uav {i} within {wide:.0f} m of dead uav {j}'s loiter after step {by}"

@@ -286,18 +286,21 @@ def test_the_loiter_circle_goes_through_every_loiter_point(
     assert side * (ahead[0] * centre[1] - ahead[1] * centre[0]) > 0
 
 
-def test_a_trajectory_must_get_out_of_a_loiter_disk_and_stay_out() -> None:
+def test_a_trajectory_must_stay_out_of_a_loiter_disk_or_head_out_of_it() -> None:
     lim = limits(CONT)  # 40 m per step, 3 planned steps, then a 51 m loiter circle
     disk = np.array([[0.0, 0.0, 80.0]])
-    sep = lim.disk_separation  # 68.9 m
+    sep, progress = lim.disk_separation, 10.0  # 68.9 m
 
-    def clears(x: float, heading: float) -> bool:
-        t = Trajectory(0, x, 0.0, heading, (0.0, 0.0, 0.0), 1)
-        return clears_loiters(lim.expand(lim.rows([t]), 0)[0], disk, sep)
+    def clears(x: float, heading: float, turns: tuple[float, ...] = (0.0, 0.0, 0.0)) -> bool:
+        t = Trajectory(0, x, 0.0, heading, turns, 1)
+        return clears_loiters(lim.expand(lim.rows([t]), 0)[0], disk, sep, 3, progress)
 
     assert clears(-90.0, math.pi)  # inside, straight out, and its loiter stays clear
-    assert not clears(-50.0, math.pi)  # out by its last planned step, but its loiter comes back in
-    assert not clears(0.0, 0.0)  # never out
+    assert clears(-50.0, math.pi)  # its loiter comes back in, but it heads straight out: next plan
+    assert clears(0.0, 0.0)  # from the centre, straight out
+    assert not clears(-50.0, 0.0)  # inside, heading in
+    q = math.pi / 4
+    assert not clears(-50.0, math.pi, (q, q, q))  # inside, turning back in within its plan
     assert not clears(-250.0, 0.0)  # outside, flying in
     assert clears(-250.0, math.pi)  # outside, flying away
-    assert clears_loiters(np.zeros((5, 2)), np.zeros((0, 3)), sep)  # no silent UAV: nothing to clear
+    assert clears_loiters(np.zeros((5, 2)), np.zeros((0, 3)), sep, 3, progress)  # no silent UAV
