@@ -126,10 +126,10 @@ class Safety(_Base, kw_only=True):
     UAVs search inside the region and may turn outside it, never beyond the fence.
     `buffer`: metres added to R_s (and taken from R_c) in every check, for tracking error.
     `failsafe_timeout`: seconds without the companion's HEARTBEAT before the autopilot's failsafe
-    makes the aircraft loiter where it is (the companion sets ArduPlane's FS_LONG_TIMEOUT to it;
-    `companion.node.failsafe`).
-    `failsafe_reach`: how far (m) from its last report a UAV whose companion fell silent may fly
-    (default: from that failsafe, see `companion.core.world.failsafe_reach`).
+    makes the aircraft circle the loiter of its trajectory in force (the companion sets ArduPlane's
+    FS_LONG_TIMEOUT to it; `companion.node.failsafe`).
+    `failsafe_reach`: how far (m) from the centre of that loiter the aircraft of a UAV whose
+    companion fell silent may be once circling (default: `companion.core.world.failsafe_reach`).
     """
 
     margin: NonNegative = 100.0

@@ -681,8 +681,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--failsafe",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="make the autopilot loiter where it is when the companion falls silent (ArduPilot's GCS "
-        "failsafe; default: with --takeover)",
+        help="make the autopilot circle the loiter of the trajectory in force when the companion falls "
+        "silent (ArduPilot's GCS failsafe; default: with --takeover)",
     )
     co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
     co.add_argument("--steps", type=int, default=None)

@@ -10,8 +10,10 @@ then decides, their new trajectories in force are compatible: the lower id check
 against the other's old trajectory, the higher id against both of the other's. A UAV whose step-k
 message was not heard is represented by everything it could be flying: a disk around where it was
 last known, growing by a step per step of silence, or, once silent for `peer_timeout_steps`,
-what it last published plus the autopilot's failsafe (it is taken as gone). Rejecting a proposal
-is always safe: the trajectory in force ends in a loiter inside the fence.
+what it last published plus the disks its aircraft's failsafe circles in (it is taken as gone):
+its companion kept the failsafe on its trajectory in force's loiter, so a new proposal must stay
+out of those disks, or, from inside one, head out of it. Rejecting a proposal is always safe: the
+trajectory in force ends in a loiter inside the fence.
 """
 
 from __future__ import annotations
@@ -23,12 +25,13 @@ import numpy as np
 
 from companion.core.geometry import FloatArray
 from companion.core.messages import StateMsg, UavState
-from companion.core.safety import compatible, expand_rows, first_allowed, inside_fence
+from companion.core.safety import clears_loiters, compatible, expand_rows, first_allowed, inside_fence
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
+LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
 
 
 class Commitments:
@@ -59,6 +62,8 @@ class Commitments:
         ]
         self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
         self._disks = np.zeros((0, 4))
+        self._loiters = np.zeros((0, 3))  # where gone UAVs' aircraft circle (`failsafe_loiters`)
+        self.progress = LEAVING_PROGRESS * plan.limits.reach.step  # per planned step, leaving a disk
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._shapes = world.safety.shapes
 
@@ -86,8 +91,8 @@ class Commitments:
     def _possible(self, k: int, j: int, both: bool) -> tuple[list[Trajectory], list[Disk]]:
         """Trajectories and disks that hold whatever UAV j flies from t_k on (for the check at step
         k of a proposal): its step k-1 trajectory in force (and proposal when `both`) if heard,
-        else what it can reach since it was last known, or, if gone, its last commitments and its
-        autopilot's failsafe."""
+        else what it can reach since it was last known, or, if gone, its last commitments (their
+        loiters' disks are `failsafe_loiters`)."""
         s = self.latest[j]
         if k == 0:
             return [s.committed] if s.committed is not None else [], []
@@ -96,10 +101,20 @@ class Commitments:
             trajs = [mine.committed] + ([mine.proposal] if both and mine.proposal is not None else [])
             return [t for t in trajs if t is not None], []
         if j in self.dead:
-            trajs = [t for t in (s.committed, s.proposal) if t is not None]
-            return trajs, [(s.x, s.y, self.failsafe)]
+            return [t for t in (s.committed, s.proposal) if t is not None], []
         r = self.limits.reach
         return [], [(s.x, s.y, (k + 1 - s.stamp) * r.step + r.extent)]
+
+    def failsafe_loiters(self, j: int) -> list[Disk]:
+        """Where the aircraft of gone UAV j circles once its failsafe fires: `safety.failsafe_reach`
+        about the centre of the loiter of its last trajectory in force or of its last proposal (its
+        companion kept the failsafe mission on the loiter of the trajectory it flew)."""
+        s = self.latest[j]
+        return [
+            (*self.limits.loiter_circle(t)[:2], self.failsafe)
+            for t in (s.committed, s.proposal)
+            if t is not None
+        ]
 
     def _children(self) -> set[int]:
         return {c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead}
@@ -109,7 +124,7 @@ class Commitments:
         for this step's checks over steps k..k + window + 1, with their owners. UAVs too far from
         (x, y), this UAV's position at t_k, to matter for a trajectory anchored within a step of it
         are left out (every point of a trajectory lies within `Reach.extent` of its anchor), unless
-        tethered."""
+        tethered or gone (their failsafe loiters are gathered too)."""
         lim = self.limits
         r = lim.reach
         reach = 2 * r.extent + 2 * r.step + lim.separation
@@ -118,9 +133,12 @@ class Commitments:
         owners: list[int] = []
         proposals: list[bool] = []
         disks: list[tuple[float, float, float, float]] = []  # owner, cx, cy, r
+        loiters: list[Disk] = []
         for j in self.latest:
             mine, dsk = self._possible(k, j, both=True)
-            if j not in links:
+            if j in self.dead and k > 0:
+                loiters += self.failsafe_loiters(j)
+            elif j not in links:
                 s = self.fresh[j].state if j in self.fresh else self.latest[j]
                 near = math.hypot(s.x - x, s.y - y)
                 if near > max([reach] + [r.extent + r.step + d[2] + lim.disk_separation for d in dsk]):
@@ -138,6 +156,7 @@ class Commitments:
         )
         self._step = (k, owners, proposals, pts)
         self._disks = np.array(disks, dtype=float).reshape(-1, 4)
+        self._loiters = np.array(loiters, dtype=float).reshape(-1, 3)
 
     def _arrays(
         self, resolving: bool, proposals: bool = True
@@ -171,7 +190,9 @@ class Commitments:
         if self.proposal is not None and self.proposal.start == k:
             others, disks, tethers, tether_disks = self._arrays(resolving=True)
             pts = lim.expand(lim.rows([self.proposal]), k)[0]
-            if compatible(pts, others, disks, tethers, tether_disks, *lim.clearances):
+            if compatible(pts, others, disks, tethers, tether_disks, *lim.clearances) and clears_loiters(
+                pts, self._loiters, lim.disk_separation, lim.horizon, self.progress
+            ):
                 chosen = self.proposal
                 self.accepted += 1
             else:
@@ -280,6 +301,8 @@ class Commitments:
             disks,
             tethers,
             tether_disks,
+            self._loiters,
+            self.progress,
             *lim.clearances,
         )
 

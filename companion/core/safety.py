@@ -106,6 +106,21 @@ class Limits:
             -1, HEAD + self.horizon
         )
 
+    def loiter_circle(self, trajectory: Trajectory) -> tuple[float, float, float]:
+        """The circle (centre x, centre y, radius) of `trajectory`'s loiter: through its sampling points
+        in continuous mode; in grid mode the loiter octagon's circumscribed circle (its vertices are
+        concyclic: equal angles, alternating sides). The centre is the circumcentre of three
+        consecutive loiter points, the radius the farthest of a whole loop's points from it."""
+        r = self.reach
+        row = self.rows([trajectory])[0]
+        pts = expand(row, trajectory.start + self.horizon, r.period, *self.kinematics_args)
+        (ax, ay), (bx, by), (cx, cy) = pts[:3]
+        d = 2 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
+        a2, b2, c2 = ax * ax + ay * ay, bx * bx + by * by, cx * cx + cy * cy
+        ux = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d
+        uy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d
+        return ux, uy, float(np.max(np.hypot(pts[:, 0] - ux, pts[:, 1] - uy)))
+
     @property
     def kinematics_args(self) -> tuple[float, bool, float, float, float]:
         return self.reach.loiter_turn, self.grid, self.speed, self.dt, self.cell
@@ -171,6 +186,34 @@ def compatible(
 
 
 @njit(cache=True)
+def clears_loiters(
+    pts: FloatArray, loiters: FloatArray, disk_separation: float, horizon: int, progress: float
+) -> bool:
+    """Whether the trajectory at `pts` (window + 1 positions, its M = `horizon` planned steps first)
+    keeps clear of every disk (cx, cy, r) in `loiters`, the disks where silent UAVs' aircraft circle
+    (`Commitments`): either it is out of the disk, farther than `disk_separation` from it, from some
+    step on and for good (its loiter repeats within the window), or it starts within that distance
+    and every planned step takes it at least `progress` farther from the centre (a UAV deep inside
+    cannot get out within one plan: it gets out plan by plan)."""
+    for d in range(loiters.shape[0]):
+        cx, cy, r = loiters[d, 0], loiters[d, 1], loiters[d, 2]
+        out = -1
+        for t in range(pts.shape[0]):
+            if math.hypot(pts[t, 0] - cx, pts[t, 1] - cy) - r > disk_separation:
+                out = t
+                break
+        if out >= 0 and point_clearance(pts[out:], cx, cy) - r > disk_separation:
+            continue
+        if out == 0:
+            return False
+        for t in range(horizon):
+            before = math.hypot(pts[t, 0] - cx, pts[t, 1] - cy)
+            if math.hypot(pts[t + 1, 0] - cx, pts[t + 1, 1] - cy) < before + progress:
+                return False
+    return True
+
+
+@njit(cache=True)
 def inside_fence(pts: FloatArray, normals: FloatArray, offsets: FloatArray) -> bool:
     """Every point within the fence's half-planes (chords then stay inside: the fence is convex)."""
     for t in range(pts.shape[0]):
@@ -196,12 +239,15 @@ def first_allowed(
     disks: FloatArray,
     tethers: FloatArray,
     tether_disks: FloatArray,
+    loiters: FloatArray,
+    progress: float,
     separation: float,
     disk_separation: float,
     link: float,
 ) -> tuple[int, int]:
     """The first candidate path in `order` whose trajectory, with one of the loiter sides, stays in the
-    fence and is compatible with everything given: (path, side +1 or -1), or (-1, 0) if none.
+    fence, is compatible with everything given and clears the `loiters` (`clears_loiters`, with
+    `progress`): (path, side +1 or -1), or (-1, 0) if none.
     `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
     (`Limits.shapes`), placed at (x, y) and turned by the heading (cos_h, sin_h). The side that
     turns towards `centre` (the region's centroid) at the plan's end is tried first."""
@@ -220,8 +266,10 @@ def first_allowed(
                 ox, oy = shapes[i, side, t, 0], shapes[i, side, t, 1]
                 pts[t, 0] = x + cos_h * ox - sin_h * oy
                 pts[t, 1] = y + sin_h * ox + cos_h * oy
-            if inside_fence(pts, normals, offsets) and compatible(
-                pts, others, disks, tethers, tether_disks, separation, disk_separation, link
+            if (
+                inside_fence(pts, normals, offsets)
+                and compatible(pts, others, disks, tethers, tether_disks, separation, disk_separation, link)
+                and clears_loiters(pts, loiters, disk_separation, horizon, progress)
             ):
                 return i, 1 if side == 0 else -1
     return -1, 0

@@ -71,7 +71,8 @@ def build_kinematics(mission: Mission) -> Kinematics:
 @dataclass(frozen=True)
 class SafetyPlan:
     """The safety layer's common knowledge (core.safety): what compatibility means, every UAV's
-    start contingency, the tether tree of the start layout, and how far a silent UAV may stray."""
+    start contingency, the tether tree of the start layout, and how far a silent UAV's aircraft
+    may stray from the centre of its committed loiter once its failsafe circles it."""
 
     limits: Limits
     start: tuple[Trajectory, ...]
@@ -80,30 +81,25 @@ class SafetyPlan:
     failsafe_reach: float
     shapes: FloatArray  # `Limits.shapes` of the mission's paths (eq. 23)
 
+    @property
+    def loiter_radius(self) -> float:
+        """The radius of every trajectory's loiter circle (`Limits.loiter_circle`)."""
+        return self.limits.loiter_circle(self.start[0])[2]
 
-FAILSAFE_CHECK_S = 0.5  # ArduPlane checks its long failsafe at 3 Hz
 
-
-def failsafe_loiter_radius(mission: Mission) -> float:
-    """The radius (m) of the loiter a silent UAV's failsafe flies: 1.5 turn radii of the mission's
-    kinematics, at least 60 m (ArduPlane's default WP_LOITER_RAD)."""
-    k = mission.kinematics
-    return max(60.0, 1.5 * k.speed * k.step / math.radians(k.turn_limit_deg))
+FAILSAFE_WIDE = 1.4  # ArduPlane flies a loiter circle this much wider than asked, at most (measured)
 
 
 def failsafe_reach(mission: Mission, limits: Limits) -> float:
-    """Default `safety.failsafe_reach`: how far from its last report (its pose at the start of its
-    last step) the vehicle of a UAV whose companion fell silent can be (companion.node.failsafe).
-
-    The companion dies within a step of that report; the autopilot, which last heard its HEARTBEAT
-    before it died, flies on at most `safety.failsafe_timeout` (plus its check's slack) before its
-    failsafe; then it loiters around where it is: out to the loiter's radius (ArduPlane flies the
-    circle up to a quarter wider than asked), and it may overshoot the circle by a turn radius while
-    it turns onto it (ArduPlane SITL flew a 93 m circle for 76 m asked, at most 123 m from its centre)."""
+    """Default `safety.failsafe_reach`: how far from the centre of its committed loiter the aircraft
+    of a UAV whose companion fell silent can be once its failsafe circles that loiter
+    (companion.node.failsafe): the circle flown up to `FAILSAFE_WIDE` times wider than asked (ArduPlane
+    SITL flew 93 m for 76 m asked, 69 m for 51 m), plus a turn radius for arriving on it off its
+    tangent."""
     k = mission.kinematics
     turn_radius = k.speed * k.step / math.radians(k.turn_limit_deg)
-    flown = (1 + (mission.safety.failsafe_timeout + FAILSAFE_CHECK_S) / k.step) * limits.reach.step
-    return flown + 1.25 * failsafe_loiter_radius(mission) + turn_radius
+    radius = limits.loiter_circle(Trajectory(0, 0.0, 0.0, 0.0, (), 1))[2]
+    return FAILSAFE_WIDE * radius + turn_radius
 
 
 def build_safety(

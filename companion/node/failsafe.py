@@ -1,4 +1,5 @@
-"""The silent companion's failsafe: if the companion dies, its aircraft loiters where it is.
+"""The silent companion's failsafe: if the companion dies, its aircraft circles the loiter its
+trajectory in force ends in, the loiter every other UAV's trajectory already keeps clear of.
 
 ArduPlane knows its ground station by system id only (MAV_GCS_SYSID; SYSID_MYGCS before 4.7) and,
 with FS_GCS_ENABL = 1, starts its long failsafe when no HEARTBEAT from that system has come for
@@ -7,25 +8,32 @@ heading hold flies straight on until the fence), 1 RTL (home, across the region)
 FS_SHORT_ACTN (CIRCLE) acts on RC loss only, never on the GCS's silence. So with `--takeover` the
 companion makes itself the autopilot's ground station and arms:
 
-- a mission of one item (after ArduPilot's home, item 0): NAV_LOITER_UNLIM at latitude and
-  longitude 0, which ArduPilot reads as "where the aircraft is when the item starts", at the UAV's
-  altitude layer, radius `failsafe_loiter_radius` (clockwise);
+- a mission of one item (after ArduPilot's home, item 0): NAV_LOITER_UNLIM about the centre of the
+  loiter of its trajectory in force (`Limits.loiter_circle`: the circle, or the loiter octagon's
+  circumscribed circle in grid mode), with its radius and direction, at the UAV's altitude layer;
+  `FailsafeLoiter` uploads it again whenever the trajectory in force's loiter changes, before the
+  step's state goes out to the mesh (so the loiter the aircraft would fly is always one its peers
+  know: that of the last trajectory in force or proposal they heard);
 - MAV_GCS_SYSID = the companion's own system id (`COMPANION_SYSTEM`), FS_LONG_TIMEOUT =
   `safety.failsafe_timeout`, FS_LONG_ACTN = 4 (AUTO), FS_GCS_ENABL = 1.
 
 When the companion falls silent the aircraft flies its last guidance for FS_LONG_TIMEOUT, then
-switches to AUTO and circles the point it reached, at its layer. The survivors' model of a silent
-UAV (`safety.failsafe_reach`, `companion.core.world.failsafe_reach`) is built on this. When its
-HEARTBEATs come back the autopilot clears the failsafe but stays in AUTO (the companion steers only
-in GUIDED). The bundled simulator imitates all of it (docs/simulator.md).
+switches to AUTO and circles that loiter, at its layer. The survivors' model of a silent UAV
+(`Commitments.failsafe_loiters`, `safety.failsafe_reach`) is built on this. When its HEARTBEATs
+come back the autopilot clears the failsafe but stays in AUTO (the companion steers only in
+GUIDED). The bundled simulator imitates all of it (docs/simulator.md).
 """
 
 from __future__ import annotations
 
+import math
+
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.core.world import failsafe_loiter_radius
+from companion.core.trajectory import Trajectory
+from companion.core.world import World
 from companion.mission import Mission
+from companion.node.frames import LocalFrame
 from companion.node.mission_upload import Item, upload
 from companion.node.vehicle_link import VehicleLink
 
@@ -33,32 +41,70 @@ GCS_SYSID_PARAMS = ("MAV_GCS_SYSID", "SYSID_MYGCS")  # ArduPilot 4.7 on, and bef
 FS_GCS_HEARTBEAT = 1  # FS_GCS_ENABL: failsafe when the GCS's HEARTBEATs stop
 FS_LONG_AUTO = 4  # FS_LONG_ACTN: switch to AUTO
 RENAMED_PARAM_WAIT_S = 3.0  # the parameters have answered by then: a missing name is missing
+SAME_CENTRE_M = 0.5  # a loiter centre that moved less is not uploaded again
+
+Circle = tuple[float, float, float, int]  # local centre x, y (m), radius (m), +1 CCW / -1 CW
 
 
-def loiter_here(mission: Mission, uav: int) -> list[Item]:
+def failsafe_mission(mission: Mission, uav: int, frame: LocalFrame, loiter: Circle) -> list[Item]:
     """The failsafe's mission: ArduPilot's home (item 0, replaced by the autopilot) and an unlimited
-    loiter where the aircraft is when it starts, at the UAV's altitude layer."""
+    loiter about the circle `loiter`, at the UAV's altitude layer (a negative radius is ArduPilot's
+    counter-clockwise)."""
     home = Item(mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, (0, 0, 0, 0))
-    radius = failsafe_loiter_radius(mission)
-    loiter = Item(
+    cx, cy, radius, side = loiter
+    lat, lon, _ = frame.to_geodetic(cx, cy)
+    item = Item(
         mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
         mavlink.MAV_CMD_NAV_LOITER_UNLIM,
-        (0, 0, radius, 0),
-        0,
-        0,
+        (0, 0, -radius if side > 0 else radius, 0),
+        round(lat * 1e7),
+        round(lon * 1e7),
         mission.altitude_of(uav),
     )
-    return [home, loiter]
+    return [home, item]
 
 
-def arm_failsafe(link: VehicleLink, mission: Mission, uav: int) -> str | None:
-    """Set up ArduPlane's GCS failsafe as the silent companion's failsafe; the reason on failure."""
+def loiter_of(world: World, trajectory: Trajectory) -> Circle:
+    """The circle `trajectory` loiters on, as the failsafe flies it."""
+    cx, cy, radius = world.safety.limits.loiter_circle(trajectory)
+    return cx, cy, radius, trajectory.loiter
+
+
+class FailsafeLoiter:
+    """Keeps the failsafe mission's loiter on the loiter of the trajectory in force."""
+
+    def __init__(self, link: VehicleLink, world: World, uav: int, frame: LocalFrame) -> None:
+        self.link, self.world, self.uav, self.frame = link, world, uav, frame
+        self.current: Circle | None = None
+        self.uploads = 0
+
+    def follow(self, trajectory: Trajectory) -> str | None:
+        """Upload the loiter of `trajectory` unless it is the one armed; the reason on failure."""
+        loiter = loiter_of(self.world, trajectory)
+        if self.current is not None and _same(loiter, self.current):
+            return None
+        items = failsafe_mission(self.world.mission, self.uav, self.frame, loiter)
+        error = upload(self.link, mavlink.MAV_MISSION_TYPE_MISSION, items, "failsafe mission")
+        if error is None:
+            self.current = loiter
+            self.uploads += 1
+        return error
+
+
+def _same(a: Circle, b: Circle) -> bool:
+    return a[3] == b[3] and math.hypot(a[0] - b[0], a[1] - b[1]) < SAME_CENTRE_M and abs(a[2] - b[2]) < 0.1
+
+
+def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
+    """Set up ArduPlane's GCS failsafe (on `loiter`'s link) as the silent companion's failsafe,
+    circling the loiter of `trajectory` (the trajectory in force); the reason on failure."""
+    link, mission = loiter.link, loiter.world.mission
     names = link.read_params([GCS_SYSID_PARAMS[0]], timeout=RENAMED_PARAM_WAIT_S)
     if not names:
         names = link.read_params([GCS_SYSID_PARAMS[1]], timeout=RENAMED_PARAM_WAIT_S)
     if not names:
         return f"the autopilot has no {' or '.join(GCS_SYSID_PARAMS)}: no GCS failsafe to use"
-    error = upload(link, mavlink.MAV_MISSION_TYPE_MISSION, loiter_here(mission, uav), "failsafe mission")
+    error = loiter.follow(trajectory)
     if error:
         return error
     sysid_param = next(iter(names))

@@ -44,7 +44,7 @@ from companion.mission import Mission
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.camera_feed import CameraFeed
 from companion.node.detections import camera_key
-from companion.node.failsafe import arm_failsafe
+from companion.node.failsafe import FailsafeLoiter, arm_failsafe
 from companion.node.faults import InjectedFaults
 from companion.node.fence import fence_margin, fence_polygon, upload_fence
 from companion.node.frames import LocalFrame
@@ -173,7 +173,7 @@ class Companion:
         self.guard = RegionGuard(opts.uav, region, self.fence, depth=margin, step_length=k.speed * k.step)
         self.airframe_warnings: list[str] = []
         self.fence_uploaded = False
-        self.failsafe_armed = False
+        self.failsafe: FailsafeLoiter | None = None  # armed: kept on the trajectory in force's loiter
         self._was_steerable = False
         self._seen_alive: set[int] = set()
         self._departed: set[int] = set()
@@ -241,13 +241,15 @@ class Companion:
             log.info("uav %d: failsafe: PX4's own offboard-loss failsafe applies", self.opts.uav)
             return
         m = self.opts.mission
-        error = arm_failsafe(self.link, m, self.opts.uav)
+        failsafe = FailsafeLoiter(self.link, self.world, self.opts.uav, self.frame)
+        error = arm_failsafe(failsafe, self.agent.commitments.inforce)
         if error:
             log.warning("uav %d: failsafe not set: %s", self.opts.uav, error)
             return
-        self.failsafe_armed = True
+        self.failsafe = failsafe
         log.info(
-            "uav %d: failsafe armed: %g s without our HEARTBEAT, the aircraft loiters where it is",
+            "uav %d: failsafe armed: %g s without our HEARTBEAT, the aircraft circles the loiter of its "
+            "trajectory in force",
             self.opts.uav,
             m.safety.failsafe_timeout,
         )
@@ -302,6 +304,10 @@ class Companion:
         )
         if self.journal is not None:
             self.journal.append(self.agent)  # durable before any peer hears of this step
+        if self.failsafe is not None:  # before any peer hears of this step's trajectory in force
+            error = self.failsafe.follow(self.agent.commitments.inforce)
+            if error:
+                log.warning("uav %d: step %d: failsafe loiter not updated: %s", self.opts.uav, k, error)
         self.mesh.publish(k, outbox, position=(x, y))
         self.last_position = np.array([x, y])
         steered = self.steering and self._steerable() and self._guard(k, x, y)
@@ -530,7 +536,8 @@ class Companion:
             "command_mode": self.opts.command_mode,
             "airframe_warnings": self.airframe_warnings,
             "fence_uploaded": self.fence_uploaded,
-            "failsafe_armed": self.failsafe_armed,
+            "failsafe_armed": self.failsafe is not None,
+            "failsafe_uploads": self.failsafe.uploads if self.failsafe is not None else 0,
             "fence_exits": self.guard.exits,
             "guard": self.guard.state.value,
             "restarted_from_step": self._journaled,

@@ -14,6 +14,7 @@ from companion.core.geometry import ConvexPolygon
 from companion.core.kinematics import Kinematics, arc_advance
 from companion.core.safety import (
     Limits,
+    clears_loiters,
     compatible,
     initial_trajectories,
     minimum_margin,
@@ -258,3 +259,48 @@ def test_expand_starts_at_the_anchor_and_takes_loiter_turns_past_the_plan() -> N
     pts = expand(row, 5, 3, math.pi / 4, True, 20.0, 2.0, 40.0)
     # straight one cell east, then the loiter turns clockwise: south-east, south
     assert pts.tolist() == [[0, 0], [40, 0], [80, -40], [80, -80]]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    mode=st.sampled_from(["grid", "continuous"]),
+    h8=st.integers(0, 7),
+    turns=st.lists(st.sampled_from([-1, 0, 1]), min_size=3, max_size=3),
+    side=st.sampled_from([1, -1]),
+    start=st.integers(0, 50),
+)
+def test_the_loiter_circle_goes_through_every_loiter_point(
+    mode: str, h8: int, turns: list[int], side: int, start: int
+) -> None:
+    kin = GRID if mode == "grid" else CONT
+    lim = limits(kin)
+    heading = h8 * math.pi / 4 + (0.0 if mode == "grid" else 0.3)
+    t = Trajectory(start, 120.0, -80.0, heading, tuple(u * math.pi / 4 for u in turns), side)
+    cx, cy, r = lim.loiter_circle(t)
+    pts = lim.expand(lim.rows([t]), start)[0][lim.horizon :]  # from the plan's end on: the loiter
+    d = np.hypot(pts[:, 0] - cx, pts[:, 1] - cy)
+    assert np.allclose(d, r, atol=1e-6)  # concyclic (grid: the octagon's circumscribed circle)
+    assert r == pytest.approx(50.93 if mode == "continuous" else 63.25, abs=0.01)
+    ahead = pts[1] - pts[0]  # the loiter turns towards its centre, on its side
+    centre = np.array([cx, cy]) - pts[0]
+    assert side * (ahead[0] * centre[1] - ahead[1] * centre[0]) > 0
+
+
+def test_a_trajectory_must_stay_out_of_a_loiter_disk_or_head_out_of_it() -> None:
+    lim = limits(CONT)  # 40 m per step, 3 planned steps, then a 51 m loiter circle
+    disk = np.array([[0.0, 0.0, 80.0]])
+    sep, progress = lim.disk_separation, 10.0  # 68.9 m
+
+    def clears(x: float, heading: float, turns: tuple[float, ...] = (0.0, 0.0, 0.0)) -> bool:
+        t = Trajectory(0, x, 0.0, heading, turns, 1)
+        return clears_loiters(lim.expand(lim.rows([t]), 0)[0], disk, sep, 3, progress)
+
+    assert clears(-90.0, math.pi)  # inside, straight out, and its loiter stays clear
+    assert clears(-50.0, math.pi)  # its loiter comes back in, but it heads straight out: next plan
+    assert clears(0.0, 0.0)  # from the centre, straight out
+    assert not clears(-50.0, 0.0)  # inside, heading in
+    q = math.pi / 4
+    assert not clears(-50.0, math.pi, (q, q, q))  # inside, turning back in within its plan
+    assert not clears(-250.0, 0.0)  # outside, flying in
+    assert clears(-250.0, math.pi)  # outside, flying away
+    assert clears_loiters(np.zeros((5, 2)), np.zeros((0, 3)), sep, 3, progress)  # no silent UAV

@@ -3,8 +3,9 @@
 A companion-like link (the companion's system id, HEARTBEATs from `poll`) arms the failsafe with
 `companion.node.failsafe.arm_failsafe` on a vehicle flying a heading in GUIDED. While it polls,
 nothing happens; when it falls silent the vehicle flies on for FS_LONG_TIMEOUT, says "GCS Failsafe
-On: AUTO" and circles the point it reached at its altitude layer, with the failsafe's radius; a
-ground station's HEARTBEATs (another system) do not stop that. When the link speaks again the
+On: AUTO" and circles the loiter it was armed with (the committed loiter of a trajectory ahead of
+it) at its altitude layer, as wide as ArduPlane flies it; a ground station's HEARTBEATs (another
+system) do not stop that. When the link speaks again the
 failsafe clears and the mode stays AUTO. With FS_LONG_ACTN 0 the vehicle stays in GUIDED.
 A simulator that was not scheduled for a while (a busy machine) slips its clock rather than running
 ahead in a burst, so a companion that kept speaking does not trip the failsafe.
@@ -20,11 +21,12 @@ from pathlib import Path
 
 import pytest
 
-from companion.core.world import failsafe_loiter_radius
+from companion.core.trajectory import Trajectory
+from companion.core.world import FAILSAFE_WIDE, build_world
 from companion.mission import load_mission
-from companion.node.failsafe import arm_failsafe
+from companion.node.failsafe import FailsafeLoiter, arm_failsafe
 from companion.node.frames import LocalFrame
-from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink
+from companion.node.vehicle_link import COMPANION_SYSTEM, HEARTBEAT_VEHICLE_S, VehicleLink
 from tests.sim.conftest import M, Mav, SimProcess, fit_circle, write_mission
 
 GUIDED, AUTO = 15, 10
@@ -40,7 +42,9 @@ def flying(tmp_path: Path) -> Iterator[tuple[VehicleLink, Mav, Path, SimProcess]
         ground = Mav(ports[0])
         mission = load_mission(path)
         link = VehicleLink(
-            f"udpout:127.0.0.1:{ports[0]}", LocalFrame(mission.region.origin), system=COMPANION_SYSTEM,
+            f"udpout:127.0.0.1:{ports[0]}",
+            LocalFrame(mission.region.origin),
+            system=COMPANION_SYSTEM,
             heartbeat=True,
         )
         link.wait_heartbeat(30)
@@ -71,20 +75,26 @@ def _text(ground: Mav, text: str, timeout: float = 30.0) -> float:
     return ground.sim_time()
 
 
-def test_silent_companion_makes_the_vehicle_loiter_where_it_is(flying) -> None:
+def test_silent_companion_makes_the_vehicle_circle_its_committed_loiter(flying) -> None:
     link, ground, path, _ = flying
     mission = load_mission(path)
+    world = build_world(mission)
     link.change_heading(90.0, 5.0)  # east, straight on
-    assert arm_failsafe(link, mission, 0) is None
+    while not link.state.has_pose:
+        link.poll(0.1)
+    s = link.state  # committed: straight on for the plan's steps, then a clockwise loiter
+    committed = Trajectory(0, s.x, s.y, s.heading, (0.0,) * mission.algorithm.horizon, -1)
+    loiter = FailsafeLoiter(link, world, 0, link.frame)
+    assert arm_failsafe(loiter, committed) is None
+    centre = loiter.current[:2]
     _poll_for(link, 12.0)  # heard: no failsafe
     assert link.state.custom_mode == GUIDED and not any("Failsafe" in t for t in link.state.texts)
 
-    silent_from = link.state.time_s  # the last HEARTBEAT went out at or after this vehicle time
+    # the last HEARTBEAT went out at most HEARTBEAT_VEHICLE_S of vehicle time before the latest state
+    silent_from = link.state.time_s - HEARTBEAT_VEHICLE_S
     ground.need("STATUSTEXT", lambda m: m.text == "Mission: 1 LoitUnlim", timeout=30)  # as ArduPlane
     t_on = _text(ground, "GCS Failsafe On: AUTO")
     frame = LocalFrame(mission.region.origin)
-    g = ground.need("GLOBAL_POSITION_INT")
-    centre = frame.to_local(g.lat * 1e-7, g.lon * 1e-7)
     assert t_on >= silent_from + mission.safety.failsafe_timeout
     assert ground.need("HEARTBEAT").custom_mode == AUTO
 
@@ -93,13 +103,12 @@ def test_silent_companion_makes_the_vehicle_loiter_where_it_is(flying) -> None:
         g = ground.need("GLOBAL_POSITION_INT")
         track.append(frame.to_local(g.lat * 1e-7, g.lon * 1e-7))
         ups.append(g.relative_alt * 1e-3)
-    radius = failsafe_loiter_radius(mission)
-    k = mission.kinematics
-    turn_radius = k.speed * k.step / math.radians(k.turn_limit_deg)
-    assert max(math.dist(p, centre) for p in track) < 1.25 * radius + turn_radius
-    cx, cy, r = fit_circle(track[len(track) // 2 :])
-    assert math.dist((cx, cy), centre) < 20.0, (cx, cy, centre)
-    assert abs(r - radius) < 0.15 * radius, (r, radius)
+    radius = world.safety.loiter_radius
+    circling = track[len(track) // 2 :]
+    assert max(math.dist(p, centre) for p in circling) < world.safety.failsafe_reach
+    cx, cy, r = fit_circle(circling)
+    assert math.dist((cx, cy), centre) < 10.0, (cx, cy, centre)
+    assert radius < r < FAILSAFE_WIDE * radius, (r, radius)
     assert abs(ups[-1] - mission.altitude_of(0)) < 5.0
     assert ground.need("HEARTBEAT").custom_mode == AUTO
 
@@ -119,7 +128,11 @@ def test_a_stalled_simulator_slips_instead_of_tripping_the_failsafe(flying) -> N
     link, ground, path, sim = flying
     mission = load_mission(path)
     link.change_heading(90.0, 5.0)
-    assert arm_failsafe(link, mission, 0) is None
+    while not link.state.has_pose:
+        link.poll(0.1)
+    s = link.state
+    committed = Trajectory(0, s.x, s.y, s.heading, (0.0,) * mission.algorithm.horizon, -1)
+    assert arm_failsafe(FailsafeLoiter(link, build_world(mission), 0, link.frame), committed) is None
     _poll_for(link, 3.0)
     stall = 2 * mission.safety.failsafe_timeout / 10  # wall seconds: twice the timeout at 10x
     sim.proc.send_signal(signal.SIGSTOP)

@@ -79,9 +79,14 @@ class SitlMission:
 
 
 def write_mission(
-    directory: Path, n: int, starts: list[tuple[float, float]] | None = None, grid: bool = False
+    directory: Path,
+    n: int,
+    starts: list[tuple[float, float]] | None = None,
+    grid: bool = False,
+    safety: str = SLACK_FAILSAFE_TIMEOUT,
 ) -> SitlMission:
-    """scenario1_continuous with its first n vehicles (or vehicles at `starts`, heading north)."""
+    """scenario1_continuous with its first n vehicles (or vehicles at `starts`, heading north) and
+    the `[safety]` section's lines `safety`."""
     text = CONTINUOUS.read_text(encoding="utf-8")
     head, *vehicles = text.split("[[vehicles]]")
     vehicles[-1] = vehicles[-1].split("[pass_criteria]")[0]
@@ -96,7 +101,7 @@ def write_mission(
     mesh = bases[-1]
     out += f'[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{mesh}"\n'
     out += f'router = "tcp/127.0.0.1:{mesh + 1}"\n\n[pass_criteria]\nmin_targets_found = 0\n'
-    out += f"\n[safety]\n{SLACK_FAILSAFE_TIMEOUT}\n"
+    out += f"\n[safety]\n{safety}\n"
     path = directory / f"{prefix}.toml"
     path.write_text(out, encoding="utf-8")
     return SitlMission(path, load_mission(path))

@@ -11,7 +11,9 @@
 - Conformance of the silent companion's failsafe: a companion link arms it
   (`companion.node.failsafe`), holds a heading, and dies (its link closed); on SITL and on the
   bundled simulator the failsafe fires FS_LONG_TIMEOUT later with the same STATUSTEXT, switches
-  to AUTO and circles where it is; failsafe time, point and circle agree within the tolerances below.
+  to AUTO and circles the loiter its companion last committed to (the failsafe mission it kept
+  current); failsafe time, point and circle agree within the tolerances below, and the aircraft
+  stays within `safety.failsafe_reach` of the committed loiter's centre.
 """
 
 from __future__ import annotations
@@ -25,8 +27,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from companion.core.trajectory import Trajectory
+from companion.core.world import build_world
 from companion.mission import Mission
-from companion.node.failsafe import arm_failsafe
+from companion.node.failsafe import FailsafeLoiter, arm_failsafe
 from companion.node.guidance import Guidance
 from companion.node.takeover import take_over
 from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink
@@ -209,51 +213,72 @@ def test_simulator_flies_a_command_script_like_arduplane(airborne: Airborne, tmp
 
 # -- the silent companion's failsafe ------------------------------------------------------------
 def _silence_script(companion: VehicleLink, observer: VehicleLink, mission: Mission) -> dict:
-    """Arm the failsafe, fly north for 20 s, then die (the companion's link closed); what the
-    observer saw in the next 90 s, relative to its pose at the silence: the failsafe's time and
-    point, the modes, and the track (t, ahead, left) every 0.5 s."""
-    assert arm_failsafe(companion, mission, 0) is None
+    """Arm the failsafe, fly north for 20 s, every step keeping the failsafe on the loiter of a
+    trajectory anchored at the pose (straight on for the plan's M steps, then a clockwise loiter),
+    then die (the companion's link closed); what the observer saw in the next 90 s, relative to its
+    pose at the silence: the failsafe's time and point, the committed loiter's centre, the modes,
+    and the track (t, ahead, left) every 0.5 s."""
+    world = build_world(mission)
     s, o = companion.state, observer.state
-    end, last = s.time_s + 20.0, -math.inf
+    loiter = FailsafeLoiter(companion, world, 0, companion.frame)
+
+    def committed() -> Trajectory:
+        return Trajectory(0, s.x, s.y, s.heading, (0.0,) * mission.algorithm.horizon, -1)
+
+    while not s.has_pose:
+        companion.poll(0.1)
+    assert arm_failsafe(loiter, committed()) is None
+    end, last, step = s.time_s + 20.0, -math.inf, s.time_s
     while s.time_s < end:
         if s.time_s - last >= 0.5:
             companion.change_heading(0.0, 9.8)
             last = s.time_s
+        if s.time_s - step >= mission.kinematics.step:
+            assert loiter.follow(committed()) is None
+            step = s.time_s
         companion.poll(0.02)
         observer.poll(0.0)
     companion.close()
     observer.poll(0.05)
     t0, x0, y0, h0 = o.time_s, o.x, o.y, o.heading
     c, sn = math.cos(h0), math.sin(h0)
+
+    def relative(x: float, y: float) -> tuple[float, float]:
+        return c * (x - x0) + sn * (y - y0), -sn * (x - x0) + c * (y - y0)
+
+    assert loiter.current is not None
+    centre = relative(*loiter.current[:2])
     o.texts.clear()
     track: list[tuple[float, float, float]] = []
     modes: set[int] = set()
     failsafe: tuple[float, float, float] | None = None
     while o.time_s < t0 + 90.0:
         observer.poll(0.05)
-        dx, dy = o.x - x0, o.y - y0
-        row = (o.time_s - t0, c * dx + sn * dy, -sn * dx + c * dy)
+        row = (o.time_s - t0, *relative(o.x, o.y))
         if not track or row[0] - track[-1][0] >= 0.5 - 1e-6:
             track.append(row)
         modes.add(o.custom_mode)
         if failsafe is None and "GCS Failsafe On: AUTO" in o.texts:
             failsafe = row
     assert failsafe is not None, f"no failsafe: {o.texts}"
-    return {"failsafe": failsafe, "modes": sorted(modes), "track": track, "texts": list(o.texts)}
+    return {
+        "failsafe": failsafe, "centre": centre, "modes": sorted(modes), "track": track,
+        "texts": list(o.texts), "uploads": loiter.uploads,
+    }  # fmt: skip
 
 
 def _loiter(run: dict) -> tuple[float, float, float]:
-    """(distance of the circle's centre from the failsafe point, radius, farthest from that point)."""
-    t_on, fx, fy = run["failsafe"]
+    """(distance of the flown circle's centre from the committed loiter's, its radius, the farthest
+    the aircraft went from the committed centre once circling)."""
+    t_on = run["failsafe"][0]
     circling = [(a, b) for t, a, b in run["track"] if t > t_on + 30.0]
     cx, cy, r = fit_circle(circling)
-    farthest = max(math.dist((a, b), (fx, fy)) for t, a, b in run["track"] if t >= t_on)
-    return math.dist((cx, cy), (fx, fy)), r, farthest
+    centre = tuple(run["centre"])
+    farthest = max(math.dist(p, centre) for p in circling)
+    return math.dist((cx, cy), centre), r, farthest
 
 
-def test_simulator_failsafe_for_a_silent_companion_like_arduplane(
-    airborne: Airborne, tmp_path: Path
-) -> None:
+def test_simulator_failsafe_for_a_silent_companion_like_arduplane(airborne: Airborne, tmp_path: Path) -> None:
     mission = airborne.mission.mission
     ports = airborne.mission.ports(0)
     with airborne.use() as observer:
@@ -313,3 +338,5 @@ def test_simulator_failsafe_for_a_silent_companion_like_arduplane(
     assert c_sitl < LOITER_CENTRE_M and c_ours < LOITER_CENTRE_M, (c_sitl, c_ours)
     assert abs(r_ours - r_sitl) < FAILSAFE_LOITER * r_sitl, (r_sitl, r_ours)
     assert abs(far_ours - far_sitl) < FAILSAFE_LOITER * far_sitl, (far_sitl, far_ours)
+    reach = build_world(mission).safety.failsafe_reach
+    assert far_sitl <= reach and far_ours <= reach, (far_sitl, far_ours, reach)

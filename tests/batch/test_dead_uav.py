@@ -1,0 +1,70 @@
+"""A UAV whose companion dies stays an obstacle (docs/algorithm.md, "A silent UAV stays an
+obstacle"), in the batch engine: generated missions (any convex region, 3-10 UAVs, grid and
+continuous kinematics, all three algorithms), one or two companions dying at random steps; their
+vehicles fly on along their trajectories in force. No pair, the dead UAVs included, ever comes
+within R_s (closest approach between sampling moments), and no trajectory in force had to be
+replaced. The survivors' new proposals are checked against the dead UAVs' frozen commitments and
+must clear their failsafe loiter disks (`Commitments.failsafe_loiters`): every survivor gets out
+of each disk (widened by R_s) soon after it takes the UAV as gone, and stays out, so that a real
+aircraft circling there at a phase of its own cannot come within R_s of it (measured: at most 15
+steps after the death in 30 generated missions; `LEAVE_STEPS` is a generous bound)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from companion.batch.engine import simulate
+from companion.batch.generate import Family, generate
+from companion.core.world import build_world
+from companion.mission import ALGORITHMS
+
+STEPS = 1000
+LEAVE_STEPS = 60  # after a death (and the peer timeout), by when every survivor is out of its disk
+
+
+def loiter_centre(track: np.ndarray) -> tuple[float, float]:
+    """The circumcentre of the last three sampling points of a vehicle that loiters."""
+    (ax, ay), (bx, by), (cx, cy) = track[-3:]
+    d = 2 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
+    a2, b2, c2 = ax * ax + ay * ay, bx * bx + by * by, cx * cx + cy * cy
+    return (
+        (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d,
+        (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d,
+    )
+
+
+@pytest.mark.slow
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    mode=st.sampled_from(["grid", "continuous"]),
+    algorithm=st.sampled_from(ALGORITHMS),
+    data=st.data(),
+)
+def test_no_uav_comes_within_r_s_of_a_dead_one(
+    seed: int, mode: str, algorithm: str, data: st.DataObject
+) -> None:
+    [(mission, _)] = generate(1, seed, Family(uavs=(3, 10), modes=(mode,), steps=STEPS))
+    m = mission.with_algorithm(algorithm)
+    n = m.n_uavs
+    dead = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=2, unique=True), label="dead")
+    kills = {j: data.draw(st.integers(1, STEPS // 2), label=f"uav {j} dies at") for j in dead}
+    world = build_world(m, m.seed, 0)
+    r = simulate(m, m.seed, 0, STEPS, record=True, world=world, kills=kills)
+    assert r.separation_losses == 0, f"closest approach {float(r.approach.min()):.1f} m"
+    assert float(r.approach.min()) > m.comms.safety
+    assert r.extras["recovered"] == 0  # the invariant held: no trajectory in force was replaced
+    # the dead vehicles end circling their loiters (the circles their failsafes would fly)
+    assert r.trajectory is not None
+    wide = world.safety.failsafe_reach + m.comms.safety
+    for j in dead:
+        cx, cy = loiter_centre(r.trajectory[:, j, :2])
+        ring = np.hypot(r.trajectory[-10:, j, 0] - cx, r.trajectory[-10:, j, 1] - cy)
+        assert np.allclose(ring, world.safety.loiter_radius, atol=1e-6)
+        by = kills[j] + m.comms.peer_timeout_steps + LEAVE_STEPS
+        for i in set(range(n)) - set(dead):
+            near = np.hypot(r.trajectory[by:, i, 0] - cx, r.trajectory[by:, i, 1] - cy) <= wide
+            assert not near.any(), f"uav {i} within {wide:.0f} m of dead uav {j}'s loiter after step {by}"
