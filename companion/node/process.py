@@ -170,7 +170,10 @@ class Companion:
         self.fence = fence_polygon(m, margin)
         self.guidance.fence = self.fence
         region = ConvexPolygon.from_vertices(m.region.polygon)
-        self.guard = RegionGuard(opts.uav, region, self.fence, depth=margin, step_length=k.speed * k.step)
+        # the guard acts half a step beyond the planning fence (plans may reach it; flights stray a
+        # little), the autopilot's fence a whole step beyond (`_upload_fence`)
+        guard_fence = fence_polygon(m, margin + 0.5 * k.speed * k.step)
+        self.guard = RegionGuard(opts.uav, region, guard_fence, depth=margin, step_length=k.speed * k.step)
         self.airframe_warnings: list[str] = []
         self.fence_uploaded = False
         self.failsafe: FailsafeLoiter | None = None  # armed: kept on the trajectory in force's loiter
@@ -224,7 +227,11 @@ class Companion:
         )
 
     def _upload_fence(self) -> None:
-        error = upload_fence(self.link, self.frame, self.fence)
+        """The autopilot's fence: the planning fence (region plus margin) plus one step of slack for
+        the vehicle's tracking error; the companion's own guard acts at the planning fence."""
+        m = self.opts.mission
+        margin = fence_margin(m) + m.kinematics.speed * m.kinematics.step
+        error = upload_fence(self.link, self.frame, fence_polygon(m, margin))
         if error:
             log.warning("uav %d: fence not set: %s", self.opts.uav, error)
         else:
@@ -232,7 +239,7 @@ class Companion:
             log.info(
                 "uav %d: fence enabled: the region plus %.0f m (%d vertices)",
                 self.opts.uav,
-                fence_margin(self.opts.mission),
+                margin,
                 len(self.fence.vertices),
             )
 
