@@ -32,7 +32,7 @@ from companion.node.frames import LocalFrame
 from companion.node.takeover import take_off_px4
 from companion.node.vehicle_link import PX4_HOLD, VehicleLink
 from tests.e2e.conftest import ROOT, Proc
-from tests.sitl.conftest import GCS_COMPONENT, free_bases
+from tests.sitl.conftest import GCS_COMPONENT, write_autopilot_mission
 
 SCENARIO = ROOT / "mission_files" / "scenario1_px4.toml"
 SPEEDUP = 8.0
@@ -68,19 +68,7 @@ class Px4Mission:
 def write_mission(directory: Path, n: int, starts: list[tuple[float, float]] | None = None) -> Px4Mission:
     """scenario1_px4 at ORIGIN_ALT with its first n vehicles (or vehicles at `starts`, heading north)."""
     text = SCENARIO.read_text(encoding="utf-8").replace("alt = 488.0", f"alt = {ORIGIN_ALT}")
-    head, *vehicles = text.split("[[vehicles]]")
-    vehicles[-1] = vehicles[-1].split("[pass_criteria]")[0]
-    bodies = [f"\nx = {x}\ny = {y}\nheading_deg = 90.0\n" for x, y in starts] if starts else vehicles[:n]
-    prefix = f"px4{uuid.uuid4().hex[:12]}"
-    bases = free_bases(len(bodies) + 1)
-    out = head.replace('name = "scenario1_px4"', f'name = "{prefix}"')
-    for body, port in zip(bodies, bases, strict=False):
-        out += "[[vehicles]]" + body.rstrip() + f"\nmavlink_port = {port}\n\n"
-    mesh = bases[-1]
-    out += f'[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{mesh}"\n'
-    out += f'router = "tcp/127.0.0.1:{mesh + 1}"\n\n[pass_criteria]\nmin_targets_found = 0\n'
-    path = directory / f"{prefix}.toml"
-    path.write_text(out, encoding="utf-8")
+    path = write_autopilot_mission(directory, text, "scenario1_px4", "px4", n, starts)
     return Px4Mission(path, load_mission(path))
 
 

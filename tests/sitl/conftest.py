@@ -78,6 +78,27 @@ class SitlMission:
         return sitl.sitl_ports(self.mission, i)
 
 
+def write_autopilot_mission(
+    directory: Path, text: str, name: str, tag: str, n: int, starts: list[tuple[float, float]] | None
+) -> Path:
+    """Mission `text` (named `name`) under a fresh name and key space: its first n vehicles (or
+    vehicles at `starts`, heading north) on free ports, the mesh on free ports, no pass criteria."""
+    head, *vehicles = text.split("[[vehicles]]")
+    vehicles[-1] = vehicles[-1].split("[pass_criteria]")[0]
+    bodies = [f"\nx = {x}\ny = {y}\nheading_deg = 90.0\n" for x, y in starts] if starts else vehicles[:n]
+    prefix = f"{tag}{uuid.uuid4().hex[:12]}"
+    bases = free_bases(len(bodies) + 1)
+    out = head.replace(f'name = "{name}"', f'name = "{prefix}"')
+    for body, port in zip(bodies, bases, strict=False):
+        out += "[[vehicles]]" + body.rstrip() + f"\nmavlink_port = {port}\n\n"
+    mesh = bases[-1]
+    out += f'[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{mesh}"\n'
+    out += f'router = "tcp/127.0.0.1:{mesh + 1}"\n\n[pass_criteria]\nmin_targets_found = 0\n'
+    path = directory / f"{prefix}.toml"
+    path.write_text(out, encoding="utf-8")
+    return path
+
+
 def write_mission(
     directory: Path,
     n: int,
@@ -88,22 +109,11 @@ def write_mission(
     """scenario1_continuous with its first n vehicles (or vehicles at `starts`, heading north) and
     the `[safety]` section's lines `safety`."""
     text = CONTINUOUS.read_text(encoding="utf-8")
-    head, *vehicles = text.split("[[vehicles]]")
-    vehicles[-1] = vehicles[-1].split("[pass_criteria]")[0]
     if grid:
-        head = head.replace('mode = "continuous"', 'mode = "grid"')
-    bodies = [f"\nx = {x}\ny = {y}\nheading_deg = 90.0\n" for x, y in starts] if starts else vehicles[:n]
-    prefix = f"sitl{uuid.uuid4().hex[:12]}"
-    bases = free_bases(len(bodies) + 1)
-    out = head.replace('name = "scenario1_continuous"', f'name = "{prefix}"')
-    for body, port in zip(bodies, bases, strict=False):
-        out += "[[vehicles]]" + body.rstrip() + f"\nmavlink_port = {port}\n\n"
-    mesh = bases[-1]
-    out += f'[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{mesh}"\n'
-    out += f'router = "tcp/127.0.0.1:{mesh + 1}"\n\n[pass_criteria]\nmin_targets_found = 0\n'
-    out += f"\n[safety]\n{safety}\n"
-    path = directory / f"{prefix}.toml"
-    path.write_text(out, encoding="utf-8")
+        text = text.replace('mode = "continuous"', 'mode = "grid"')
+    path = write_autopilot_mission(directory, text, "scenario1_continuous", "sitl", n, starts)
+    with path.open("a", encoding="utf-8") as f:
+        f.write(f"\n[safety]\n{safety}\n")
     return SitlMission(path, load_mission(path))
 
 

@@ -18,10 +18,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import subprocess
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -163,14 +165,11 @@ def _fly_script(link: VehicleLink) -> tuple[np.ndarray, float]:
     return np.array(rows), speed
 
 
-def test_simulator_flies_a_command_script_like_arduplane(airborne: Airborne, tmp_path: Path) -> None:
-    with airborne.use() as link:
-        airborne.fly_to(0.0, -900.0)  # the script flies about 1.7 km north
-        link.change_speed(22.0)  # plane.parm's AIRSPEED_CRUISE, whatever a companion set before
-        sitl, speed = _fly_script(link)
-    assert 18.0 < speed < 28.0, speed
-
-    ports = airborne.mission.ports(0)
+@contextlib.contextmanager
+def _bundled_in_guided(airborne: Airborne, tmp_path: Path, speed: float) -> Iterator[tuple[VehicleLink, str]]:
+    """The bundled simulator flying the airborne SITL's mission, set up like plane.parm (cruise at
+    SITL's ground speed `speed`), taken over in GUIDED: its link and URL."""
+    url = f"udpout:127.0.0.1:{airborne.mission.ports(0).serial0}"
     sim = Proc(
         "sim",
         [PY, "-m", "sim_vehicles", "--mission", str(airborne.mission.path), "--speedup", "8", "--no-camera"],
@@ -178,7 +177,7 @@ def test_simulator_flies_a_command_script_like_arduplane(airborne: Airborne, tmp
     )
     try:
         sim.wait_for_text("vehicle 0 sysid")
-        bundled = VehicleLink(f"udpout:127.0.0.1:{ports.serial0}", airborne.frame)
+        bundled = VehicleLink(url, airborne.frame)
         bundled.wait_heartbeat(60)
         bundled.request_streams()
         for name, value in (("AIRSPEED_CRUISE", speed), ("ROLL_LIMIT_DEG", 65.0), ("WP_LOITER_RAD", 80.0)):
@@ -187,10 +186,21 @@ def test_simulator_flies_a_command_script_like_arduplane(airborne: Airborne, tmp
             bundled.poll(0.2)
         guidance = Guidance(bundled, airborne.frame, airborne.mission.mission, 0, "heading")
         assert take_over(bundled, guidance, 0, threading.Event())
-        ours, _ = _fly_script(bundled)
+        yield bundled, url
         bundled.close()
     finally:
         sim.stop()
+
+
+def test_simulator_flies_a_command_script_like_arduplane(airborne: Airborne, tmp_path: Path) -> None:
+    with airborne.use() as link:
+        airborne.fly_to(0.0, -900.0)  # the script flies about 1.7 km north
+        link.change_speed(22.0)  # plane.parm's AIRSPEED_CRUISE, whatever a companion set before
+        sitl, speed = _fly_script(link)
+    assert 18.0 < speed < 28.0, speed
+
+    with _bundled_in_guided(airborne, tmp_path, speed) as (bundled, _):
+        ours, _ = _fly_script(bundled)
 
     (tmp_path / "tracks.json").write_text(json.dumps({"sitl": sitl.tolist(), "bundled": ours.tolist()}))
     times = sitl[:, 0]
@@ -294,30 +304,11 @@ def test_simulator_failsafe_for_a_silent_companion_like_arduplane(airborne: Airb
     speed = straight[-1][1] / straight[-1][0]  # ground speed flying north before the failsafe
     assert 18.0 < speed < 28.0, speed
 
-    url = f"udpout:127.0.0.1:{ports.serial0}"
-    sim = Proc(
-        "sim",
-        [PY, "-m", "sim_vehicles", "--mission", str(airborne.mission.path), "--speedup", "8", "--no-camera"],
-        tmp_path / "sim.log",
-    )
-    try:
-        sim.wait_for_text("vehicle 0 sysid")
-        bundled = VehicleLink(url, airborne.frame)
-        bundled.wait_heartbeat(60)
-        bundled.request_streams()
-        for name, value in (("AIRSPEED_CRUISE", speed), ("ROLL_LIMIT_DEG", 65.0), ("WP_LOITER_RAD", 80.0)):
-            assert bundled.set_param(name, value), name  # plane.parm's, and SITL's ground speed
-        while not bundled.state.has_pose:
-            bundled.poll(0.2)
-        guidance = Guidance(bundled, airborne.frame, mission, 0, "heading")
-        assert take_over(bundled, guidance, 0, threading.Event())
+    with _bundled_in_guided(airborne, tmp_path, speed) as (bundled, url):
         companion = VehicleLink(url, airborne.frame, system=COMPANION_SYSTEM, heartbeat=True)
         companion.wait_heartbeat(30)
         companion.request_streams()
         ours = _silence_script(companion, bundled, mission)
-        bundled.close()
-    finally:
-        sim.stop()
 
     (tmp_path / "failsafe.json").write_text(json.dumps({"sitl": sitl, "bundled": ours}))
     timeout = mission.safety.failsafe_timeout
