@@ -43,6 +43,7 @@ import tomli_w
 
 from companion.app.evaluation import read_approach
 from companion.app.launcher import Children
+from companion.app.loopback import free_ports
 from companion.mission import Mission, NetworkFault, load_mission
 from companion.node.journal import Checkpoint, Delta, read_records
 
@@ -57,17 +58,6 @@ PY = sys.executable
 
 
 # -- the mission, on loopback ----------------------------------------------------------------------
-def _free_ports(kind: int, n: int) -> list[int]:
-    socks = [socket.socket(socket.AF_INET, kind) for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
-
-
 def _no_none(value: object) -> object:
     if isinstance(value, dict):
         return {k: _no_none(v) for k, v in value.items() if v is not None}
@@ -81,8 +71,8 @@ def loopback_mission(
 ) -> tuple[Path, Mission]:
     """`base` on free loopback ports and its own mesh key space, with `steps` steps and the injected
     mesh faults; written into `directory`."""
-    ports = _free_ports(socket.SOCK_DGRAM, base.n_uavs)
-    seed, router = _free_ports(socket.SOCK_STREAM, 2)
+    ports = free_ports(socket.SOCK_DGRAM, base.n_uavs)
+    seed, router = free_ports(socket.SOCK_STREAM, 2)
     s = msgspec.structs.replace
     mission = s(
         base,

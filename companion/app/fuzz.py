@@ -41,6 +41,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import seed as fix_seed
 from hypothesis import strategies as st
 
+from companion.app.loopback import free_ports
 from companion.batch.engine import simulate
 from companion.core.agent import Agent, Observation
 from companion.core.messages import MessageError
@@ -213,7 +214,7 @@ def fuzz_mesh(count: int, seed: int) -> Campaign:
 
 def _mesh_over_zenoh(mission: Mission, world: object, payloads: list[bytes], c: Campaign) -> dict:
     """Garbled and valid payloads published over loopback to a real Mesh: every sample is counted."""
-    ports = _free_tcp(1)
+    ports = free_ports(socket.SOCK_STREAM, 1)
     m = msgspec.structs.replace(
         mission,
         mesh=msgspec.structs.replace(
@@ -303,7 +304,7 @@ def fuzz_mavlink(count: int, seed: int) -> Campaign:
     c.inputs = len(datagrams)
     half = len(datagrams) // 2
     with tempfile.TemporaryDirectory() as tmp:
-        sim_port, link_port = _free_udp(2)
+        sim_port, link_port = free_ports(socket.SOCK_DGRAM, 2)
         text = SCENARIO.read_text(encoding="utf-8")
         text = text.replace("[pass_criteria]", f"[sim]\nbase_port = {sim_port}\n\n[pass_criteria]", 1)
         mission_path = Path(tmp) / "fuzz.toml"
@@ -409,7 +410,7 @@ def fuzz_camera(count: int, seed: int) -> Campaign:
     structured = _structured([msgspec.to_builtins(f) for f in valid_frames])
     _run(st.one_of(_mutations(valid), structured), count, seed, lambda d: payloads.append(d))  # type: ignore[arg-type]
     c.inputs = len(payloads)
-    port = _free_tcp(1)[0]
+    port = free_ports(socket.SOCK_STREAM, 1)[0]
     key = f"fuzz{uuid.uuid4().hex[:10]}/cam/uav/0/camera"
     rx = open_session(MeshConfig("peer", (f"tcp/127.0.0.1:{port}",), ()))
     tx = open_session(MeshConfig("peer", (), (f"tcp/127.0.0.1:{port}",)))
@@ -538,25 +539,6 @@ def _check_cli(path: Path, c: Campaign) -> None:
 
 
 # -- helpers ----------------------------------------------------------------------------------------
-def _free_tcp(n: int) -> list[int]:
-    return _free(socket.SOCK_STREAM, n)
-
-
-def _free_udp(n: int) -> list[int]:
-    return _free(socket.SOCK_DGRAM, n)
-
-
-def _free(kind: int, n: int) -> list[int]:
-    socks = [socket.socket(socket.AF_INET, kind) for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
-
-
 RUNNERS: dict[str, Callable[[int, int], Campaign]] = {
     "mesh": fuzz_mesh,
     "mavlink": fuzz_mavlink,
