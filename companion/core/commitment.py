@@ -25,7 +25,13 @@ import numpy as np
 
 from companion.core.geometry import FloatArray
 from companion.core.messages import StateMsg, UavState
-from companion.core.safety import clears_loiters, compatible, expand_rows, first_allowed, inside_fence
+from companion.core.safety import (
+    compatible,
+    expand_rows,
+    first_allowed,
+    inside_fence,
+    leaves_loiters,
+)
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import World
 
@@ -52,6 +58,7 @@ class Commitments:
             for j, t in enumerate(plan.start)
             if j != uav
         }
+        self.before: dict[int, Trajectory] = {}  # each UAV's trajectory in force before its latest one
         self.fresh: dict[int, StateMsg] = {}
         self.left: set[int] = set()  # reported gone by the mesh (liveliness), until heard again
         self.dead: set[int] = set()
@@ -75,6 +82,8 @@ class Commitments:
             old = self.latest.get(s.uav)
             if s.uav != self.uav and s.stamp < k and (old is None or s.stamp > old.stamp):
                 self.latest[s.uav] = s
+                if old is not None and old.committed is not None:
+                    self.before[s.uav] = old.committed
         self.left -= fresh.keys()
         self.dead = {
             j
@@ -107,12 +116,14 @@ class Commitments:
 
     def failsafe_loiters(self, j: int) -> list[Disk]:
         """Where the aircraft of gone UAV j circles once its failsafe fires: `safety.failsafe_reach`
-        about the centre of the loiter of its last trajectory in force or of its last proposal (its
-        companion kept the failsafe mission on the loiter of the trajectory it flew)."""
+        about the centre of the loiter of its last trajectory in force, of its last proposal, or of
+        the trajectory in force it announced before (its companion moves the failsafe mission to the
+        loiter of its trajectory in force after announcing it, so a companion that dies in between
+        leaves the one before on the autopilot; `companion.node.failsafe`)."""
         s = self.latest[j]
         return [
             (*self.limits.loiter_circle(t)[:2], self.failsafe)
-            for t in (s.committed, s.proposal)
+            for t in (s.committed, s.proposal, self.before.get(j))
             if t is not None
         ]
 
@@ -189,9 +200,9 @@ class Commitments:
         self._gather(k, x, y)
         if self.proposal is not None and self.proposal.start == k:
             others, disks, tethers, tether_disks = self._arrays(resolving=True)
-            pts = lim.expand(lim.rows([self.proposal]), k)[0]
-            if compatible(pts, others, disks, tethers, tether_disks, *lim.clearances) and clears_loiters(
-                pts, self._loiters, lim.disk_separation, lim.horizon, self.progress
+            pts, inforce = lim.expand(lim.rows([self.proposal, self.inforce]), k)
+            if compatible(pts, others, disks, tethers, tether_disks, *lim.clearances) and leaves_loiters(
+                pts, inforce, self._loiters, lim.disk_separation, lim.horizon, self.progress
             ):
                 chosen = self.proposal
                 self.accepted += 1
@@ -303,7 +314,8 @@ class Commitments:
             tether_disks,
             self._loiters,
             self.progress,
-            *lim.clearances,
+            lim.expand(lim.rows([self.inforce]), k + 1)[0],  # a proposal that does not clear the
+            *lim.clearances,  # loiter disks must keep farther from them than this (`leaves_loiters`)
         )
 
     def propose(self, proposal: Trajectory | None) -> None:

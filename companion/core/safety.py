@@ -214,6 +214,40 @@ def clears_loiters(
 
 
 @njit(cache=True)
+def loiter_clearance(pts: FloatArray, loiters: FloatArray) -> float:
+    """The trajectory's closest approach over the window to the nearest of the `loiters` disks
+    (cx, cy, r): negative inside one, infinite without disks."""
+    best = math.inf
+    for d in range(loiters.shape[0]):
+        best = min(best, point_clearance(pts, loiters[d, 0], loiters[d, 1]) - loiters[d, 2])
+    return best
+
+
+@njit(cache=True)
+def leaves_loiters(
+    pts: FloatArray,
+    reference: FloatArray,
+    loiters: FloatArray,
+    disk_separation: float,
+    horizon: int,
+    progress: float,
+) -> bool:
+    """Whether the trajectory at `pts` may replace the one in force at `reference` (the same steps)
+    near the `loiters` disks: for each disk, it clears it (`clears_loiters`), or its closest
+    approach to the disk's centre over the window is larger than the reference's. Where nothing
+    that clears them all is flyable (a UAV boxed in by the fence and its neighbours), flying it
+    keeps the UAV farther from each silent UAV's aircraft than flying on would, and the next plan
+    starts from there."""
+    for d in range(loiters.shape[0]):
+        if clears_loiters(pts, loiters[d : d + 1], disk_separation, horizon, progress):
+            continue
+        cx, cy = loiters[d, 0], loiters[d, 1]
+        if point_clearance(pts, cx, cy) <= point_clearance(reference, cx, cy):
+            return False
+    return True
+
+
+@njit(cache=True)
 def inside_fence(pts: FloatArray, normals: FloatArray, offsets: FloatArray) -> bool:
     """Every point within the fence's half-planes (chords then stay inside: the fence is convex)."""
     for t in range(pts.shape[0]):
@@ -241,18 +275,22 @@ def first_allowed(
     tether_disks: FloatArray,
     loiters: FloatArray,
     progress: float,
+    reference: FloatArray,
     separation: float,
     disk_separation: float,
     link: float,
 ) -> tuple[int, int]:
     """The first candidate path in `order` whose trajectory, with one of the loiter sides, stays in the
     fence, is compatible with everything given and clears the `loiters` (`clears_loiters`, with
-    `progress`): (path, side +1 or -1), or (-1, 0) if none.
+    `progress`): (path, side +1 or -1); if none does, of those in the fence and compatible that may
+    replace the trajectory in force at `reference` (`leaves_loiters`), the one farthest from the
+    disks (`loiter_clearance`); (-1, 0) if none.
     `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
     (`Limits.shapes`), placed at (x, y) and turned by the heading (cos_h, sin_h). The side that
     turns towards `centre` (the region's centroid) at the plan's end is tried first."""
     width = shapes.shape[2]
     pts = np.empty((width, 2))
+    best, best_side, farthest = -1, 0, -math.inf
     for i in order:
         s0 = shapes[i, 0]
         ex = s0[horizon, 0] - s0[horizon - 1, 0]
@@ -266,13 +304,18 @@ def first_allowed(
                 ox, oy = shapes[i, side, t, 0], shapes[i, side, t, 1]
                 pts[t, 0] = x + cos_h * ox - sin_h * oy
                 pts[t, 1] = y + sin_h * ox + cos_h * oy
-            if (
+            if not (
                 inside_fence(pts, normals, offsets)
                 and compatible(pts, others, disks, tethers, tether_disks, separation, disk_separation, link)
-                and clears_loiters(pts, loiters, disk_separation, horizon, progress)
             ):
+                continue
+            if clears_loiters(pts, loiters, disk_separation, horizon, progress):
                 return i, 1 if side == 0 else -1
-    return -1, 0
+            if leaves_loiters(pts, reference, loiters, disk_separation, horizon, progress):
+                clearance = loiter_clearance(pts, loiters)
+                if clearance > farthest:
+                    farthest, best, best_side = clearance, i, 1 if side == 0 else -1
+    return best, best_side
 
 
 # -- the start: a tree of tethers and a contingency for every UAV -------------------------------------

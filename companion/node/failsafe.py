@@ -11,9 +11,11 @@ companion makes itself the autopilot's ground station and arms:
 - a mission of one item (after ArduPilot's home, item 0): NAV_LOITER_UNLIM about the centre of the
   loiter of its trajectory in force (`Limits.loiter_circle`: the circle, or the loiter octagon's
   circumscribed circle in grid mode), with its radius and direction, at the UAV's altitude layer;
-  `FailsafeLoiter` uploads it again whenever the trajectory in force's loiter changes, before the
-  step's state goes out to the mesh (so the loiter the aircraft would fly is always one its peers
-  know: that of the last trajectory in force or proposal they heard);
+  `FailsafeLoiter` uploads it again whenever the trajectory in force's loiter changes, after the
+  step's state went out to the mesh and its guidance to the autopilot (so the loiter the aircraft
+  would fly is always one its peers know: that of the last trajectory in force they heard or of
+  the one they heard before it; the state before the upload would not do, since the trajectory in
+  force is re-anchored at the aircraft's pose, which moves its loiter by the tracking error);
 - MAV_GCS_SYSID = the companion's own system id (`COMPANION_SYSTEM`), FS_LONG_TIMEOUT =
   `safety.failsafe_timeout`, FS_LONG_ACTN = 4 (AUTO), FS_GCS_ENABL = 1.
 

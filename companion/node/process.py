@@ -311,10 +311,6 @@ class Companion:
         )
         if self.journal is not None:
             self.journal.append(self.agent)  # durable before any peer hears of this step
-        if self.failsafe is not None:  # before any peer hears of this step's trajectory in force
-            error = self.failsafe.follow(self.agent.commitments.inforce)
-            if error:
-                log.warning("uav %d: step %d: failsafe loiter not updated: %s", self.opts.uav, k, error)
         self.mesh.publish(k, outbox, position=(x, y))
         self.last_position = np.array([x, y])
         steered = self.steering and self._steerable() and self._guard(k, x, y)
@@ -324,6 +320,10 @@ class Companion:
         else:
             self.guidance.paused()
             self.tracker.cancel()
+        if self.failsafe is not None:  # once the peers may have heard of this trajectory in force
+            error = self.failsafe.follow(self.agent.commitments.inforce)
+            if error:
+                log.warning("uav %d: step %d: failsafe loiter not updated: %s", self.opts.uav, k, error)
         self.last_command = command
         self.steps_done += 1
         if self._log is not None:

@@ -4,10 +4,12 @@ continuous kinematics, all three algorithms), one or two companions dying at ran
 vehicles fly on along their trajectories in force. No pair, the dead UAVs included, ever comes
 within R_s (closest approach between sampling moments), and no trajectory in force had to be
 replaced. The survivors' new proposals are checked against the dead UAVs' frozen commitments and
-must clear their failsafe loiter disks (`Commitments.failsafe_loiters`): every survivor gets out
-of each disk (widened by R_s) soon after it takes the UAV as gone, and stays out, so that a real
-aircraft circling there at a phase of its own cannot come within R_s of it (measured: at most 15
-steps after the death in 30 generated missions; `LEAVE_STEPS` is a generous bound)."""
+must clear their failsafe loiter disks (`Commitments.failsafe_loiters`), or, boxed in by the
+fence and the neighbours, keep farther from them than flying on would (`safety.leaves_loiters`):
+soon after it takes the UAV as gone every survivor is, and stays, farther than R_s from the circle
+a real aircraft would fly there at a phase of its own (ArduPlane circles at up to FAILSAFE_WIDE
+loiter radii; measured: at most 15 steps after the death in 30 generated missions; `LEAVE_STEPS`
+is a generous bound)."""
 
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ from hypothesis import strategies as st
 
 from companion.batch.engine import simulate
 from companion.batch.generate import Family, generate
-from companion.core.world import build_world
+from companion.core.world import FAILSAFE_WIDE, build_world
 from companion.mission import ALGORITHMS
 
 STEPS = 1000
@@ -59,7 +61,7 @@ def test_no_uav_comes_within_r_s_of_a_dead_one(
     assert r.extras["recovered"] == 0  # the invariant held: no trajectory in force was replaced
     # the dead vehicles end circling their loiters (the circles their failsafes would fly)
     assert r.trajectory is not None
-    wide = world.safety.failsafe_reach + m.comms.safety
+    wide = FAILSAFE_WIDE * world.safety.loiter_radius + m.comms.safety
     for j in dead:
         cx, cy = loiter_centre(r.trajectory[:, j, :2])
         ring = np.hypot(r.trajectory[-10:, j, 0] - cx, r.trajectory[-10:, j, 1] - cy)

@@ -4,17 +4,17 @@ Three PX4 instances (SIH fixed-wing, SWARM_SPEEDUP times real time), the stand-a
 companions taking off by themselves to their altitude layers and flying the plan in OFFBOARD
 (position-target). The run ends after STEPS steps and is scored: targets found, every logged pose
 inside the fence, each UAV at its altitude layer, the plan kept within the mission's safety buffer
-(on 95 % of steps), and the horizontal separation R_s kept between every two UAVs at every step.
+(on 95 % of steps), and the horizontal separation R_s kept between every two UAVs along the flown
+tracks (approach.csv).
 """
 
 from __future__ import annotations
 
-import itertools
 import json
-import math
 import statistics
 from pathlib import Path
 
+from companion.app.evaluation import read_approach
 from companion.app.px4_sitl import Px4Build
 from tests.e2e.conftest import PY, Procs, read_csv
 from tests.px4.conftest import SWARM_SPEEDUP, first_instance, write_mission
@@ -49,7 +49,10 @@ def test_swarm_on_px4_sitl(px4_build: Px4Build, tmp_path: Path) -> None:
         assert abs(statistics.median(r["up"] for r in flown) - m.altitude_of(i)) < 5.0, (
             f"uav{i} off its layer"
         )
-    for (i, a), (j, b) in itertools.combinations(logs.items(), 2):
-        for k in a.keys() & b.keys():
-            d = math.dist((a[k]["x"], a[k]["y"]), (b[k]["x"], b[k]["y"]))
-            assert d > m.comms.safety, f"uav{i} and uav{j} {d:.0f} m apart at step {k}"
+    # separation along the flown tracks (the stand-alone camera's time-aligned position streams): each
+    # PX4 instance keeps its own clock, so the poses the companions log at step k are not simultaneous
+    approach = read_approach(out / "approach.csv")
+    flown = range(min(min(rows) for rows in logs.values()), max(max(rows) for rows in logs.values()) + 1)
+    measured = [approach[k] for k in flown if k in approach]
+    assert len(measured) >= STEPS - 10, f"{len(measured)} steps in the separation record"
+    assert min(measured) > m.comms.safety, f"closest approach {min(measured):.1f} m"

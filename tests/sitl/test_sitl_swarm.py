@@ -86,6 +86,9 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
                     timeout=120,
                     cond=lambda r: r["step"] >= killed_at + SURVIVOR_STEPS,
                 )
+        # and on until the swarm has found a target (the survivors share what they found)
+        survivor = next(i for i in range(m.n_uavs) if i != VICTIM)
+        wait_rows(out / f"uav{survivor}.csv", 1, run, timeout=300, cond=lambda r: r["found"] >= 1)
         assert run.stop(timeout=60) in (0, 1), run.text()  # Ctrl-C: the run ends with its report
     finally:
         procs.stop_all()
@@ -111,7 +114,10 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
     assert abs(statistics.median(ups[len(ups) // 2 :]) - m.altitude_of(VICTIM)) < 5.0, "victim off its layer"
 
     summary = json.loads((out / "summary.json").read_text())["proposed"]
-    assert summary["targets_found_fraction"] > 0, summary
+    assert summary["steps"] >= SURVIVOR_STEPS, summary  # the survivors' flight after the kill was scored
+    found = json.loads((out / f"uav{survivor}.json").read_text())["found_cells"]
+    truth = {t["cell"] for t in json.loads((out / "truth.json").read_text())["targets"]}
+    assert found and set(found) <= truth, (found, truth)  # the camera's detections of real targets
     tracking = json.loads((out / "tracking.json").read_text())
     assert tracking["outside_fence"] == 0 and tracking["steps"] > 0, tracking
     logs = {i: {int(r["step"]): r for r in read_csv(out / f"uav{i}.csv")} for i in range(m.n_uavs)}
