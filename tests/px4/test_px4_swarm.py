@@ -2,7 +2,8 @@
 
 Three PX4 instances (SIH fixed-wing, SWARM_SPEEDUP times real time), the stand-alone camera, three
 companions taking off by themselves to their altitude layers and flying the plan in OFFBOARD
-(position-target). The run ends after STEPS steps and is scored: targets found, every logged pose
+(position-target). The run is stopped with Ctrl-C once every UAV steered STEPS steps and the swarm
+found a target, and is scored: targets found, every logged pose
 inside the fence, each UAV at its altitude layer, the plan kept within the mission's safety buffer
 (on 95 % of steps), and the horizontal separation R_s kept between every two UAVs along the flown
 tracks (approach.csv).
@@ -16,10 +17,10 @@ from pathlib import Path
 
 from companion.app.evaluation import read_approach
 from companion.app.px4_sitl import Px4Build
-from tests.e2e.conftest import PY, Procs, read_csv
+from tests.e2e.conftest import PY, Procs, read_csv, wait_rows
 from tests.px4.conftest import SWARM_SPEEDUP, first_instance, write_mission
 
-UAVS, STEPS = 3, 40
+UAVS, STEPS, MAX_STEPS = 3, 40, 400
 
 
 def test_swarm_on_px4_sitl(px4_build: Px4Build, tmp_path: Path) -> None:
@@ -28,11 +29,14 @@ def test_swarm_on_px4_sitl(px4_build: Px4Build, tmp_path: Path) -> None:
     out = tmp_path / "out"
     procs = Procs(tmp_path)
     argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--autopilot", "px4-sitl"]
-    argv += ["--speedup", f"{SWARM_SPEEDUP:g}", "--steps", str(STEPS), "--out", str(out), "--quiet"]
+    argv += ["--speedup", f"{SWARM_SPEEDUP:g}", "--steps", str(MAX_STEPS), "--out", str(out), "--quiet"]
     argv += ["--keep-going", "--sitl-instance", str(first_instance())]
     try:
         run = procs.start("run", argv)
-        assert run.wait(timeout=600) == 0, run.text()
+        for i in range(UAVS):  # STEPS steps each, and on until the swarm has found a target
+            wait_rows(out / f"uav{i}.csv", STEPS, run, timeout=600, cond=lambda r: r["steered"] == 1)
+        wait_rows(out / "uav0.csv", 1, run, timeout=600, cond=lambda r: r["found"] >= 1)
+        assert run.stop(timeout=60) == 0, run.text()  # Ctrl-C: the run ends with its report
     finally:
         procs.stop_all()
 
