@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from companion.node.mission_upload import upload
 from companion.node.vehicle_link import PX4_HOLD, PX4_OFFBOARD, VehicleLink
 from tests.e2e.conftest import PY, ROOT, Proc, assert_follows, read_csv
 from tests.px4.conftest import Px4Airborne
@@ -190,6 +191,9 @@ def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tm
     px4_airborne.fly_to(0.0, -700.0, within=300.0)
     altitude = px4_airborne.mission.mission.altitude_of(0)
     _prepare(px4_airborne.link)
+    # the fence the module's companions uploaded is not part of the script (the simulator has none):
+    # a breach would end the script in PX4's geofence failsafe ("Reposition is outside geofence")
+    assert upload(px4_airborne.link, M.MAV_MISSION_TYPE_FENCE, [], "fence") is None
     px4 = Script(px4_airborne.link, altitude)
 
     m = px4_airborne.mission
