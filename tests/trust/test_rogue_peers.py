@@ -57,13 +57,15 @@ def test_rogue_peers_fail_to_inject_into_a_secured_swarm(make_mission, procs: Pr
     out = tmp_path / "out"
     rogue = [PY, "-m", "tests.trust.rogue"]
     attack = [str(mission.path), str(INSIDER), str(VICTIM), str(N)]
-    insider = procs.start("insider", [*rogue, "insider", *attack])
-    outsider = procs.start("outsider", [*rogue, "outsider", str(mission.path), str(tmp_path / "foreign")])
     run = procs.start(
         "run",
         [PY, "-m", "companion.app.cli", "run", str(mission.path), "--lockstep", "--steps", str(MAX_STEPS),
          "--seed", str(SEED), "--keep-going", "--quiet", "--out", str(out)],
     )  # fmt: skip
+    # the rogues after the run, whose simulator binds the mission's ports first: a rogue's ephemeral
+    # sockets, bound before it, once took one of them ("Address already in use")
+    insider = procs.start("insider", [*rogue, "insider", *attack])
+    outsider = procs.start("outsider", [*rogue, "outsider", str(mission.path), str(tmp_path / "foreign")])
     assert insider.wait(STARTUP_S + 300) == 0, insider.text()
     attacked = max((r["step"] for r in read_csv(out / f"uav{VICTIM}.csv")), default=0)
     for i in range(m.n_uavs):
