@@ -32,6 +32,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
+from companion.app.loopback import free_ports
 from companion.mission import Mission, load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -50,18 +51,6 @@ SLACK_FAILSAFE_TIMEOUT = "failsafe_timeout = 20.0"
 
 
 # -- ports and missions ---------------------------------------------------------------------------
-def free_ports(kind: int, n: int) -> list[int]:
-    """n distinct free ports on 127.0.0.1 (all bound at once, so no two are the same)."""
-    socks = [socket.socket(socket.AF_INET, kind) for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
-
-
 @dataclass(frozen=True)
 class MissionFile:
     path: Path

@@ -22,6 +22,8 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
+from companion.app.loopback import free_ports
+
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO = ROOT / "mission_files" / "scenario1.toml"
 STARTUP = 60.0  # generous: a loaded 2-core machine imports numpy, pymavlink and zenoh slowly
@@ -33,14 +35,7 @@ M = mavutil.mavlink
 
 
 def free_udp_ports(n: int) -> list[int]:
-    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
+    return free_ports(socket.SOCK_DGRAM, n)
 
 
 def free_tcp_port() -> int:
