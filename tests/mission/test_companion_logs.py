@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.app.evaluation import CompanionLogs, evaluate
+from companion.app.evaluation import CompanionLogs, evaluate, failed_criteria
 from companion.core.world import build_world
 from companion.mission import load_mission
 
@@ -93,3 +93,25 @@ def test_a_uav_missing_a_step_keeps_its_latest_pose(tmp_path: Path) -> None:
     assert result.trajectory[0, 1, 1] == pytest.approx(starts[1][1] + 110.0)  # its step 11
     assert result.min_distance.min() == pytest.approx(400.0, abs=1.0), result.min_distance
     assert result.lambda2.min() > 0, result.lambda2
+
+
+def test_separation_is_judged_on_the_flown_tracks_where_they_were_recorded() -> None:
+    """With one clock per vehicle (PX4 SITL instances) the poses logged at step k were not taken at
+    one moment: the pass criterion reads the flown tracks' record (approach.csv) where there is one,
+    else the logged poses."""
+    mission = load_mission(ROOT / "mission_files" / "scenario1_px4.toml")
+    world = build_world(mission, mission.seed, 0)
+    starts = [(v.x, v.y) for v in mission.vehicles]
+    logs = {
+        i: {k: {"x": x + (370.0 if i == 0 and k == 11 else 0.0), "y": y, "heading": 0.0, "task": -1.0,
+                "mean_eta": 1.0} for k in range(10, 14)}
+        for i, (x, y) in enumerate(starts)
+    }  # fmt: skip
+    none = np.zeros(0, dtype=np.int64)
+    logged = evaluate(world, logs, none, 1.0, mission.seed)
+    assert logged.min_distance.min() == pytest.approx(30.0)  # uav 0 logged 30 m from uav 1 at step 11
+    assert any("closest approach 30.0 m" in f for f in failed_criteria(world, logged))
+    flown = evaluate(world, logs, none, 1.0, mission.seed, {k: 250.0 for k in range(10, 14)})
+    assert not any("closest approach" in f for f in failed_criteria(world, flown))
+    close = evaluate(world, logs, none, 1.0, mission.seed, {10: 250.0, 11: 45.0, 12: 250.0, 13: 250.0})
+    assert any("closest approach 45.0 m" in f for f in failed_criteria(world, close))
