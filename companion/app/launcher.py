@@ -110,16 +110,22 @@ class Children:
         return proc
 
     def stop(self) -> None:
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + STOP_TIMEOUT_S
-        for proc in self.procs.values():
-            try:
-                proc.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        """Ctrl-C to the companions first, then to everything else: a companion ends its step and
+        writes its report while its vehicle, camera and router still answer. Whatever has not
+        exited `STOP_TIMEOUT_S` after its signal is killed."""
+        companions = [p for n, p in self.procs.items() if n.startswith("companion")]
+        others = [p for p in self.procs.values() if p not in companions]
+        for group in (companions, others):
+            for proc in group:
+                if proc.poll() is None:
+                    proc.send_signal(signal.SIGINT)
+            deadline = time.monotonic() + STOP_TIMEOUT_S
+            for proc in group:
+                try:
+                    proc.wait(max(0.1, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
 
 
 def _wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float) -> str:

@@ -86,6 +86,8 @@ def run_companion(args: argparse.Namespace) -> int:
                 print(f"error: {exc}", file=sys.stderr)
                 return 2
             finally:
+                if stop.is_set():
+                    logging.getLogger("companion").info("uav %d: stopped by a signal", args.uav)
                 companion.close()
                 camera.close()
     finally:

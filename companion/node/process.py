@@ -559,9 +559,9 @@ class Companion:
             if f is not None:
                 f.close()
         if self.opts.out is not None:
-            (self.opts.out / f"uav{self.opts.uav}.json").write_text(
-                json.dumps(self.report(), indent=2) + "\n"
-            )
+            path = self.opts.out / f"uav{self.opts.uav}.json"
+            path.write_text(json.dumps(self.report(), indent=2) + "\n")
+            log.info("uav %d: %d steps flown; report in %s", self.opts.uav, self.steps_done, path)
 
 
 def camera_key_of(mission: Mission, uav: int) -> str:

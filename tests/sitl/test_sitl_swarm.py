@@ -118,7 +118,9 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
 
     summary = json.loads((out / "summary.json").read_text())["proposed"]
     assert summary["steps"] >= SURVIVOR_STEPS, summary  # the survivors' flight after the kill was scored
-    found = json.loads((out / f"uav{survivor}.json").read_text())["found_cells"]
+    report = out / f"uav{survivor}.json"  # written by the companion on its clean shutdown
+    assert report.exists(), (out / f"companion{survivor}.log").read_text()[-3000:]
+    found = json.loads(report.read_text())["found_cells"]
     truth = {t["cell"] for t in json.loads((out / "truth.json").read_text())["targets"]}
     assert found and set(found) <= truth, (found, truth)  # the camera's detections of real targets
     tracking = json.loads((out / "tracking.json").read_text())
