@@ -208,13 +208,17 @@ def simulate(
     wire: bool = False,
     world: World | None = None,
     kills: Mapping[int, int] | None = None,
+    takeovers: Mapping[int, int] | None = None,
 ) -> RunResult:
     """One Monte Carlo run of `mission.algorithm` for `steps` sampling moments.
 
     `wire=True` sends every message through its msgpack encoding, as the mesh does. `kills` maps
     a UAV to the step at which its companion dies: from then on it sends nothing and its vehicle
     flies on along its last trajectory in force (plan, then loiter), as an autopilot holding its
-    last guidance would.
+    last guidance would. `takeovers` maps a UAV to the step from which its companion no longer
+    steers its vehicle (a pilot took over, the autopilot fell back to Hold): the vehicle circles
+    where it is, turning at the loiter turn, and its agent, told so (`Observation.steered`), goes
+    on publishing its position and commits to nothing.
     """
     started = time.perf_counter()
     steps = mission.steps if steps is None else steps
@@ -229,6 +233,7 @@ def simulate(
     tasks = np.full((steps, n), -1, dtype=np.int64) if record else None
     inboxes: list[list[Message]] = [[] for _ in range(n)]
     death = {i: d for i, d in (kills or {}).items() if 0 <= i < n}
+    held = {i: d for i, d in (takeovers or {}).items() if 0 <= i < n}
     loiter_turn = world.safety.limits.reach.loiter_turn
     for k in range(steps):
         sees = scorer.record(k, poses[:, :2])
@@ -242,9 +247,10 @@ def simulate(
                 continue
             x, y, h = poses[i].tolist()
             detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
-            obs = Observation(step=k, x=x, y=y, heading=h, detections=detections)
+            steered = held.get(i, steps) > k
+            obs = Observation(step=k, x=x, y=y, heading=h, detections=detections, steered=steered)
             command, outbox = agent.step(obs, inboxes[i])
-            turns[i] = command.turn
+            turns[i] = command.turn if steered else loiter_turn
             outboxes.append(outbox)
             if tasks is not None:
                 tasks[k, i] = command.task

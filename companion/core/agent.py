@@ -47,13 +47,16 @@ from companion.core.world import World
 
 
 class Observation(msgspec.Struct, frozen=True, kw_only=True):
-    """The UAV's own pose at step k (local frame, heading CCW from east) and its camera's detections."""
+    """The UAV's own pose at step k (local frame, heading CCW from east), its camera's detections,
+    and whether its vehicle flies what the agent commands (False: a pilot, a failsafe or the guard's
+    way back inside flies it; the agent then commits to nothing: `UavState.steered`)."""
 
     step: int
     x: float
     y: float
     heading: float
     detections: tuple[tuple[float, float], ...] = ()
+    steered: bool = True
 
 
 class StepDelta(msgspec.Struct, frozen=True, array_like=True):
@@ -442,7 +445,7 @@ class Agent:
             proposal = None
             ahead = inforce.reanchored(k + 1, x1, y1, h1, safety.limits.reach.loiter_turn)
             plan, plan_headings = self._track_of(ahead)
-        safety.propose(proposal)
+        safety.propose(proposal if obs.steered else None)
         command = Command(
             step=k,
             turn=turn,
@@ -452,10 +455,15 @@ class Agent:
             path=plan,
             task=self.task,
         )
-        me = UavState(
-            self.uav, k, obs.x, obs.y, obs.heading, plan, self.task, self.task_reward, plan_headings,
-            inforce, proposal,
-        )  # fmt: skip
+        if obs.steered:
+            me = UavState(
+                self.uav, k, obs.x, obs.y, obs.heading, plan, self.task, self.task_reward, plan_headings,
+                inforce, proposal,
+            )  # fmt: skip
+        else:  # nothing to promise: the others keep clear of where it is (`Commitments`)
+            me = UavState(
+                self.uav, k, obs.x, obs.y, obs.heading, (), self.task, self.task_reward, steered=False
+            )
         head = {"sender": self.uav, "stamp": k, "x": obs.x, "y": obs.y}
         heard, relay = tuple(sorted(self.neighbours)), self._relay()
         self._heard = heard

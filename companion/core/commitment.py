@@ -12,8 +12,10 @@ message was not heard is represented by everything it could be flying: a disk ar
 last known, growing by a step per step of silence, or, once silent for `peer_timeout_steps`,
 what it last published plus the disks its aircraft's failsafe circles in (it is taken as gone):
 its companion kept the failsafe on its trajectory in force's loiter, so a new proposal must stay
-out of those disks, or, from inside one, head out of it. Rejecting a proposal is always safe: the
-trajectory in force ends in a loiter inside the fence.
+out of those disks, or, from inside one, head out of it. A UAV that says its vehicle is not steered
+(`UavState.steered`) commits to nothing and is kept clear of like a gone one, its disk about its
+latest report (`adrift_reach`). Rejecting a proposal is always safe: the trajectory in force ends
+in a loiter inside the fence.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from companion.core.safety import (
     leaves_loiters,
 )
 from companion.core.trajectory import Trajectory, step_pose
-from companion.core.world import World
+from companion.core.world import FAILSAFE_WIDE, World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
@@ -48,6 +50,9 @@ class Commitments:
         plan = world.safety
         self.world, self.uav, self.limits = world, uav, plan.limits
         self.ranks, self.failsafe = plan.ranks, plan.failsafe_reach
+        # any circle an autopilot flies through the latest report (at up to FAILSAFE_WIDE loiter
+        # radii), entered off its tangent: what a vehicle nobody steers is taken to stay within
+        self.adrift_reach = plan.failsafe_reach + FAILSAFE_WIDE * plan.loiter_radius
         self.timeout = world.mission.comms.peer_timeout_steps
         self.inforce: Trajectory = plan.start[uav]
         self.proposal: Trajectory | None = None  # P_i^{k-1}, resolved at step k
@@ -88,7 +93,7 @@ class Commitments:
         self.dead = {
             j
             for j, s in self.latest.items()
-            if j not in fresh and (j in self.left or s.stamp < k - 1 - self.timeout)
+            if not s.steered or (j not in fresh and (j in self.left or s.stamp < k - 1 - self.timeout))
         }
 
     def gone(self, uav: int) -> None:
@@ -119,8 +124,11 @@ class Commitments:
         about the centre of the loiter of its last trajectory in force, of its last proposal, or of
         the trajectory in force it announced before (its companion moves the failsafe mission to the
         loiter of its trajectory in force after announcing it, so a companion that dies in between
-        leaves the one before on the autopilot; `companion.node.failsafe`)."""
+        leaves the one before on the autopilot; `companion.node.failsafe`). A vehicle its companion
+        does not steer: `adrift_reach` about its latest report."""
         s = self.latest[j]
+        if not s.steered:
+            return [(s.x, s.y, self.adrift_reach)]
         return [
             (*self.limits.loiter_circle(t)[:2], self.failsafe)
             for t in (s.committed, s.proposal, self.before.get(j))
@@ -272,7 +280,10 @@ class Commitments:
         better = [
             j
             for j in self.fresh
-            if self.ranks[j] < rank and j not in self.parents and distance(j) < current - 0.1 * lim.link
+            if self.ranks[j] < rank
+            and j not in self.parents
+            and j not in self.dead
+            and distance(j) < current - 0.1 * lim.link
         ]
         for j in sorted(better, key=distance):
             trajs, _ = self._possible(k, j, both=True)

@@ -15,7 +15,7 @@ import msgspec
 from companion.core.trajectory import Trajectory
 from companion.core.wire import MsgpackCodec
 
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
 MAX_PLAN = 16
 
 
@@ -26,7 +26,9 @@ class MessageError(ValueError):
 class UavState(msgspec.Struct, frozen=True, array_like=True):
     """What a UAV tells about itself: pose at `stamp`, its planned path (points and the heading at
     each), its task claim, and the safety layer's commitments: the trajectory in force from `stamp`
-    on and the proposal it asks to switch to at `stamp + 1` (core.commitment)."""
+    on and the proposal it asks to switch to at `stamp + 1` (core.commitment). A UAV whose vehicle
+    its companion does not steer (a pilot or the autopilot's own mode flies it) is `steered=False`
+    and commits to nothing: the others keep clear of a disk about where it is."""
 
     uav: int
     stamp: int
@@ -39,6 +41,7 @@ class UavState(msgspec.Struct, frozen=True, array_like=True):
     plan_headings: tuple[float, ...] = ()
     committed: Trajectory | None = None
     proposal: Trajectory | None = None
+    steered: bool = True
 
 
 class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
@@ -102,6 +105,8 @@ def _check_state(s: UavState, n_uavs: int, n_tasks: int) -> None:
         raise MessageError(f"state of uav {s.uav}: bad plan")
     if len(s.plan_headings) > len(s.plan) or not _finite(*s.plan_headings):
         raise MessageError(f"state of uav {s.uav}: bad plan headings")
+    if not s.steered and (s.committed is not None or s.proposal is not None):
+        raise MessageError(f"state of uav {s.uav}: commitments of a vehicle it does not steer")
     for t in (s.committed, s.proposal):
         if t is not None and (
             not 0 <= t.start <= s.stamp + 1

@@ -306,14 +306,15 @@ class Companion:
         seen = self.camera.take(round(k * self.dt * 1e6))
         own = self.last_position if self.last_position is not None else np.array([x, y])
         inbox = self.faults.filter(k, self.mesh.inbox(k, (float(own[0]), float(own[1]))))
+        # whether the vehicle will fly this step's plan: the peers are told when it does not
+        steered = self.steering and self._steerable() and self._guard(k, x, y)
         command, outbox = self.agent.step(
-            Observation(step=k, x=x, y=y, heading=heading, detections=seen), inbox
+            Observation(step=k, x=x, y=y, heading=heading, detections=seen, steered=steered), inbox
         )
         if self.journal is not None:
             self.journal.append(self.agent)  # durable before any peer hears of this step
         self.mesh.publish(k, outbox, position=(x, y))
         self.last_position = np.array([x, y])
-        steered = self.steering and self._steerable() and self._guard(k, x, y)
         if steered:
             self.guidance.step(command, (x, y))
             self.tracker.expect(k + 1, command.waypoint[0], command.waypoint[1], command.heading)

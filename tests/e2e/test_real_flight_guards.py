@@ -7,6 +7,9 @@
   inside, and flies the plan again once the vehicle is back in the region.
 - The altitude layer: the pilot climbed to 160 m; the companion brings the vehicle back to its
   layer (`kinematics.altitude`, 100 m for UAV 0) with GUIDED_CHANGE_ALTITUDE in heading mode.
+- What the peers hear (a Zenoh peer holding the mission's seed): while the vehicle does not fly the
+  plan, the companion's states say `steered = false` and commit to nothing; once it does, they
+  carry its trajectory in force again.
 """
 
 from __future__ import annotations
@@ -14,9 +17,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import zenoh
 from pymavlink import mavutil
 
+from companion.core.messages import StateMsg, UavState
 from companion.node.frames import LocalFrame
+from companion.node.mesh import decode_bundle, key_base
+from companion.node.zenoh_config import peer_config
 from tests.e2e.conftest import Procs, wait_rows
 
 M = mavutil.mavlink
@@ -73,9 +80,28 @@ def test_airframe_warning_region_guard_and_altitude_layer(
         160,
     )
     out = tmp_path / "out"
-    comp = procs.companion(mission, 0, out, "--command-mode", "heading", "--no-fence", "--steps", "1000")
-    comp.wait_for_text("back inside the region: flying the plan", timeout=120)
-    rows = wait_rows(out / "uav0.csv", 15, comp, cond=lambda r: r["steered"] == 1)
+    heard: dict[int, UavState] = {}
+
+    def on_bundle(sample: zenoh.Sample) -> None:
+        for msg in decode_bundle(sample.payload.to_bytes()).messages:
+            if isinstance(msg, StateMsg):
+                heard[msg.stamp] = msg.state
+
+    hub = zenoh.open(peer_config((m.mesh.seed_endpoint,), ()))  # holds the seed: the companion joins it
+    try:
+        hub.declare_subscriber(f"{key_base(m)}/uav/0/msg", on_bundle)
+        comp = procs.companion(mission, 0, out, "--command-mode", "heading", "--no-fence", "--steps", "1000")
+        comp.wait_for_text("back inside the region: flying the plan", timeout=120)
+        rows = wait_rows(out / "uav0.csv", 15, comp, cond=lambda r: r["steered"] == 1)
+    finally:
+        hub.close()
+    states = {k: heard[k] for k in sorted(heard)}
+    assert any(not s.steered for s in states.values()) and any(s.steered for s in states.values())
+    for r in rows:
+        s = states.get(int(r["step"]))
+        if s is not None:  # what the peers heard is what the companion did
+            assert s.steered == bool(r["steered"]), (r["step"], s)
+            assert (s.committed is not None) == s.steered and (s.proposal is None or s.steered)
     text = comp.text()
     assert "left the region plus its margin" in text
     assert "ROLL_LIMIT_DEG = 20 deg" in text and "kinematics.turn_limit_deg = 45" in text
