@@ -23,6 +23,7 @@ import sys
 import threading
 import time
 import uuid
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -194,6 +195,9 @@ class Proc:
             try:
                 self.popen.wait(timeout)
             except subprocess.TimeoutExpired:
+                warnings.warn(
+                    f"{self.name} (pid {self.pid}) ignored SIGINT for {timeout:.0f} s: killed", stacklevel=2
+                )
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(self.pid, signal.SIGKILL)
                 self.popen.wait()
@@ -209,6 +213,7 @@ class Proc:
             while _same_process_alive(pid, start) and time.monotonic() < deadline:
                 time.sleep(0.1)
             if _same_process_alive(pid, start):
+                warnings.warn(f"{self.name}: descendant pid {pid} outlived SIGINT: killed", stacklevel=2)
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(pid, signal.SIGKILL)
         return self.popen.returncode
