@@ -27,8 +27,11 @@ def mission() -> Mission:
     return load_mission(SCENARIO1)
 
 
-def _fly(mission: Mission, steps: int) -> tuple[list[list[Bundle]], list[float], list[int]]:
-    """Per step: every UAV's bundle (through the wire), the agents' eq. 30 and the targets found."""
+def _fly(
+    mission: Mission, steps: int, unsteered: tuple[int, int] = (-1, 0)
+) -> tuple[list[list[Bundle]], list[float], list[int]]:
+    """Per step: every UAV's bundle (through the wire), the agents' eq. 30 and the targets found.
+    `unsteered`: (UAV, step) from which that UAV's agent is told its vehicle is not steered."""
     world = build_world(mission, mission.seed, 0)
     n = mission.n_uavs
     agents = [Agent(world, i) for i in range(n)]
@@ -45,7 +48,9 @@ def _fly(mission: Mission, steps: int) -> tuple[list[list[Bundle]], list[float],
         for i, agent in enumerate(agents):
             x, y, h = poses[i].tolist()
             seen = tuple(map(tuple, scorer.target_xy[sees[i]].tolist()))
-            outs.append(agent.step(Observation(step=k, x=x, y=y, heading=h, detections=seen), inboxes[i]))
+            steered = i != unsteered[0] or k < unsteered[1]
+            obs = Observation(step=k, x=x, y=y, heading=h, detections=seen, steered=steered)
+            outs.append(agent.step(obs, inboxes[i]))
         step_bundles = []
         for i, (_, outbox) in enumerate(outs):
             x, y = float(poses[i, 0]), float(poses[i, 1])
@@ -114,6 +119,22 @@ def test_a_departed_uav_is_silent_and_no_step_waits_for_it(mission: Mission) -> 
         assert f["u"][3][4] == 1, "drawn as silent"
         assert f["u"][3][:2] == [round(last.x, 3), round(last.y, 3)], "at its last reported position"
     assert all(f["u"][3][4] == 0 for f in frames[:6])
+
+
+def test_a_uav_its_companion_does_not_steer_is_drawn_so(mission: Mission) -> None:
+    bundles, _, _ = _fly(mission, 10, unsteered=(2, 4))
+    model = _model(mission)
+    for i in range(mission.n_uavs):
+        model.set_alive(i, True)
+    frames = []
+    for k, step in enumerate(bundles):
+        for b in step:
+            model.add(Report.of(b), now=float(k))
+        frames += [json.loads(f) for f in model.close_ready(now=float(k))]
+    assert [f["k"] for f in frames] == list(range(10))
+    for f in frames:
+        assert [u[5] for u in f["u"]] == [1, 1, int(f["k"] < 4), 1], f["k"]
+        assert all(u[4] == 0 for u in f["u"]), "not steered is not silent"
 
 
 def test_late_and_lonely_steps_close_by_time_and_lag(mission: Mission) -> None:

@@ -18,7 +18,8 @@ from companion.core.connectivity import algebraic_connectivity, kruskal_mst, min
 
 @dataclass(frozen=True)
 class UavPose:
-    """A UAV as drawn at one step: pose, task (-1: none), silent flag and planned path."""
+    """A UAV as drawn at one step: pose, task (-1: none), silent flag, planned path, and whether its
+    companion steers it (`UavState.steered`)."""
 
     x: float
     y: float
@@ -26,6 +27,7 @@ class UavPose:
     task: int = -1
     silent: bool = False
     plan: tuple[tuple[float, float], ...] = ()
+    steered: bool = True
 
 
 @dataclass(frozen=True)
@@ -58,12 +60,14 @@ def frame_json(
     figures: Figures,
     mst: np.ndarray,
 ) -> str:
-    """The frame of `step`: `u` one entry per UAV ([x, y, heading, task, silent] or null), `p` the
+    """The frame of `step`: `u` one entry per UAV ([x, y, heading, task, silent, steered] or null), `p` the
     planned paths, `l` the cells looked at in this step (with repeats: one look each), `f` the
     targets first found in this step as [cell, uav], `m` [found, eq. 30, lambda_2, min distance]
     and `t` the MST edges as UAV index pairs."""
     u = [
-        None if s is None else [round(s.x, 3), round(s.y, 3), round(s.heading, 5), s.task, int(s.silent)]
+        None
+        if s is None
+        else [round(s.x, 3), round(s.y, 3), round(s.heading, 5), s.task, int(s.silent), int(s.steered)]
         for s in uavs
     ]
     p = [[] if s is None else [[round(x, 2), round(y, 2)] for x, y in s.plan] for s in uavs]

@@ -50,7 +50,7 @@ class Report:
         for msg in bundle.messages:
             if isinstance(msg, StateMsg):
                 s = msg.state
-                pose = UavPose(s.x, s.y, s.heading, s.task, False, tuple(s.plan))
+                pose = UavPose(s.x, s.y, s.heading, s.task, False, tuple(s.plan), s.steered)
             elif isinstance(msg, CoverageMsg):
                 cells, detections = cells + msg.cells, detections + msg.detections
         return cls(bundle.sender, bundle.stamp, pose, cells, detections)
@@ -147,7 +147,7 @@ class SwarmModel:
             r = self.last[u]
             silent = u in self.departed or k - r.stamp > self.timeout
             plan = r.pose.plan if r.stamp == k else ()
-            poses[u] = UavPose(r.pose.x, r.pose.y, r.pose.heading, r.pose.task, silent, plan)
+            poses[u] = UavPose(r.pose.x, r.pose.y, r.pose.heading, r.pose.task, silent, plan, r.pose.steered)
         positions = np.array([(self.last[u].pose.x, self.last[u].pose.y) for u in seen])
         mst, lam, mind = links(positions, self.comm_range)
         unc = global_average_uncertainty([self.etas[u] for u in seen])

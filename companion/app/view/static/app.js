@@ -1,5 +1,5 @@
 // uavsearch view: draws the scene and the frames the server streams (see docs/view.md).
-// Frames: {k: step, u: [[x, y, heading, task, silent] | null per UAV], p: plans, l: cells looked at,
+// Frames: {k: step, u: [[x, y, heading, task, silent, steered] | null per UAV], p: plans, l: cells looked at,
 //          f: [[cell, uav]] first found this step, m: [found, eq. 30, lambda_2, min distance], t: MST edges}
 "use strict";
 (() => {
@@ -184,7 +184,7 @@
     ctx.lineWidth = 1.5;
     ctx.stroke();
 
-    const uavs = f.u.map((u, i) => (u ? { i, x: u[0], y: u[1], h: u[2], task: u[3], silent: silent(i, u) } : null))
+    const uavs = f.u.map((u, i) => (u ? { i, x: u[0], y: u[1], h: u[2], task: u[3], silent: silent(i, u), adrift: adrift(u) } : null))
       .filter(Boolean);
     if ($("show-cvt").checked && sc.labels) {
       for (const u of uavs) {  // assigned regions
@@ -299,11 +299,14 @@
       ctx.restore();
       ctx.font = "bold 11px system-ui, sans-serif";
       ctx.fillStyle = u.silent ? SILENT : "#1d2330";
-      ctx.fillText(u.silent ? `U${u.i} silent` : `U${u.i}`, x + 10, y + 14);
+      ctx.fillText(u.silent ? `U${u.i} silent` : u.adrift ? `U${u.i} not steered` : `U${u.i}`, x + 10, y + 14);
     }
     scaleBar(ctx, s, m, h);
     northArrow(ctx, w, m);
   }
+
+  // not steered: its companion says the vehicle does not fly the plan (a pilot, a failsafe, Hold)
+  const adrift = (u) => u.length > 5 && !u[5];
 
   // silent: so marked in the frame, or (live, at the latest step) its liveliness token is gone
   function silent(i, u) {
@@ -367,13 +370,13 @@
       if (!u) { td[1].textContent = "not heard"; continue; }
       const quiet = silent(i, u);
       tr.classList.toggle("silent", quiet);
-      td[1].textContent = quiet ? "silent" : "flying";
+      td[1].textContent = quiet ? "silent" : adrift(u) ? "not steered" : "flying";
       td[2].textContent = fmt(u[0], 0);
       td[3].textContent = fmt(u[1], 0);
       td[4].textContent = `${(((Math.round(90 - (u[2] * 180) / Math.PI)) % 360) + 360) % 360}°`;  // from north, clockwise
       td[5].textContent = u[3] >= 0 ? u[3] : "–";
       Object.assign(tr.dataset, {
-        step: f.k, x: u[0], y: u[1], heading: u[2], task: u[3], silent: quiet ? 1 : 0,
+        step: f.k, x: u[0], y: u[1], heading: u[2], task: u[3], silent: quiet ? 1 : 0, steered: adrift(u) ? 0 : 1,
       });
     }
     const list = $("found-list");
