@@ -122,6 +122,16 @@ def _children_of(pids: set[int]) -> dict[int, int]:
     return found
 
 
+def _signal_state(pid: int) -> str:
+    """A process's state and signal masks (blocked, ignored, caught), from /proc."""
+    try:
+        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
+    except OSError:
+        return "gone"
+    keys = ("State", "SigPnd", "ShdPnd", "SigBlk", "SigIgn", "SigCgt")
+    return ", ".join(" ".join(line.split()) for line in lines if line.startswith(keys))
+
+
 def _same_process_alive(pid: int, start: int) -> bool:
     st = _stat(pid)
     return st is not None and st[1] == start
@@ -196,7 +206,9 @@ class Proc:
                 self.popen.wait(timeout)
             except subprocess.TimeoutExpired:
                 warnings.warn(
-                    f"{self.name} (pid {self.pid}) ignored SIGINT for {timeout:.0f} s: killed", stacklevel=2
+                    f"{self.name} (pid {self.pid}) ignored SIGINT for {timeout:.0f} s: killed "
+                    f"({_signal_state(self.pid)})",
+                    stacklevel=2,
                 )
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(self.pid, signal.SIGKILL)
