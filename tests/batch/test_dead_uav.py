@@ -19,9 +19,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from companion.batch.engine import simulate
-from companion.batch.generate import Family, generate
 from companion.core.world import FAILSAFE_WIDE, build_world
-from companion.mission import ALGORITHMS
+from tests.batch.strikes import MISSION_ARGS, struck_mission
 
 STEPS = 1000
 LEAVE_STEPS = 60  # after a death (and the peer timeout), by when every survivor is out of its disk
@@ -40,20 +39,12 @@ def loiter_centre(track: np.ndarray) -> tuple[float, float]:
 
 @pytest.mark.slow
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(
-    seed=st.integers(0, 2**31 - 1),
-    mode=st.sampled_from(["grid", "continuous"]),
-    algorithm=st.sampled_from(ALGORITHMS),
-    data=st.data(),
-)
+@given(**MISSION_ARGS)
 def test_no_uav_comes_within_r_s_of_a_dead_one(
     seed: int, mode: str, algorithm: str, data: st.DataObject
 ) -> None:
-    [(mission, _)] = generate(1, seed, Family(uavs=(3, 10), modes=(mode,), steps=STEPS))
-    m = mission.with_algorithm(algorithm)
-    n = m.n_uavs
-    dead = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=2, unique=True), label="dead")
-    kills = {j: data.draw(st.integers(1, STEPS // 2), label=f"uav {j} dies at") for j in dead}
+    m, kills = struck_mission(seed, mode, algorithm, data, STEPS, "dies")
+    n, dead = m.n_uavs, sorted(kills)
     world = build_world(m, m.seed, 0)
     r = simulate(m, m.seed, 0, STEPS, record=True, world=world, kills=kills)
     assert r.separation_losses == 0, f"closest approach {float(r.approach.min()):.1f} m"

@@ -17,9 +17,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from companion.batch.engine import simulate
-from companion.batch.generate import Family, generate
 from companion.core.world import build_world
-from companion.mission import ALGORITHMS
+from tests.batch.strikes import MISSION_ARGS, struck_mission
 
 STEPS = 600
 SETTLE_STEPS = 10  # after a takeover, by when the others' plans keep clear of the vehicle
@@ -33,20 +32,12 @@ def _distances(track: np.ndarray, a: list[int], b: list[int]) -> np.ndarray:
 
 @pytest.mark.slow
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(
-    seed=st.integers(0, 2**31 - 1),
-    mode=st.sampled_from(["grid", "continuous"]),
-    algorithm=st.sampled_from(ALGORITHMS),
-    data=st.data(),
-)
+@given(**MISSION_ARGS)
 def test_no_uav_comes_within_r_s_of_a_vehicle_nobody_steers(
     seed: int, mode: str, algorithm: str, data: st.DataObject
 ) -> None:
-    [(mission, _)] = generate(1, seed, Family(uavs=(3, 10), modes=(mode,), steps=STEPS))
-    m = mission.with_algorithm(algorithm)
-    n = m.n_uavs
-    held = data.draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=2, unique=True), label="held")
-    takeovers = {j: data.draw(st.integers(1, STEPS // 2), label=f"uav {j} taken over at") for j in held}
+    m, takeovers = struck_mission(seed, mode, algorithm, data, STEPS, "taken over")
+    n, held = m.n_uavs, sorted(takeovers)
     world = build_world(m, m.seed, 0)
     r = simulate(m, m.seed, 0, STEPS, record=True, world=world, takeovers=takeovers)
     assert r.trajectory is not None
