@@ -208,7 +208,8 @@ def fuzz_mesh(count: int, seed: int) -> Campaign:
 
     structured = _structured([msgspec.to_builtins(b) for b in bundles[:200]])
     _run(st.one_of(_mutations(valid), structured), count, seed, body)
-    c.notes["over_zenoh"] = _mesh_over_zenoh(mission, world, valid[: min(2000, count)], c)
+    over = (accepted + valid)[: min(2000, count)]  # the accepted inputs first, topped up with valid ones
+    c.notes["over_zenoh"] = _mesh_over_zenoh(mission, world, over, c)
     return c
 
 
