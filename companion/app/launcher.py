@@ -91,6 +91,7 @@ class Children:
     def __init__(self) -> None:
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs: dict[str, Path] = {}
+        self.signals: dict[str, int] = {}
 
     def start(
         self,
@@ -99,33 +100,34 @@ class Children:
         log: Path,
         cwd: Path | None = None,
         extra: dict[str, str] | None = None,
+        stop_signal: int = signal.SIGINT,
     ) -> subprocess.Popen:
-        """Start `argv` in its own session, output to `log`, with `extra` added to the environment."""
+        """Start `argv` in its own session, output to `log`, with `extra` added to the environment;
+        `stop` sends it `stop_signal`."""
         env = {**os.environ, "PYTHONUNBUFFERED": "1", **(extra or {})}
         with log.open("w") as f:
             proc = subprocess.Popen(
                 argv, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True, cwd=cwd
             )
-        self.procs[name], self.logs[name] = proc, log
+        self.procs[name], self.logs[name], self.signals[name] = proc, log, stop_signal
         return proc
 
     def stop(self) -> None:
-        """Ctrl-C to the companions first, then to everything else: a companion ends its step and
-        writes its report while its vehicle, camera and router still answer. Whatever has not
-        exited `STOP_TIMEOUT_S` after its signal is killed."""
-        companions = [p for n, p in self.procs.items() if n.startswith("companion")]
-        others = [p for p in self.procs.values() if p not in companions]
-        for group in (companions, others):
-            for proc in group:
-                if proc.poll() is None:
-                    proc.send_signal(signal.SIGINT)
+        """Each child's stop signal (SIGINT unless started otherwise), the companions first: a
+        companion ends its step and writes its report while its vehicle, camera and router still
+        answer. Whatever has not exited `STOP_TIMEOUT_S` after its signal is killed."""
+        companions = [n for n in self.procs if n.startswith("companion")]
+        for group in (companions, [n for n in self.procs if n not in companions]):
+            for name in group:
+                if self.procs[name].poll() is None:
+                    self.procs[name].send_signal(self.signals[name])
             deadline = time.monotonic() + STOP_TIMEOUT_S
-            for proc in group:
+            for name in group:
                 try:
-                    proc.wait(max(0.1, deadline - time.monotonic()))
+                    self.procs[name].wait(max(0.1, deadline - time.monotonic()))
                 except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+                    self.procs[name].kill()
+                    self.procs[name].wait()
 
 
 def _wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float) -> str:
@@ -263,7 +265,7 @@ def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: in
         home = opts.out / f"sitl{i}"
         home.mkdir(exist_ok=True)
         argv = sitl.sitl_argv(binary, defaults, mission, i, opts.speedup)
-        children.start(f"sitl{i}", argv, opts.out / f"sitl{i}.log", cwd=home)
+        children.start(f"sitl{i}", argv, opts.out / f"sitl{i}.log", cwd=home, stop_signal=sitl.STOP_SIGNAL)
     ports = [sitl.sitl_ports(mission, i) for i in range(mission.n_uavs)]
     signing = mavlink_secrets(mission) is not None
     _start_camera(children, opts, [p.url(p.serial0) for p in ports], seed, mission.n_uavs, signing)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from companion.mission import Mission
 from companion.node.frames import LocalFrame, heading_to_yaw
 
 ENV = "ARDUPLANE_SITL"
+STOP_SIGNAL = signal.SIGTERM  # what SITL exits cleanly on (AP_HAL_SITL's exit_signal_handler)
 ROOT = Path(__file__).resolve().parents[2]
 SHARED_BINARY = ROOT.parent / "shared" / "sitl" / "arduplane"
 

@@ -148,8 +148,9 @@ class Proc:
         cwd: Path = ROOT,
         stdin: int | None = subprocess.DEVNULL,
         env: dict[str, str] | None = None,
+        stop_signal: int = signal.SIGINT,
     ) -> None:
-        self.name, self.argv, self.log = name, argv, log
+        self.name, self.argv, self.log, self.stop_signal = name, argv, log, stop_signal
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "MAVLINK20": "1", **(env or {})}
         with log.open("w") as f:
             self.popen = subprocess.Popen(
@@ -197,16 +198,18 @@ class Proc:
         return self.popen.wait(timeout)
 
     def stop(self, timeout: float = STOP_S) -> int:
-        """SIGINT, wait, SIGKILL if still running; then the same for any descendant left behind."""
+        """`stop_signal` (SIGINT unless told), wait, SIGKILL if still running; then SIGINT and the same
+        for any descendant left behind."""
         if self.alive():
             self.refresh()
             with contextlib.suppress(ProcessLookupError):
-                os.kill(self.pid, signal.SIGINT)
+                os.kill(self.pid, self.stop_signal)
             try:
                 self.popen.wait(timeout)
             except subprocess.TimeoutExpired:
                 warnings.warn(
-                    f"{self.name} (pid {self.pid}) ignored SIGINT for {timeout:.0f} s: killed "
+                    f"{self.name} (pid {self.pid}) ignored {signal.Signals(self.stop_signal).name} for "
+                    f"{timeout:.0f} s: killed "
                     f"({_signal_state(self.pid)})",
                     stacklevel=2,
                 )

@@ -121,9 +121,8 @@ def start_sitl(binary: Path, mission: SitlMission, i: int, speedup: float, direc
     home = directory / f"sitl{i}"
     home.mkdir(parents=True, exist_ok=True)
     defaults = sitl.find_defaults(binary)
-    return Proc(
-        f"sitl{i}", sitl.sitl_argv(binary, defaults, mission.mission, i, speedup), home / "out.log", cwd=home
-    )
+    argv = sitl.sitl_argv(binary, defaults, mission.mission, i, speedup)
+    return Proc(f"sitl{i}", argv, home / "out.log", cwd=home, stop_signal=sitl.STOP_SIGNAL)
 
 
 class Airborne:
