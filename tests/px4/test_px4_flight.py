@@ -39,6 +39,7 @@ STEPS = 25
 MEDIAN_POSITION_M, MEDIAN_HEADING_DEG = 10.0, 20.0
 # conformance tolerances (PX4 announces a mode change at its next HEARTBEAT, up to 1 s later)
 LOSS_TIMING_S, OFFBOARD_LEG_M = 1.5, 25.0
+DETOUR_FROM_S, DETOUR_RAD = 8.0, math.radians(45.0)  # PX4's occasional detour (docs/companion.md)
 SHAPE_TOLERANCES = {"hold_extent_m": 25.0, "leg_course_deg": 6.0, "circle_radius_m": 8.0, "circle_sense": 0.0}
 
 
@@ -252,9 +253,22 @@ def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tm
     at = np.array([b[np.argmin(np.abs(b[:, 0] - t))] for t in a[:, 0]])
     leg = a[:, 0] <= STREAM_END
     gap = np.hypot(a[leg, 1] - at[leg, 1], a[leg, 2] - at[leg, 2])
+    if gap.max() >= OFFBOARD_LEG_M and _off_bearing(a) > DETOUR_RAD > _off_bearing(b):
+        pytest.xfail(  # docs/companion.md, "Known gap: PX4's OFFBOARD detour"
+            f"PX4 detoured on its OFFBOARD leg, up to {math.degrees(_off_bearing(a)):.0f} deg off the "
+            f"setpoint's bearing ({gap.max():.0f} m from the simulator's track)"
+        )
     assert gap.max() < OFFBOARD_LEG_M, f"OFFBOARD leg: {gap.max():.0f} m apart"
     for key, tolerance in SHAPE_TOLERANCES.items():
         assert abs(px4_shape[key] - our_shape[key]) <= tolerance, (key, px4_shape, our_shape)
+
+
+def _off_bearing(track: np.ndarray) -> float:
+    """How far (rad) the course strays from the bearing to the OFFBOARD setpoint, once turned onto
+    it (`DETOUR_FROM_S` into the script) until the stream ends."""
+    rows = track[(track[:, 0] >= DETOUR_FROM_S) & (track[:, 0] <= STREAM_END)]
+    bearing = np.arctan2(SCRIPT_P1[1] - rows[:, 2], SCRIPT_P1[0] - rows[:, 1])
+    return float(np.abs(np.remainder(rows[:, 3] - bearing + np.pi, 2 * np.pi) - np.pi).max())
 
 
 def _leg_speed(track: np.ndarray) -> float:
