@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from companion.mission import Kinematics, Mission
 
 GRAVITY = 9.80665
+GUIDED_P = 50.0  # ArduPlane's GUIDED_P default: 5000 centidegrees of bank per radian of heading error
 SIMULATOR_PARAM = "SIM_TURN_LIMIT"
 PARAMS = {
     "ardupilot": {
@@ -41,6 +42,17 @@ def turn_accel(k: Kinematics) -> float:
 def bank_for(k: Kinematics) -> float:
     """Bank angle (degrees) of a coordinated turn at the mission's speed and turn limit."""
     return math.degrees(math.atan(turn_accel(k) / GRAVITY))
+
+
+def heading_lead(k: Kinematics, rate: float) -> float:
+    """How far (rad) past the heading the plan reaches at the step's end to command
+    GUIDED_CHANGE_HEADING so that ArduPlane, in a turn at the planned `rate` (rad/s), ends each step
+    on the plan's heading. ArduPlane banks GUIDED_P per radian of heading error; linearised, its
+    heading closes the error at c = g * GUIDED_P / v per second, so a command that moves on by
+    rate * dT each step leaves an error rate * dT * q / (1 - q), q = exp(-c * dT), at the step's
+    end: the lead."""
+    q = math.exp(-GRAVITY * math.radians(GUIDED_P) * k.step / k.speed)
+    return rate * k.step * q / (1.0 - q)
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 | mode | MAVLink |
 |---|---|
 | `turn-rate` | SET_ATTITUDE_TARGET body yaw rate (the bundled simulator's direct steering) |
-| `heading` | MAV_CMD_GUIDED_CHANGE_HEADING with the mission's turn as the centripetal acceleration |
+| `heading` | MAV_CMD_GUIDED_CHANGE_HEADING, led as ArduPlane's heading loop needs (`heading_lead`) |
 | `reposition` | MAV_CMD_DO_REPOSITION to a point ahead on the commanded heading |
 | `position-target` | SET_POSITION_TARGET_GLOBAL_INT to that point, streamed (PX4 OFFBOARD) |
 
@@ -21,7 +21,7 @@ import numpy as np
 from companion.core.agent import Command
 from companion.core.geometry import ConvexPolygon
 from companion.mission import Mission
-from companion.node.airframe import turn_accel
+from companion.node.airframe import heading_lead, turn_accel
 from companion.node.frames import LocalFrame, heading_to_yaw
 from companion.node.vehicle_link import VehicleLink
 
@@ -44,6 +44,7 @@ class Guidance:
         k = mission.kinematics
         self.link, self.frame, self.mode = link, frame, mode
         self.altitude = mission.altitude_of(uav)
+        self.kinematics = k
         self.speed = k.speed
         self.accel = turn_accel(k)
         self.lead = max(LEAD_STEPS * k.speed * k.step, LEAD_MIN_M)
@@ -115,7 +116,8 @@ class Guidance:
         if self.mode == "turn-rate":
             self.link.turn_rate(-command.heading_rate)  # MAVLink yaw rate is clockwise-positive
         elif self.mode == "heading":
-            self.link.change_heading(math.degrees(heading_to_yaw(command.heading)), self.accel)
+            heading = command.heading + heading_lead(self.kinematics, command.heading_rate)
+            self.link.change_heading(math.degrees(heading_to_yaw(heading)), self.accel)
         elif self.mode == "reposition":
             self.go_to(*self.lead_point(command, position))
         else:

@@ -10,13 +10,25 @@ from pathlib import Path
 import msgspec
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from companion.core.geometry import ConvexPolygon
 from companion.mission import load_mission
-from companion.node.airframe import Airframe, bank_for, check_mission, refusal, turn_accel
+from companion.node.airframe import (
+    GRAVITY,
+    Airframe,
+    bank_for,
+    check_mission,
+    heading_lead,
+    refusal,
+    turn_accel,
+    turn_rate_limit,
+)
 from companion.node.fence import DEFAULT_MARGIN_M, fence_margin, fence_polygon, nearest_inside, offset_polygon
 from companion.node.guidance import FENCE_CLEARANCE_M, lead_point
 from companion.node.tracking import Guard, PlanTracker, RegionGuard
+from sim_vehicles.dynamics.navigation import heading_hold
 
 ROOT = Path(__file__).resolve().parents[2]
 CONTINUOUS = load_mission(ROOT / "mission_files" / "scenario1_continuous.toml")
@@ -112,3 +124,26 @@ def test_lead_points_stay_inside_the_fence() -> None:
     x, y = lead_point((1000.0, 0.0), math.pi, 200.0, fence)  # heading in: the full lead
     assert math.isclose(x, 800.0) and abs(y) < 1e-9
     assert lead_point((1200.0, 0.0), 0.0, 200.0, fence) == (1400.0, 0.0)  # outside: the guard's business
+
+
+def _fly_heading_commands(rate: float, lead: bool, steps: int = 8) -> float:
+    """A turn at `rate` (below the bank limit) planned step by step and flown by ArduPlane's
+    GUIDED_CHANGE_HEADING law (the simulator's `heading_hold`: bank GUIDED_P per radian of error,
+    limited by param3), each step commanded the heading the plan reaches at its end (plus
+    `heading_lead` if `lead`); the heading error (rad) after the last step."""
+    k = CONTINUOUS.kinematics
+    accel, v, h, dt = turn_accel(k), k.speed, 0.0, 0.01
+    for step in range(steps):
+        planned = (step + 1) * rate * k.step
+        target = planned + (heading_lead(k, rate) if lead else 0.0)
+        for _ in range(round(k.step / dt)):
+            h += GRAVITY * math.tan(heading_hold(h, target, accel)) / v * dt
+    return abs(h - steps * rate * k.step)
+
+
+@given(st.floats(0.1, 0.9), st.sampled_from([-1.0, 1.0]))
+def test_heading_lead_makes_arduplane_turn_at_the_planned_rate(fraction: float, sense: float) -> None:
+    rate = sense * fraction * turn_rate_limit(CONTINUOUS.kinematics)
+    led, unled = _fly_heading_commands(rate, True), _fly_heading_commands(rate, False)
+    assert led < 0.25 * unled
+    assert led < math.radians(3.0)
