@@ -5,9 +5,35 @@ draws fresh examples (with the example database) to look for new counterexamples
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
+import pytest
 from hypothesis import settings
 
 settings.register_profile("ci", derandomize=True, print_blob=True)
 settings.register_profile("explore", print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+# -- running on two cores (`make test`: pytest -n 2 --dist loadgroup) ------------------------------
+# A test that flies real autopilots (SITL, PX4) in real time shares the machine with at most one
+# test that flies a swarm of companions on the bundled simulator in real time, and with nothing of
+# its own kind: each group runs in order on one worker. Both groups are handed out first (they are
+# the longest); the other tests fill in around them.
+REAL_TIME_GROUPS = {
+    "autopilot": ("sitl/", "px4/", "trust/test_sitl_signing.py"),
+    "swarm": ("e2e/", "mission/test_swarm.py", "view/test_view_browser.py"),
+}
+
+
+def _group(item: pytest.Item) -> str | None:
+    where = item.path.relative_to(Path(__file__).parent).as_posix()
+    return next((g for g, prefixes in REAL_TIME_GROUPS.items() if where.startswith(prefixes)), None)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    order = list(REAL_TIME_GROUPS)
+    items.sort(key=lambda item: order.index(g) if (g := _group(item)) else len(order))  # stable
+    for item in items:
+        if (group := _group(item)) is not None:
+            item.add_marker(pytest.mark.xdist_group(group))

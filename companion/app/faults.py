@@ -12,12 +12,13 @@ its journal), injects one fault at a chosen step and checks what the swarm must 
   no task is held twice.
 
 The rows: `restart` (a companion killed with SIGKILL, its vehicle flying on without it for a few
-steps, then started again on its journal), `sim-restart` (the simulator killed and started again on
-its state file), `link-loss` (one companion's MAVLink link cut for 10 s of simulated time while its
-vehicle flies on), `partition` (two groups that hear nothing of each other for a window of steps)
-and `loss` (30 % of mesh messages lost for a window of steps). Every trigger is a step number: the
-harness watches the companions' step logs and, while a vehicle has no companion, releases its
-lockstep steps itself (`LockstepDriver`), as the autopilot flying on would.
+steps, then started again on its journal), `sim-restart` (the simulator killed and started again
+on the state file it saved a few steps before, so that it resumes behind its companions),
+`link-loss` (one companion's MAVLink link cut for 10 s of simulated time while its vehicle flies
+on), `partition` (two groups that hear nothing of each other for a window of steps) and `loss`
+(30 % of mesh messages lost for a window of steps). Every trigger is a step number: the harness
+watches the companions' step logs and, while a vehicle has no companion, releases its lockstep
+steps itself (`LockstepDriver`), as the autopilot flying on would.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 ROWS = ("restart", "sim-restart", "link-loss", "partition", "loss")
+REWIND_STEPS = 2  # sim-restart: how many steps before the kill the state it restarts on was saved
 LOCKSTEP_COMMAND = 31010
 START_S = 180.0  # generous: a busy 2-core machine starts five Python processes slowly
 STEP_S = 120.0  # longest wait for the swarm to fly one more step
@@ -360,10 +362,18 @@ def _restart(swarm: Swarm, plan: Plan, outcome: RowOutcome) -> set[int]:
 
 
 def _sim_restart(swarm: Swarm, plan: Plan, outcome: RowOutcome) -> set[int]:
-    swarm.wait_steps(list(range(swarm.mission.n_uavs)), plan.at)
+    """The simulator killed after step `at` and started again on a state it saved a few steps
+    earlier (as when it dies between its telemetry of a step and saving that step): the restarted
+    simulator is behind its companions, and they must let it catch up."""
+    everyone = list(range(swarm.mission.n_uavs))
+    state = swarm.out / "sim.state"
+    swarm.wait_steps(everyone, max(plan.at - REWIND_STEPS, 0))
+    earlier = state.read_bytes()  # written atomically (a renamed temporary file): always whole
+    swarm.wait_steps(everyone, plan.at)
     swarm.kill("sim")
-    for i in range(swarm.mission.n_uavs):
+    for i in everyone:
         swarm.wait_text(f"companion{i}", "vehicle link lost")
+    state.write_bytes(earlier)
     swarm.sim()
     swarm.wait_text("sim", "resumed from")
     outcome.notes["killed_after_step"] = plan.at

@@ -497,6 +497,7 @@ class Companion:
                     # it; duplicates are harmless) and ask for the current step's state
                     self.link.command_long(LOCKSTEP_COMMAND, k)
                     self.link.command_long(LOCKSTEP_COMMAND, 0)
+                    self._let_a_rewound_vehicle_catch_up(k)
             if stop.is_set():
                 return
             if self._resync:
@@ -511,6 +512,17 @@ class Companion:
             self.step(k)
             self.link.command_long(LOCKSTEP_COMMAND, k + 1)
             k += 1
+
+    def _let_a_rewound_vehicle_catch_up(self, k: int) -> None:
+        """After a lost link, in lockstep: a restarted simulator that resumed from a step before the
+        one we flew last (it was killed after its telemetry of a step went out and before it saved
+        that step) flies on, on the commands in force, until it is at step k again: we say "ready"
+        for its next step (the other companions do the same)."""
+        now = round(self.link.state.time_s / self.dt)
+        if now < k - 1:
+            log.warning("uav %d: the vehicle resumed at step %d, behind us: releasing it to step %d",
+                        self.opts.uav, now, now + 1)
+            self.link.command_long(LOCKSTEP_COMMAND, now + 1)
 
     def _catch_up(self, k: int) -> int:
         """After a lost link, in lockstep: the step the vehicle is at now (it may have flown on
