@@ -19,7 +19,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 # A test that flies real autopilots (SITL, PX4) in real time shares the machine with at most one
 # test that flies a swarm of companions on the bundled simulator in real time, and with nothing of
 # its own kind: each group runs in order on one worker. Both groups are handed out first (they are
-# the longest); the other tests fill in around them.
+# the longest), then the other tests, those marked `slow` first, so that no long test starts last.
 REAL_TIME_GROUPS = {
     "autopilot": ("sitl/", "px4/", "trust/test_sitl_signing.py"),
     "swarm": ("e2e/", "mission/test_swarm.py", "view/test_view_browser.py"),
@@ -33,7 +33,12 @@ def _group(item: pytest.Item) -> str | None:
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     order = list(REAL_TIME_GROUPS)
-    items.sort(key=lambda item: order.index(g) if (g := _group(item)) else len(order))  # stable
+
+    def rank(item: pytest.Item) -> tuple[int, bool]:
+        group = _group(item)
+        return (order.index(group) if group else len(order), item.get_closest_marker("slow") is None)
+
+    items.sort(key=rank)  # stable: otherwise in collection order
     for item in items:
         if (group := _group(item)) is not None:
             item.add_marker(pytest.mark.xdist_group(group))

@@ -58,6 +58,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return [{k: v for k, v in row.items() if k not in TIMING} for row in csv.DictReader(f)]
 
 
+@pytest.mark.slow
 def test_mc_sweep_and_soak_on_the_cluster_equal_the_local_pool(
     cluster: LoopbackCluster, tmp_path: Path
 ) -> None:
@@ -115,10 +116,11 @@ def _summaries(results: list[RunResult], runs: int) -> dict:
     )
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_study_loses_no_run_and_counts_none_twice(cluster: LoopbackCluster) -> None:
     mission = load_mission(ROOT / "mission_files/scenario1.toml")
-    runs = 16
-    specs = specs_for(mission, ALGORITHMS, runs, 200, 11, lambda r: False)
+    runs = 8
+    specs = specs_for(mission, ALGORITHMS, runs, 150, 11, lambda r: False)
     local = list(run_specs(specs, workers=2))
 
     victim, survivor = sorted(cluster.workers)

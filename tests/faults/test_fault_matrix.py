@@ -23,6 +23,7 @@ def _rows(path: Path) -> list[dict[str, float]]:
         return [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f) if r["step"].isdigit()]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("row", ROWS)
 def test_fault_row(row: str, tmp_path: Path) -> None:
     mission = load_mission(SCENARIO1)

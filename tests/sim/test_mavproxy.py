@@ -9,11 +9,14 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from companion.mission import load_mission
 from sim_vehicles.protocols.params import param_specs
 from tests.sim.conftest import ARRIVED_M, Mav, distance_m, offset, write_mission
 
 
+@pytest.mark.slow
 def test_mavproxy_guided(tmp_path: Path, start_sim) -> None:
     path, ports, _ = write_mission(tmp_path, n=1)
     sim = start_sim(path, "--speedup", "5", "--no-camera", n=1)

@@ -9,6 +9,8 @@ import struct
 import time
 from pathlib import Path
 
+import pytest
+
 from tests.sim.conftest import ARRIVED_M, M, Mav, distance_m, offset, write_mission
 
 HOLD = (4 << 16) | (3 << 24)
@@ -39,6 +41,7 @@ def _offboard(mav: Mav, lat: float, lon: float) -> None:
     assert mav.need("COMMAND_ACK", lambda m: m.command == M.MAV_CMD_DO_SET_MODE).result == 0
 
 
+@pytest.mark.slow
 def test_px4_surface(tmp_path: Path, start_sim) -> None:
     path, ports, _ = write_mission(tmp_path, n=2, flavour="px4")
     sim = start_sim(path, "--speedup", "4", "--no-camera", n=2)
