@@ -42,3 +42,15 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if (group := _group(item)) is not None:
             item.add_marker(pytest.mark.xdist_group(group))
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the core's numba kernels into numba's disk cache once, before xdist starts its
+    workers (as `uavsearch run` does before its companions): on a fresh checkout every process
+    would otherwise compile them at once, for tens of seconds each."""
+    if hasattr(session.config, "workerinput"):
+        return  # an xdist worker: the controller has done it
+    from companion.batch.engine import warm_up
+    from companion.mission import load_mission
+
+    warm_up(load_mission(Path(__file__).parents[1] / "mission_files" / "scenario1.toml"))
