@@ -31,6 +31,7 @@ def _group(item: pytest.Item) -> str | None:
     return next((g for g, prefixes in REAL_TIME_GROUPS.items() if where.startswith(prefixes)), None)
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's worker reads the groups from the marks
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     order = list(REAL_TIME_GROUPS)
 
