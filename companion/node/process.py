@@ -471,7 +471,7 @@ class Companion:
         """The first step to fly in lockstep: the simulator's current step, or the one after the last
         journaled step when the journal already holds the current one (its bundle may not have gone
         out: an empty bundle stands in, so that no peer waits for it)."""
-        now = round(self.link.state.time_s / self.dt)
+        now = self._vehicle_step()
         k = max(now, self._journaled + 1)
         if k > now:
             s = self.link.state
@@ -513,12 +513,16 @@ class Companion:
             self.link.command_long(LOCKSTEP_COMMAND, k + 1)
             k += 1
 
+    def _vehicle_step(self) -> int:
+        """The lockstep step the vehicle's latest position is at."""
+        return round(self.link.state.time_s / self.dt)
+
     def _let_a_rewound_vehicle_catch_up(self, k: int) -> None:
         """After a lost link, in lockstep: a restarted simulator that resumed from a step before the
         one we flew last (it was killed after its telemetry of a step went out and before it saved
         that step) flies on, on the commands in force, until it is at step k again: we say "ready"
         for its next step (the other companions do the same)."""
-        now = round(self.link.state.time_s / self.dt)
+        now = self._vehicle_step()
         if now < k - 1:
             log.warning("uav %d: the vehicle resumed at step %d, behind us: releasing it to step %d",
                         self.opts.uav, now, now + 1)
@@ -528,7 +532,7 @@ class Companion:
         """After a lost link, in lockstep: the step the vehicle is at now (it may have flown on
         without its companion), announced to the peers by an empty bundle of the step before, then
         join the mesh again."""
-        now = round(self.link.state.time_s / self.dt)
+        now = self._vehicle_step()
         if now > k:
             log.warning(
                 "uav %d: the vehicle went on without us: steps %d..%d not flown", self.opts.uav, k, now - 1
