@@ -84,6 +84,12 @@ def read_approach(path: Path) -> dict[int, float]:
     return out
 
 
+def mission_rows(logs: dict[int, dict[int, dict[str, float]]]) -> dict[int, dict[int, dict[str, float]]]:
+    """The logs without the steps a companion flew after the mission's end (`closing`: it flies
+    out its trajectory in force before the hand-over); those are not part of the search."""
+    return {i: {k: r for k, r in rows.items() if not r.get("closing")} for i, rows in logs.items()}
+
+
 def logged_span(logs: dict[int, dict[int, dict[str, float]]]) -> range:
     """The steps to score: from the first step every UAV has logged (the mission starts when the
     whole swarm is up) to the last step any UAV logged."""
@@ -112,6 +118,7 @@ def evaluate(
     """
     m = world.mission
     n = m.n_uavs
+    logs = mission_rows(logs)
     span = logged_span(logs)
     steps = len(span)
     traj = np.zeros((steps, n, 3))
@@ -136,8 +143,10 @@ def evaluate(
     return scorer.result(0, seed, seconds, trajectory=traj, tasks=tasks)
 
 
-def failed_criteria(world: World, result: RunResult) -> list[str]:
-    """The mission file's pass criteria that the run did not meet (empty: passed)."""
+def failed_criteria(world: World, result: RunResult, closest_flown: float = math.inf) -> list[str]:
+    """The mission file's pass criteria that the run did not meet (empty: passed). Separation is
+    also required of everything flown outside the scored steps (`closest_flown`: the separation
+    record's minimum from start-up to the simulator's stop, the hand-over included)."""
     m, c = world.mission, world.mission.pass_criteria
     failures = []
     found = int(np.count_nonzero(result.target_steps >= 0))
@@ -150,6 +159,10 @@ def failed_criteria(world: World, result: RunResult) -> list[str]:
     closest = result.approach.min() if result.steps else math.inf
     if c.require_safe_distance and closest <= m.comms.safety:
         failures.append(f"closest approach {closest:.1f} m <= R_s = {m.comms.safety} m")
+    elif c.require_safe_distance and closest_flown <= m.comms.safety:
+        failures.append(
+            f"closest approach outside the mission's steps {closest_flown:.1f} m <= R_s = {m.comms.safety} m"
+        )
     if result.steps == 0:
         failures.append("no step was flown")
     return failures

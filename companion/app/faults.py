@@ -3,7 +3,8 @@
 Each row flies a mission in lockstep (the simulator and one companion per UAV, each companion with
 its journal), injects one fault at a chosen step and checks what the swarm must keep:
 
-- the mission completes: every companion flies the last step;
+- the mission completes: every companion flies the last step, then flies out its trajectory in
+  force (horizon + 1 steps logged as `closing`) before it hands its vehicle over;
 - no detection is lost: every target cell any UAV knew of, before or after the fault, is known to
   every UAV at the end;
 - no separation is lost: the simulator's closest approach of any two vehicles, measured at its
@@ -24,6 +25,7 @@ steps itself (`LockstepDriver`), as the autopilot flying on would.
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
 import math
 import os
@@ -206,6 +208,22 @@ def last_step(path: Path) -> int:
         if head.isdigit() and line.count(",") >= 13:
             return int(head)
     return -1
+
+
+def mission_steps(path: Path) -> tuple[list[int], list[int]]:
+    """The steps a companion's step log holds: those of the mission, and those it flew out after
+    the mission's end (`closing`, before the hand-over)."""
+    if not path.exists():
+        return [], []
+    searched, closing = [], []
+    lines = path.read_text(errors="replace").splitlines()
+    for row in csv.DictReader(lines):
+        try:
+            step, flown_out = int(row["step"]), int(row["closing"])
+        except (KeyError, TypeError, ValueError):  # a line a kill cut short
+            continue
+        (closing if flown_out else searched).append(step)
+    return searched, closing
 
 
 def journal_found(path: Path, until: int | None = None) -> set[int]:
@@ -457,10 +475,14 @@ def run_row(row: str, base: Mission, out: Path, plan: Plan) -> RowOutcome:
 def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) -> None:
     """Fill in the outcome from the run's files and list what the swarm failed to keep."""
     n, fail = mission.n_uavs, outcome.failures.append
-    last = [last_step(out / f"uav{i}.csv") for i in range(n)]
+    logged = [mission_steps(out / f"uav{i}.csv") for i in range(n)]
+    last = [max(searched, default=-1) for searched, _ in logged]
     outcome.completed = all(s == outcome.steps - 1 for s in last)
     if not outcome.completed:
         fail(f"mission not completed: last steps {last} of {outcome.steps}")
+    fly_out = list(range(outcome.steps, outcome.steps + mission.algorithm.horizon + 1))
+    if any(closing != fly_out for _, closing in logged):
+        fail(f"the mission's end not flown out: steps {[c for _, c in logged]}, expected {fly_out}")
     reports = []
     for i in range(n):
         path = out / f"uav{i}.json"

@@ -15,6 +15,7 @@ optionally with the stand-alone camera on `--camera-links URL,...`).
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -47,7 +48,7 @@ from companion.node.keys import ROLES, for_mission, insecure_warning, mavlink_se
 from sim_vehicles import camera as cam
 
 START_TIMEOUT_S = 120.0
-STOP_TIMEOUT_S = 15.0
+STOP_TIMEOUT_S = 30.0  # a companion flies out its trajectory in force first (horizon + 1 steps)
 SITL_FLAVOURS = {"ardupilot-sitl": "ardupilot", "px4-sitl": "px4"}
 
 
@@ -459,7 +460,8 @@ def run_mission(opts: RunOptions) -> int:
     (out / "tracking.json").write_text(json.dumps(flight, indent=2) + "\n")
     if opts.view:
         print(f"replay the run with: uavsearch view --replay {out}", flush=True)
-    failures = failed_criteria(world, result)
+    closest_flown = min(approach.values()) if approach else math.inf
+    failures = failed_criteria(world, result, closest_flown)
     s = summary[name]
     print(
         f"{mission.name}: {result.steps} steps, targets found {int(np.sum(result.target_steps >= 0))}/"
@@ -471,7 +473,8 @@ def run_mission(opts: RunOptions) -> int:
         print(
             f"closest approach along the flown tracks ({source}): "
             f"{result.approach.min():.1f} m (R_s = {mission.comms.safety:g} m); "
-            f"{result.separation_losses} steps within R_s"
+            f"{result.separation_losses} steps within R_s; "
+            f"{closest_flown:.1f} m over all it recorded (start-up and hand-over included)"
         )
     p, h = flight["position_m"], flight["heading_deg"]
     if p["median"] is not None:

@@ -49,7 +49,9 @@ from companion.core.world import World
 class Observation(msgspec.Struct, frozen=True, kw_only=True):
     """The UAV's own pose at step k (local frame, heading CCW from east), its camera's detections,
     and whether its vehicle flies what the agent commands (False: a pilot, a failsafe or the guard's
-    way back inside flies it; the agent then commits to nothing: `UavState.steered`)."""
+    way back inside flies it; the agent then commits to nothing: `UavState.steered`). `closing`: the
+    mission is over; the agent proposes nothing new and commands its trajectory in force, which ends
+    in a loiter that every peer's trajectory in force keeps clear of (the companion's hand-over)."""
 
     step: int
     x: float
@@ -57,6 +59,7 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True):
     heading: float
     detections: tuple[tuple[float, float], ...] = ()
     steered: bool = True
+    closing: bool = False
 
 
 class StepDelta(msgspec.Struct, frozen=True, array_like=True):
@@ -436,7 +439,7 @@ class Agent:
         path = pts[max(best, 0)]
 
         horizon, turn = self._horizon, float(inforce.turns[0])
-        if best >= 0:
+        if best >= 0 and not obs.closing:
             turns = tuple(w.paths.sequences[best].tolist())
             proposal = Trajectory(k + 1, x1, y1, h1, turns, side)
             plan = ((x1, y1), *map(tuple, path[: horizon - 1].tolist()))

@@ -220,6 +220,11 @@ class Commitments:
         self.proposal = None
         return self.inforce
 
+    def loitering(self) -> bool:
+        """Whether the trajectory in force takes only its loiter turns from now on."""
+        turn = self.inforce.loiter * self.limits.reach.loiter_turn
+        return all(abs(t - turn) < 1e-9 for t in self.inforce.turns)
+
     def _flyable(self, k: int, trajectory: Trajectory) -> Trajectory:
         """`trajectory` if it is inside the fence and compatible with the others' trajectories in force
         and its tethers, else a start contingency from its anchor that is (straight for M >= s >= 0

@@ -19,6 +19,10 @@ companion makes itself the autopilot's ground station and arms:
 - MAV_GCS_SYSID = the companion's own system id (`COMPANION_SYSTEM`), FS_LONG_TIMEOUT =
   `safety.failsafe_timeout`, FS_LONG_ACTN = 4 (AUTO), FS_GCS_ENABL = 1.
 
+At the mission's end the companion does not wait for that: once it has flown out its trajectory in
+force (`Companion._close`) it hands the aircraft over at once (`hand_over`): the loiter uploaded
+again if it moved, and the mode set to AUTO.
+
 When the companion falls silent the aircraft flies its last guidance for FS_LONG_TIMEOUT, then
 switches to AUTO and circles that loiter, at its layer. The survivors' model of a silent UAV
 (`Commitments.failsafe_loiters`, `safety.failsafe_reach`) is built on this. When its HEARTBEATs
@@ -29,6 +33,8 @@ GUIDED). The bundled simulator imitates all of it (docs/simulator.md).
 from __future__ import annotations
 
 import math
+import threading
+import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -37,12 +43,13 @@ from companion.core.world import World
 from companion.mission import Mission
 from companion.node.frames import LocalFrame
 from companion.node.mission_upload import Item, upload
-from companion.node.vehicle_link import VehicleLink
+from companion.node.vehicle_link import ARDUPILOT_AUTO, VehicleLink
 
 GCS_SYSID_PARAMS = ("MAV_GCS_SYSID", "SYSID_MYGCS")  # ArduPilot 4.7 on, and before
 FS_GCS_HEARTBEAT = 1  # FS_GCS_ENABL: failsafe when the GCS's HEARTBEATs stop
 FS_LONG_AUTO = 4  # FS_LONG_ACTN: switch to AUTO
 RENAMED_PARAM_WAIT_S = 3.0  # the parameters have answered by then: a missing name is missing
+HAND_OVER_WAIT_S = 5.0  # an autopilot confirms a mode change in its next HEARTBEAT, within 1 s
 SAME_CENTRE_M = 0.5  # a loiter centre that moved less is not uploaded again
 
 Circle = tuple[float, float, float, int]  # local centre x, y (m), radius (m), +1 CCW / -1 CW
@@ -121,4 +128,24 @@ def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
     for name, value in settings.items():
         if not link.set_param(name, value):
             return f"{name} = {value:g} not confirmed"
+    return None
+
+
+def hand_over(loiter: FailsafeLoiter, trajectory: Trajectory, abort: threading.Event) -> str | None:
+    """The mission's end: the aircraft circles the loiter of `trajectory` (the trajectory in force)
+    in AUTO, as the failsafe would after FS_LONG_TIMEOUT of silence, but now; the reason on
+    failure."""
+    link = loiter.link
+    error = loiter.follow(trajectory)
+    if error:
+        return error
+    deadline = time.monotonic() + HAND_OVER_WAIT_S
+    asked = -math.inf
+    while link.state.custom_mode != ARDUPILOT_AUTO:
+        if abort.is_set() or time.monotonic() > deadline:
+            return f"AUTO not confirmed (mode {link.state.custom_mode})"
+        if time.monotonic() - asked > 1.0:
+            link.set_mode(ARDUPILOT_AUTO)
+            asked = time.monotonic()
+        link.poll(0.1)
     return None

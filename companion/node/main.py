@@ -51,9 +51,13 @@ def run_companion(args: argparse.Namespace) -> int:
         out=out,
         journal=Path(args.journal) if args.journal else None,
     )
-    stop = threading.Event()
+    stop, abort = threading.Event(), threading.Event()
+
+    def on_signal(*_: object) -> None:  # the first closes the mission (`Companion._close`), a second cuts it
+        (abort if stop.is_set() else stop).set()
+
     for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, lambda *_: stop.set())
+        signal.signal(s, on_signal)
     seed = mission.seed if args.seed is None else args.seed
     world = build_world(mission, seed, 0)
     n_tasks = world.tessellation.n_tasks if world.tessellation else 0
@@ -78,7 +82,7 @@ def run_companion(args: argparse.Namespace) -> int:
                 print(f"error: {exc}", file=sys.stderr)
                 return 2
             try:
-                return companion.run(stop)
+                return companion.run(stop, abort)
             except LinkError as exc:
                 print(f"error: {exc}", file=sys.stderr)
                 return 1

@@ -29,6 +29,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -44,7 +45,7 @@ from companion.mission import Mission
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.camera_feed import CameraFeed
 from companion.node.detections import camera_key
-from companion.node.failsafe import FailsafeLoiter, arm_failsafe
+from companion.node.failsafe import FailsafeLoiter, arm_failsafe, hand_over
 from companion.node.faults import InjectedFaults
 from companion.node.fence import fence_margin, fence_polygon, upload_fence
 from companion.node.frames import LocalFrame
@@ -57,6 +58,7 @@ from companion.node.vehicle_link import VehicleLink
 
 log = logging.getLogger("companion")
 
+FLY_OUT_SLACK_S = 10.0  # wall seconds the fly-out may take beyond twice its vehicle time
 LOCKSTEP_COMMAND = 31010  # MAV_CMD_USER_1: "lockstep: ready for step param1"
 # In real time a step is planned LEAD of a step before it starts, from the pose predicted for its
 # start, so that the command is in place when the autopilot begins the step (no one-step lag).
@@ -79,6 +81,7 @@ LOG_COLUMNS = [
     "cmd_y",
     "peers",
     "up",
+    "closing",
 ]
 PLAN_COLUMNS = [
     "step",
@@ -181,6 +184,9 @@ class Companion:
         self._seen_alive: set[int] = set()
         self._departed: set[int] = set()
         self._resync = False  # lockstep: the link was lost, the vehicle may have gone on without us
+        self._k: int | None = None  # the next step to fly (None: not started)
+        self._joined = 0  # lockstep: the step this companion joined the mesh at
+        self.closing = False  # the mission is over: flying out the trajectory in force (`_close`)
         self._log_file = self._plan_file = None
         self._log = self._plan_log = None
         if opts.out is not None:
@@ -309,7 +315,10 @@ class Companion:
         # whether the vehicle will fly this step's plan: the peers are told when it does not
         steered = self.steering and self._steerable() and self._guard(k, x, y)
         command, outbox = self.agent.step(
-            Observation(step=k, x=x, y=y, heading=heading, detections=seen, steered=steered), inbox
+            Observation(
+                step=k, x=x, y=y, heading=heading, detections=seen, steered=steered, closing=self.closing
+            ),
+            inbox,
         )
         if self.journal is not None:
             self.journal.append(self.agent)  # durable before any peer hears of this step
@@ -344,6 +353,7 @@ class Companion:
                     f"{command.waypoint[1]:.3f}",
                     len(self.agent.peers),
                     f"{self.link.state.up:.2f}",
+                    int(self.closing),
                 ]
             )
             assert self._log_file is not None
@@ -417,7 +427,10 @@ class Companion:
                 self.mesh.join()
         return alive
 
-    def run(self, stop: threading.Event) -> int:
+    def run(self, stop: threading.Event, abort: threading.Event | None = None) -> int:
+        """Fly the mission until its step budget is spent or `stop`, then close it (`_close`) unless
+        `abort` (a second signal) cuts that short."""
+        abort = abort if abort is not None else threading.Event()
         seconds = warm_up(self.opts.mission)  # no compiling inside the first real steps
         log.info("uav %d: algorithm ready in %.1f s", self.opts.uav, seconds)
         log.info("uav %d: waiting for the vehicle at %s", self.opts.uav, self.opts.vehicle_url)
@@ -438,34 +451,81 @@ class Companion:
             self._arm_failsafe()
         budget = self.opts.steps if self.opts.steps is not None else self.opts.mission.steps
         if self.opts.lockstep:
-            self._run_lockstep(stop, budget)
+            self._run_lockstep(stop.is_set, budget)
         else:
-            self._run_realtime(stop, budget)
+            self._run_realtime(stop.is_set, budget)
+        if self.steps_done and not abort.is_set():
+            self._close(stopped=stop.is_set(), abort=abort)
         return 0
+
+    def _close(self, stopped: bool, abort: threading.Event) -> None:
+        """The mission is over: fly out the trajectory in force (horizon + 1 steps without a new
+        proposal, so that every turn it planned is flown and it is in its loiter), then hand the
+        aircraft to that loiter (`hand_over`). Every peer's trajectory in force keeps clear of it,
+        and theirs of each other's, whenever each of them stops. In lockstep every companion takes
+        those steps, steering or not (the simulator advances when all are ready), and a swarm stopped
+        by a signal stops its simulated time with it: there is nothing to fly out."""
+        lockstep = self.opts.lockstep
+        if (stopped and lockstep) or (not lockstep and not (self.steering and self._steerable())):
+            return
+        self.closing = True
+        steps = self.opts.mission.algorithm.horizon + 1
+        log.info("uav %d: mission over: flying out the trajectory in force (%d steps)", self.opts.uav, steps)
+        deadline = time.monotonic() + FLY_OUT_SLACK_S + 2 * steps * self.dt
+
+        def cut() -> bool:  # a second signal, a vehicle whose clock stands still, a lost link
+            return abort.is_set() or time.monotonic() > deadline or (not lockstep and not self.steering)
+
+        if lockstep:
+            self._run_lockstep(cut, (self._k or 0) + steps)
+        else:
+            self._run_realtime(cut, self.steps_done + steps)
+        if cut():
+            log.warning("uav %d: fly-out cut short: no hand-over", self.opts.uav)
+            return
+        if not (self.steering and self._steerable()):
+            log.warning("uav %d: not steering at the mission's end: no hand-over", self.opts.uav)
+            return
+        if not self.agent.commitments.loitering():
+            log.warning("uav %d: the trajectory in force is not in its loiter yet", self.opts.uav)
+        if self.failsafe is None:
+            log.warning(
+                "uav %d: no failsafe loiter armed: the aircraft flies its last guidance", self.opts.uav
+            )
+            return
+        error = hand_over(self.failsafe, self.agent.commitments.inforce, abort)
+        if error:
+            log.warning("uav %d: hand-over failed: %s", self.opts.uav, error)
+        elif self.failsafe.current is not None:
+            cx, cy, radius, _ = self.failsafe.current
+            log.info(
+                "uav %d: handed over: AUTO, circling (%.0f, %.0f) m, radius %.0f m",
+                self.opts.uav, cx, cy, radius,
+            )  # fmt: skip
 
     @property
     def _journaled(self) -> int:
         """The last step this companion's journal holds (-1: none)."""
         return self.recovered.step if self.recovered is not None else -1
 
-    def _run_realtime(self, stop: threading.Event, budget: int) -> None:
-        next_k: int | None = None
-        self.mesh.join()
-        if self.recovered is not None:
-            self.steps_done = self.recovered.steps
-        while not stop.is_set() and self.steps_done < budget:
+    def _run_realtime(self, stop: Callable[[], bool], budget: int) -> None:
+        if self._k is None:
+            self.mesh.join()
+            if self.recovered is not None:
+                self.steps_done = self.recovered.steps
+        while not stop() and self.steps_done < budget:
             self.link.poll(0.02)  # and our HEARTBEAT when due
             if not self._check_link() or not self.link.state.has_pose:
                 continue
             self._measure()
             t = self.link.state.time_s
             lead = LEAD * self.dt
-            if next_k is None:
-                next_k = max(math.ceil((t + lead) / self.dt - 1e-9), self._journaled + 1)
-            if t + lead + 1e-6 >= next_k * self.dt:
+            if self._k is None:
+                self._k = max(math.ceil((t + lead) / self.dt - 1e-9), self._journaled + 1)
+            if t + lead + 1e-6 >= self._k * self.dt:
                 k = math.floor((t + lead) / self.dt + 1e-6)
                 self.step(k, ahead=k * self.dt - t)
-                next_k = k + 1
+                self._k = k + 1
 
     def _lockstep_start(self) -> int:
         """The first step to fly in lockstep: the simulator's current step, or the one after the last
@@ -479,14 +539,17 @@ class Companion:
             self.link.command_long(LOCKSTEP_COMMAND, k)
         return k
 
-    def _run_lockstep(self, stop: threading.Event, budget: int) -> None:
+    def _run_lockstep(self, stop: Callable[[], bool], budget: int) -> None:
+        """Steps from the current one (`_k`) up to `budget` (a step number)."""
         self.link.on_poll = None  # one command per step: nothing repeated between steps
-        k = self._lockstep_start()
-        self.mesh.join()
-        joined = k  # the peers' bundles of the step before we joined went out before we listened
-        while not stop.is_set() and k < budget:
+        if self._k is None:
+            self._k = self._joined = self._lockstep_start()
+            self.mesh.join()
+        # the peers' bundles of the step before we joined went out before we listened
+        k, joined = self._k, self._joined
+        while not stop() and k < budget:
             said = time.monotonic()
-            while not stop.is_set() and self.link.state.time_s + 1e-6 < k * self.dt:
+            while not stop() and self.link.state.time_s + 1e-6 < k * self.dt:
                 self.link.poll(0.05)
                 if time.monotonic() - said < 1.0:
                     continue
@@ -498,10 +561,10 @@ class Companion:
                     self.link.command_long(LOCKSTEP_COMMAND, k)
                     self.link.command_long(LOCKSTEP_COMMAND, 0)
                     self._let_a_rewound_vehicle_catch_up(k)
-            if stop.is_set():
+            if stop():
                 return
             if self._resync:
-                k = joined = self._catch_up(k)
+                k = joined = self._k = self._joined = self._catch_up(k)
             self.camera.wait_until(round(k * self.dt * 1e6), PEER_WAIT_S)
             peers = self.mesh.alive_peers() - {self.opts.uav}
             if k > joined and peers:
@@ -511,7 +574,7 @@ class Companion:
             self._measure()
             self.step(k)
             self.link.command_long(LOCKSTEP_COMMAND, k + 1)
-            k += 1
+            k = self._k = k + 1
 
     def _vehicle_step(self) -> int:
         """The lockstep step the vehicle's latest position is at."""

@@ -50,6 +50,7 @@ COMPANION_SYSTEM = 200
 HEARTBEAT_VEHICLE_S = 0.5  # our HEARTBEAT at least this often in vehicle time (a sped-up simulator)...
 HEARTBEAT_WALL_S = 1.0  # ...and in wall time (a vehicle whose clock stands still, a lost link)
 ARDUPILOT_GUIDED = 15
+ARDUPILOT_AUTO = 10
 ARDUPILOT_TAKEOFF = 13
 PX4_OFFBOARD = 6 << 16
 PX4_HOLD = (4 << 16) | (3 << 24)  # AUTO.LOITER

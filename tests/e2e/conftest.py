@@ -396,6 +396,19 @@ def read_csv(path: Path) -> list[dict[str, float]]:
     return rows
 
 
+def searched(rows: list[dict[str, float]]) -> list[dict[str, float]]:
+    """The rows of the mission's steps: without those flown out after its end (`closing`)."""
+    return [r for r in rows if not r["closing"]]
+
+
+def assert_flown_out(rows: list[dict[str, float]], horizon: int) -> None:
+    """The companion flew out its trajectory in force after the mission's last step: the next
+    horizon + 1 steps, logged with `closing` (docs/companion.md, "The mission's end")."""
+    last = int(searched(rows)[-1]["step"])
+    flown = [int(r["step"]) for r in rows if r["closing"]]
+    assert flown == list(range(last + 1, last + horizon + 2)), f"flown out: {flown} after step {last}"
+
+
 def wait_rows(
     path: Path,
     count: int,
@@ -455,16 +468,40 @@ def following(
 
 
 def assert_follows(
-    rows: list[dict[str, float]], speed: float, dt: float, what: str, skip: int = 3, ratio: float = 0.6
+    rows: list[dict[str, float]],
+    speed: float,
+    dt: float,
+    what: str,
+    skip: int = 3,
+    ratio: float = 0.6,
+    closer_share: float = 0.7,
 ) -> None:
     """The companion steered on most steps and the vehicle flew its commands, not straight on: it
-    ended most steps closer to the planned point than straight on would have, and on average
-    within `ratio` of straight on's distance to it."""
+    ended at least `closer_share` of the steps closer to the planned point than straight on would
+    have, and on average within `ratio` of straight on's distance to it."""
     later = [r for r in rows if r["step"] >= rows[0]["step"] + skip]
     assert later, f"{what}: no steps logged"
     steered = sum(r["steered"] for r in later) / len(later)
     assert steered >= 0.9, f"{what}: steered on only {steered:.0%} of the steps"
     f = following(rows, speed, dt, skip)
     assert f.informative >= 5, f"{what}: too few turning commands to judge ({f})"
-    assert f.closer >= 0.7 * f.informative, f"{what}: the vehicle did not follow its commands ({f})"
+    assert f.closer >= closer_share * f.informative, f"{what}: the vehicle did not follow its commands ({f})"
     assert f.err_command < ratio * f.err_straight, f"{what}: the vehicle did not follow its commands ({f})"
+
+
+def assert_turns(
+    rows: list[dict[str, float]], what: str, skip: int = 3, least: float = 0.4, share: float = 0.9
+) -> None:
+    """The vehicle turned as commanded: after at least `share` of the steered steps with a turn of
+    10 degrees or more, its heading had turned the same way by at least `least` of the turn."""
+    by_step = {int(r["step"]): r for r in rows}
+    turning = turned = 0
+    for k in sorted(by_step)[skip:]:
+        a, b = by_step[k], by_step.get(k + 1)
+        if b is None or not (a["steered"] and b["steered"]) or abs(a["turn"]) < math.radians(10):
+            continue
+        flown = math.remainder(b["heading"] - a["heading"], 2 * math.pi)
+        turning += 1
+        turned += flown / a["turn"] >= least
+    assert turning >= 5, f"{what}: too few turns to judge ({turning})"
+    assert turned >= share * turning, f"{what}: turned as commanded after {turned} of {turning} turns"

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, read_csv
+from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, read_csv, searched
 
 STEPS = 40
 
@@ -37,7 +37,7 @@ def test_run_attaches_to_existing_vehicles(make_mission, procs: Procs, tmp_path:
     assert json.loads((out / "summary.json").read_text())["proposed"]["runs"] == 1
     for i in range(mission.n):
         rows = read_csv(out / f"uav{i}.csv")
-        assert len(rows) == STEPS
+        assert len(searched(rows)) == STEPS
         assert_follows(rows, k.speed, k.step, f"uav{i} on an existing vehicle")
     bad = procs.start("bad", [*argv[:6], links.split(",")[0], "--out", str(tmp_path / "bad")])
     assert bad.wait(timeout=STARTUP_S) == 2 and "--vehicles: 1 links for the mission's 2 UAVs" in bad.text()

@@ -13,14 +13,16 @@ import pytest
 
 from companion.app.faults import ROWS, Plan, run_row
 from companion.mission import load_mission
-from tests.e2e.conftest import SCENARIO1
+from tests.e2e.conftest import SCENARIO1, searched
 
 PLAN = Plan(steps=40, at=12, outage=8, victim=1)
 
 
 def _rows(path: Path) -> list[dict[str, float]]:
+    """The mission's rows of a step log (run_row checks the fly-out after them)."""
     with path.open(newline="") as f:
-        return [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f) if r["step"].isdigit()]
+        rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f) if r["step"].isdigit()]
+    return searched(rows)
 
 
 @pytest.mark.slow

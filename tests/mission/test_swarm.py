@@ -74,8 +74,16 @@ def test_scripted_mission_scenario1_sped_up_passes_its_criteria(tmp_path: Path, 
     with (out / "trajectories.csv").open() as f:
         logged = {int(row["step"]) for row in csv.DictReader(f)}
     assert set(range(min(logged), max(logged))) <= set(approach), "the record covers every step flown"
+    # ...and from start-up to the simulator's stop: each companion flew out its trajectory in force
+    # and handed its aircraft over to its loiter (docs/companion.md, "The mission's end")
     assert min(approach.values()) > m.comms.safety + m.safety.buffer
     assert "closest approach along the flown tracks" in proc.stdout
+    for i in range(m.n_uavs):
+        assert f"uav {i}: handed over: AUTO" in (out / f"companion{i}.log").read_text()
+        with (out / f"uav{i}.csv").open() as f:
+            closing = [int(row["closing"]) for row in csv.DictReader(f)]
+        assert closing[-(m.algorithm.horizon + 1) :] == [1] * (m.algorithm.horizon + 1)
+        assert not any(closing[: -(m.algorithm.horizon + 1)])
     for png in ("prior_cvt.png", "trajectories.png", "uncertainty.png", "targets_found.png", "links.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
     for i in range(m.n_uavs):  # real time plans from the predicted start of each step: no lag

@@ -30,7 +30,7 @@ import pytest
 
 from companion.node.mission_upload import upload
 from companion.node.vehicle_link import PX4_HOLD, PX4_OFFBOARD, VehicleLink
-from tests.e2e.conftest import PY, ROOT, Proc, assert_follows, read_csv
+from tests.e2e.conftest import PY, ROOT, Proc, assert_flown_out, assert_follows, read_csv, searched
 from tests.px4.conftest import Px4Airborne
 from tests.sim.conftest import M
 from tests.sitl.conftest import free_bases
@@ -64,7 +64,8 @@ def test_command_mode_turns_the_aircraft_as_planned(
         proc.stop()
     k = px4_airborne.mission.mission.kinematics
     rows = read_csv(out / "uav0.csv")
-    assert len(rows) == STEPS
+    assert len(searched(rows)) == STEPS
+    assert_flown_out(rows, px4_airborne.mission.mission.algorithm.horizon)
     assert_follows(rows, k.speed, k.step, f"{mode} on PX4 SITL")
     layer = px4_airborne.mission.mission.altitude_of(0)
     assert abs(statistics.median(r["up"] for r in rows[STEPS // 2 :]) - layer) < 5.0, "off its layer"
