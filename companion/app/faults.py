@@ -25,7 +25,6 @@ steps itself (`LockstepDriver`), as the autopilot flying on would.
 from __future__ import annotations
 
 import contextlib
-import csv
 import json
 import math
 import os
@@ -44,7 +43,7 @@ from pathlib import Path
 import msgspec
 import tomli_w
 
-from companion.app.evaluation import read_approach
+from companion.app.evaluation import CompanionLogs, mission_rows, read_approach
 from companion.app.launcher import Children
 from companion.app.loopback import free_ports
 from companion.mission import Mission, NetworkFault, load_mission
@@ -208,22 +207,6 @@ def last_step(path: Path) -> int:
         if head.isdigit() and line.count(",") >= 13:
             return int(head)
     return -1
-
-
-def mission_steps(path: Path) -> tuple[list[int], list[int]]:
-    """The steps a companion's step log holds: those of the mission, and those it flew out after
-    the mission's end (`closing`, before the hand-over)."""
-    if not path.exists():
-        return [], []
-    searched, closing = [], []
-    lines = path.read_text(errors="replace").splitlines()
-    for row in csv.DictReader(lines):
-        try:
-            step, flown_out = int(row["step"]), int(row["closing"])
-        except (KeyError, TypeError, ValueError):  # a line a kill cut short
-            continue
-        (closing if flown_out else searched).append(step)
-    return searched, closing
 
 
 def journal_found(path: Path, until: int | None = None) -> set[int]:
@@ -475,14 +458,17 @@ def run_row(row: str, base: Mission, out: Path, plan: Plan) -> RowOutcome:
 def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) -> None:
     """Fill in the outcome from the run's files and list what the swarm failed to keep."""
     n, fail = mission.n_uavs, outcome.failures.append
-    logged = [mission_steps(out / f"uav{i}.csv") for i in range(n)]
-    last = [max(searched, default=-1) for searched, _ in logged]
+    logs = CompanionLogs(out, n)
+    logs.poll()
+    searched = mission_rows(logs.logs)
+    last = [max(searched[i], default=-1) for i in range(n)]
     outcome.completed = all(s == outcome.steps - 1 for s in last)
     if not outcome.completed:
         fail(f"mission not completed: last steps {last} of {outcome.steps}")
     fly_out = list(range(outcome.steps, outcome.steps + mission.algorithm.horizon + 1))
-    if any(closing != fly_out for _, closing in logged):
-        fail(f"the mission's end not flown out: steps {[c for _, c in logged]}, expected {fly_out}")
+    closing = [sorted(set(logs.logs[i]) - set(searched[i])) for i in range(n)]
+    if any(steps != fly_out for steps in closing):
+        fail(f"the mission's end not flown out: steps {closing}, expected {fly_out}")
     reports = []
     for i in range(n):
         path = out / f"uav{i}.json"
