@@ -130,12 +130,15 @@ class Safety(_Base, kw_only=True):
     FS_LONG_TIMEOUT to it; `companion.node.failsafe`).
     `failsafe_reach`: how far (m) from the centre of that loiter the aircraft of a UAV whose
     companion fell silent may be once circling (default: `companion.core.world.failsafe_reach`).
+    `contingency`: every trajectory in force keeps clear of every other UAV's failsafe disk (the
+    contingency clause), so that a companion that dies leaves an aircraft nobody comes near.
     """
 
     margin: NonNegative = 100.0
     buffer: NonNegative = 5.0
     failsafe_timeout: Annotated[float, msgspec.Meta(ge=1, le=300)] = 5.0
     failsafe_reach: NonNegative | None = None
+    contingency: bool = True
 
 
 class Uncertainty(_Base, kw_only=True):

@@ -633,12 +633,13 @@ def build_parser() -> argparse.ArgumentParser:
     _random_starts_option(tu)
     tu.set_defaults(func=_tune)
 
-
     fz = sub.add_parser("fuzz", help="fuzzing campaigns: mesh, MAVLink, camera frames, mission files")
     fz.add_argument("--campaign", default="all", choices=("all", "mesh", "mavlink", "camera", "mission"))
     fz.add_argument(
-        "--count", type=int, default=None, help="inputs per campaign (default: 100,000 mesh, 10,000 others, "
-        "1,000 mission files)",
+        "--count",
+        type=int,
+        default=None,
+        help="inputs per campaign (default: 100,000 mesh, 10,000 others, 1,000 mission files)",
     )
     fz.add_argument("--seed", type=int, default=0)
     fz.set_defaults(func=_fuzz)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import msgspec
@@ -209,6 +209,7 @@ def simulate(
     world: World | None = None,
     kills: Mapping[int, int] | None = None,
     takeovers: Mapping[int, int] | None = None,
+    probe: Callable[[int, list[Agent]], None] | None = None,
 ) -> RunResult:
     """One Monte Carlo run of `mission.algorithm` for `steps` sampling moments.
 
@@ -218,7 +219,8 @@ def simulate(
     last guidance would. `takeovers` maps a UAV to the step from which its companion no longer
     steers its vehicle (a pilot took over, the autopilot fell back to Hold): the vehicle circles
     where it is, turning at the loiter turn, and its agent, told so (`Observation.steered`), goes
-    on publishing its position and commits to nothing.
+    on publishing its position and commits to nothing. `probe(k, agents)`, if given, is called
+    once every agent has taken step k (tests read the agents' commitments there).
     """
     started = time.perf_counter()
     steps = mission.steps if steps is None else steps
@@ -254,6 +256,8 @@ def simulate(
             outboxes.append(outbox)
             if tasks is not None:
                 tasks[k, i] = command.task
+        if probe is not None:
+            probe(k, agents)
         scorer.unc[k] = global_average_uncertainty([a.eta for a in agents])
         if traj is not None:
             traj[k] = poses

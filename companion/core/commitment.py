@@ -32,6 +32,7 @@ from companion.core.safety import (
     expand_rows,
     first_allowed,
     inside_fence,
+    keeps_contingencies,
     leaves_loiters,
 )
 from companion.core.trajectory import Trajectory, step_pose
@@ -50,6 +51,8 @@ class Commitments:
         plan = world.safety
         self.world, self.uav, self.limits = world, uav, plan.limits
         self.ranks, self.failsafe = plan.ranks, plan.failsafe_reach
+        # the contingency clause's disk radius (`keeps_contingencies`); -inf: every pair clears it
+        self.contingency = plan.failsafe_reach if world.mission.safety.contingency else -math.inf
         # any circle an autopilot flies through the latest report (at up to FAILSAFE_WIDE loiter
         # radii), entered off its tangent: what a vehicle nobody steers is taken to stay within
         self.adrift_reach = plan.failsafe_reach + FAILSAFE_WIDE * plan.loiter_radius
@@ -73,11 +76,13 @@ class Commitments:
             ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
         ]
         self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
+        self._centres = np.zeros((0, 2))  # the loiter centres of `_step`'s trajectories
+        self._lone = np.zeros((0, 2))  # those of live UAVs' trajectories in force before their latest
         self._disks = np.zeros((0, 4))
         self._loiters = np.zeros((0, 3))  # where gone UAVs' aircraft circle (`failsafe_loiters`)
         self.progress = LEAVING_PROGRESS * plan.limits.reach.step  # per planned step, leaving a disk
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
-        self._shapes = world.safety.shapes
+        self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
 
     # -- what is known of the others -------------------------------------------------------------
     def observe(self, k: int, fresh: dict[int, StateMsg], states: Iterable[UavState]) -> None:
@@ -146,13 +151,14 @@ class Commitments:
         tethered or gone (their failsafe loiters are gathered too)."""
         lim = self.limits
         r = lim.reach
-        reach = 2 * r.extent + 2 * r.step + lim.separation
+        reach = 2 * r.extent + 2 * r.step + max(lim.separation, self.contingency + lim.disk_separation)
         links = set(self.parents) | self._children()
         trajs: list[Trajectory] = []
         owners: list[int] = []
         proposals: list[bool] = []
         disks: list[tuple[float, float, float, float]] = []  # owner, cx, cy, r
         loiters: list[Disk] = []
+        lone: list[Trajectory] = []
         for j in self.latest:
             mine, dsk = self._possible(k, j, both=True)
             if j in self.dead and k > 0:
@@ -162,6 +168,8 @@ class Commitments:
                 near = math.hypot(s.x - x, s.y - y)
                 if near > max([reach] + [r.extent + r.step + d[2] + lim.disk_separation for d in dsk]):
                     continue
+            if j not in self.dead and mine and j in self.before:
+                lone.append(self.before[j])
             for t in mine:
                 trajs.append(t)
                 owners.append(j)
@@ -174,16 +182,19 @@ class Commitments:
             else np.zeros((0, count + 1, 2))
         )
         self._step = (k, owners, proposals, pts)
+        self._centres = lim.loiter_centres(pts, trajs, k) if trajs else np.zeros((0, 2))
+        self._lone = lim.loiter_centres(lim.expand(lim.rows(lone), k), lone, k) if lone else np.zeros((0, 2))
         self._disks = np.array(disks, dtype=float).reshape(-1, 4)
         self._loiters = np.array(loiters, dtype=float).reshape(-1, 3)
 
     def _arrays(
         self, resolving: bool, proposals: bool = True
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
         """From this step's gathering: what a trajectory of this UAV must keep clear of, and keep
         within range of (tethers: parents and children), over the check's window from t_k (the
         resolution of the pending proposal: the others' proposals only for lower ids) or from
-        t_k+1 (a new proposal: everything). Without `proposals`: the trajectories in force only."""
+        t_k+1 (a new proposal: everything), and the loiter centres of the trajectories to keep
+        clear of. Without `proposals`: the trajectories in force only."""
         _, owners, is_proposal, pts = self._step
         links = (set(self.parents) | self._children()) - self.dead
         rows = [
@@ -196,7 +207,13 @@ class Commitments:
         disks = self._disks
         tether_disks = [d for d in range(len(disks)) if int(disks[d, 0]) in links]
         # contiguous copies: the kernels are compiled for C-ordered arrays (warm_up), never in flight
-        return span[rows], np.ascontiguousarray(disks[:, 1:]), span[tethered], disks[tether_disks, 1:]
+        return (
+            span[rows],
+            np.ascontiguousarray(disks[:, 1:]),
+            span[tethered],
+            disks[tether_disks, 1:],
+            self._centres[rows],
+        )
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
@@ -207,10 +224,17 @@ class Commitments:
         chosen = self.inforce
         self._gather(k, x, y)
         if self.proposal is not None and self.proposal.start == k:
-            others, disks, tethers, tether_disks = self._arrays(resolving=True)
-            pts, inforce = lim.expand(lim.rows([self.proposal, self.inforce]), k)
-            if compatible(pts, others, disks, tethers, tether_disks, *lim.clearances) and leaves_loiters(
-                pts, inforce, self._loiters, lim.disk_separation, lim.horizon, self.progress
+            others, disks, tethers, tether_disks, centres = self._arrays(resolving=True)
+            both = [self.proposal, self.inforce]
+            pts, inforce = expanded = lim.expand(lim.rows(both), k)
+            (px, py), (ix, iy) = lim.loiter_centres(expanded, both, k)
+            sep = lim.disk_separation
+            if (
+                compatible(pts, others, disks, tethers, tether_disks, *lim.clearances)
+                and leaves_loiters(pts, inforce, self._loiters, sep, lim.horizon, self.progress)
+                and keeps_contingencies(
+                    pts, px, py, inforce, ix, iy, others, centres, self._lone, self.contingency, sep
+                )[0]
             ):
                 chosen = self.proposal
                 self.accepted += 1
@@ -237,7 +261,7 @@ class Commitments:
         lim = self.limits
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
-        others, _, tethers, _ = self._arrays(resolving=True, proposals=False)
+        others, _, tethers, _, _ = self._arrays(resolving=True, proposals=False)
         no_disks = np.zeros((0, 3))
         options = [trajectory] + [
             Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
@@ -308,11 +332,12 @@ class Commitments:
         others may fly then), and its loiter side; (-1, 0) if none."""
         lim = self.limits
         x, y, heading = pose
-        others, disks, tethers, tether_disks = self._arrays(resolving=False)
-        if lim.grid:
-            shapes, c, s = self._shapes[round(heading / (math.pi / 4)) % 8], 1.0, 0.0
-        else:
-            shapes, c, s = self._shapes[0], math.cos(heading), math.sin(heading)
+        others, disks, tethers, tether_disks, centres = self._arrays(resolving=False)
+        h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
+        shapes, centres_rel = self._shapes[h], self._shape_centres[h]
+        c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
+        reference = lim.expand(lim.rows([self.inforce]), k + 1)
+        reference_centre = lim.loiter_centres(reference, [self.inforce], k + 1)[0]
         return first_allowed(
             order,
             shapes,
@@ -330,8 +355,13 @@ class Commitments:
             tether_disks,
             self._loiters,
             self.progress,
-            lim.expand(lim.rows([self.inforce]), k + 1)[0],  # a proposal that does not clear the
-            *lim.clearances,  # loiter disks must keep farther from them than this (`leaves_loiters`)
+            reference[0],  # a proposal that does not clear the disks must keep as far from them as this
+            centres_rel,
+            centres,
+            self._lone,
+            reference_centre,
+            self.contingency,
+            *lim.clearances,
         )
 
     def propose(self, proposal: Trajectory | None) -> None:

@@ -114,12 +114,21 @@ class Limits:
         r = self.reach
         row = self.rows([trajectory])[0]
         pts = expand(row, trajectory.start + self.horizon, r.period, *self.kinematics_args)
-        (ax, ay), (bx, by), (cx, cy) = pts[:3]
-        d = 2 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
-        a2, b2, c2 = ax * ax + ay * ay, bx * bx + by * by, cx * cx + cy * cy
-        ux = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d
-        uy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d
+        ux, uy = loiter_centre(pts, 0)
         return ux, uy, float(np.max(np.hypot(pts[:, 0] - ux, pts[:, 1] - uy)))
+
+    def shape_centres(self, shapes: FloatArray) -> FloatArray:
+        """The loiter centre of every candidate of `shapes` (`Limits.shapes`) relative to its anchor:
+        (headings, n_paths, 2 sides, 2)."""
+        out = np.empty((*shapes.shape[:3], 2))
+        for index in np.ndindex(*shapes.shape[:3]):
+            out[index] = loiter_centre(shapes[index], self.horizon)
+        return out
+
+    def loiter_centres(self, pts: FloatArray, trajectories: list[Trajectory], first: int) -> FloatArray:
+        """The loiter centres of `trajectories`, expanded at `pts` from step `first`: (n, 2)."""
+        starts = np.array([t.start + self.horizon - first for t in trajectories], dtype=np.int64)
+        return loiter_centres(pts, starts)
 
     @property
     def kinematics_args(self) -> tuple[float, bool, float, float, float]:
@@ -129,6 +138,29 @@ class Limits:
     def clearances(self) -> tuple[float, float, float]:
         """(separation, disk_separation, link), the trailing arguments of `compatible`."""
         return self.separation, self.disk_separation, self.link
+
+
+@njit(cache=True)
+def loiter_centre(pts: FloatArray, first: int) -> tuple[float, float]:
+    """The centre of the loiter whose sampling points are pts[first:] (at least three of them, all
+    of them if `first` < 0): the circumcentre of three consecutive ones (grid mode's loiter octagon
+    has concyclic vertices)."""
+    i = min(max(first, 0), pts.shape[0] - 3)
+    ax, ay, bx, by, cx, cy = pts[i, 0], pts[i, 1], pts[i + 1, 0], pts[i + 1, 1], pts[i + 2, 0], pts[i + 2, 1]
+    d = 2 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
+    a2, b2, c2 = ax * ax + ay * ay, bx * bx + by * by, cx * cx + cy * cy
+    ux = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d
+    uy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d
+    return ux, uy
+
+
+@njit(cache=True)
+def loiter_centres(pts: FloatArray, firsts: IntArray) -> FloatArray:
+    """`loiter_centre` of every expanded trajectory pts[r] from its index firsts[r]: (n, 2)."""
+    out = np.empty((pts.shape[0], 2))
+    for r in range(pts.shape[0]):
+        out[r, 0], out[r, 1] = loiter_centre(pts[r], firsts[r])
+    return out
 
 
 @njit(cache=True)
@@ -248,6 +280,57 @@ def leaves_loiters(
 
 
 @njit(cache=True)
+def contingency_clearance(
+    pts: FloatArray, cx: float, cy: float, other: FloatArray, ox: float, oy: float, reach: float
+) -> float:
+    """How far each of two trajectories (positions `pts` and `other`, loiter centres (cx, cy) and
+    (ox, oy)) keeps from the disk of radius `reach` about the other's loiter centre, the smaller
+    of the two: where either UAV's aircraft may circle if its companion falls silent."""
+    return min(point_clearance(pts, ox, oy), point_clearance(other, cx, cy)) - reach
+
+
+@njit(cache=True)
+def keeps_contingencies(
+    pts: FloatArray,
+    cx: float,
+    cy: float,
+    reference: FloatArray,
+    rx: float,
+    ry: float,
+    others: FloatArray,
+    centres: FloatArray,
+    lone: FloatArray,
+    reach: float,
+    disk_separation: float,
+) -> tuple[int, float]:
+    """The contingency clause of compatibility for the trajectory at `pts` (loiter centre (cx, cy)),
+    against the others' trajectories at `others` (loiter centres `centres`) and the loiter centres
+    `lone` of the trajectories in force a UAV announced before its latest (its failsafe may still
+    circle there; one-sided): 2 if it clears every such disk by more than `disk_separation`
+    (`contingency_clearance`); else 1 if, against every disk it does not clear, it keeps at least
+    as far as the trajectory in force at `reference` (loiter centre (rx, ry)) over the same steps
+    (a start layout closer than the clause: pairs only move apart); else 0. Also the smallest
+    clearance of a pair it does not clear (infinite if none)."""
+    code, worst = 2, math.inf
+    for o in range(others.shape[0]):
+        ox, oy = centres[o, 0], centres[o, 1]
+        c = contingency_clearance(pts, cx, cy, others[o], ox, oy, reach)
+        if c > disk_separation:
+            continue
+        if c < contingency_clearance(reference, rx, ry, others[o], ox, oy, reach):
+            return 0, c
+        code, worst = 1, min(worst, c)
+    for o in range(lone.shape[0]):
+        c = point_clearance(pts, lone[o, 0], lone[o, 1]) - reach
+        if c > disk_separation:
+            continue
+        if c < point_clearance(reference, lone[o, 0], lone[o, 1]) - reach:
+            return 0, c
+        code, worst = 1, min(worst, c)
+    return code, worst
+
+
+@njit(cache=True)
 def inside_fence(pts: FloatArray, normals: FloatArray, offsets: FloatArray) -> bool:
     """Every point within the fence's half-planes (chords then stay inside: the fence is convex)."""
     for t in range(pts.shape[0]):
@@ -276,18 +359,26 @@ def first_allowed(
     loiters: FloatArray,
     progress: float,
     reference: FloatArray,
+    centres_rel: FloatArray,
+    centres: FloatArray,
+    lone: FloatArray,
+    reference_centre: FloatArray,
+    reach: float,
     separation: float,
     disk_separation: float,
     link: float,
 ) -> tuple[int, int]:
     """The first candidate path in `order` whose trajectory, with one of the loiter sides, stays in the
-    fence, is compatible with everything given and clears the `loiters` (`clears_loiters`, with
-    `progress`): (path, side +1 or -1); if none does, of those in the fence and compatible that may
-    replace the trajectory in force at `reference` (`leaves_loiters`), the one farthest from the
-    disks (`loiter_clearance`); (-1, 0) if none.
+    fence, is compatible with everything given, clears the others' contingency disks
+    (`keeps_contingencies` with the others' loiter `centres`, the `lone` ones and `reach`) and clears
+    the `loiters` (`clears_loiters`, with `progress`): (path, side +1 or -1); if none does, of those
+    in the fence and compatible that may replace the trajectory in force at `reference` (loiter
+    centre `reference_centre`; `keeps_contingencies` and `leaves_loiters`), the one farthest from
+    the disks it does not clear (`loiter_clearance`); (-1, 0) if none.
     `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
-    (`Limits.shapes`), placed at (x, y) and turned by the heading (cos_h, sin_h). The side that
-    turns towards `centre` (the region's centroid) at the plan's end is tried first."""
+    (`Limits.shapes`) and `centres_rel` (n_paths, 2 sides, 2) their loiter centres, placed at (x, y)
+    and turned by the heading (cos_h, sin_h). The side that turns towards `centre` (the region's
+    centroid) at the plan's end is tried first."""
     width = shapes.shape[2]
     pts = np.empty((width, 2))
     best, best_side, farthest = -1, 0, -math.inf
@@ -309,10 +400,26 @@ def first_allowed(
                 and compatible(pts, others, disks, tethers, tether_disks, separation, disk_separation, link)
             ):
                 continue
-            if clears_loiters(pts, loiters, disk_separation, horizon, progress):
+            ox, oy = centres_rel[i, side, 0], centres_rel[i, side, 1]
+            code, worst = keeps_contingencies(
+                pts,
+                x + cos_h * ox - sin_h * oy,
+                y + sin_h * ox + cos_h * oy,
+                reference,
+                reference_centre[0],
+                reference_centre[1],
+                others,
+                centres,
+                lone,
+                reach,
+                disk_separation,
+            )
+            if code == 0:
+                continue
+            if code == 2 and clears_loiters(pts, loiters, disk_separation, horizon, progress):
                 return i, 1 if side == 0 else -1
             if leaves_loiters(pts, reference, loiters, disk_separation, horizon, progress):
-                clearance = loiter_clearance(pts, loiters)
+                clearance = min(worst, loiter_clearance(pts, loiters))
                 if clearance > farthest:
                     farthest, best, best_side = clearance, i, 1 if side == 0 else -1
     return best, best_side

@@ -80,6 +80,7 @@ class SafetyPlan:
     parents: tuple[int, ...]
     failsafe_reach: float
     shapes: FloatArray  # `Limits.shapes` of the mission's paths (eq. 23)
+    centres: FloatArray  # their loiter centres (`Limits.shape_centres`)
 
     @property
     def loiter_radius(self) -> float:
@@ -111,7 +112,8 @@ def build_safety(
     ranks, parents = tether_tree(poses[:, :2], limits.link)
     start = tuple(initial_trajectories(poses, parents, ranks, limits))  # ValueError: no contingency
     reach = s.failsafe_reach if s.failsafe_reach is not None else failsafe_reach(mission, limits)
-    return SafetyPlan(limits, start, ranks, parents, reach, limits.shapes(sequences))
+    shapes = limits.shapes(sequences)
+    return SafetyPlan(limits, start, ranks, parents, reach, shapes, limits.shape_centres(shapes))
 
 
 def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> World:

@@ -118,4 +118,3 @@ def _px4_fence_in_force(link: VehicleLink, seen: int) -> str | None:
         link.poll(0.1)
     invalid = [t for t in link.state.texts_since(seen) if "Geofence invalid" in t]
     return f"PX4 ignores the fence: {invalid[0]}" if invalid else None
-

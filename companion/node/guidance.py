@@ -146,6 +146,7 @@ def lead_point(
         lead = min(lead, _exit_distance(fence, x, y, c, s))
     return x + lead * c, y + lead * s
 
+
 def _exit_distance(fence: ConvexPolygon, x: float, y: float, c: float, s: float) -> float:
     """How far from (x, y) along (c, s) the fence is left, less FENCE_CLEARANCE_M (inf if never;
     the full lead from outside it: the region guard acts there)."""

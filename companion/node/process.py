@@ -587,8 +587,12 @@ class Companion:
         for its next step (the other companions do the same)."""
         now = self._vehicle_step()
         if now < k - 1:
-            log.warning("uav %d: the vehicle resumed at step %d, behind us: releasing it to step %d",
-                        self.opts.uav, now, now + 1)
+            log.warning(
+                "uav %d: the vehicle resumed at step %d, behind us: releasing it to step %d",
+                self.opts.uav,
+                now,
+                now + 1,
+            )
             self.link.command_long(LOCKSTEP_COMMAND, now + 1)
 
     def _catch_up(self, k: int) -> int:

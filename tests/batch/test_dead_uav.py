@@ -6,10 +6,11 @@ within R_s (closest approach between sampling moments), and no trajectory in for
 replaced. The survivors' new proposals are checked against the dead UAVs' frozen commitments and
 must clear their failsafe loiter disks (`Commitments.failsafe_loiters`), or, boxed in by the
 fence and the neighbours, keep farther from them than flying on would (`safety.leaves_loiters`):
-soon after it takes the UAV as gone every survivor is, and stays, farther than R_s from the circle
-a real aircraft would fly there at a phase of its own (ArduPlane circles at up to FAILSAFE_WIDE
-loiter radii; measured: at most 15 steps after the death in 30 generated missions; `LEAVE_STEPS`
-is a generous bound)."""
+every survivor is, and stays, farther than R_s from the circle a real aircraft would fly there at
+a phase of its own (ArduPlane circles at up to FAILSAFE_WIDE loiter radii): from the death on if
+the pair cleared the contingency clause then (`tests/batch/contingency.py`), else soon after it
+takes the UAV as gone (a death in a start-up closer than the clause; measured: at most 15 steps
+after the death in 30 generated missions; `LEAVE_STEPS` is a generous bound)."""
 
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from hypothesis import strategies as st
 
 from companion.batch.engine import simulate
 from companion.core.world import FAILSAFE_WIDE, build_world
+from tests.batch.contingency import clause_probe
 from tests.batch.strikes import MISSION_ARGS, struck_mission
 
 STEPS = 1000
@@ -46,7 +48,8 @@ def test_no_uav_comes_within_r_s_of_a_dead_one(
     m, kills = struck_mission(seed, mode, algorithm, data, STEPS, "dies")
     n, dead = m.n_uavs, sorted(kills)
     world = build_world(m, m.seed, 0)
-    r = simulate(m, m.seed, 0, STEPS, record=True, world=world, kills=kills)
+    rows: list[np.ndarray] = []
+    r = simulate(m, m.seed, 0, STEPS, record=True, world=world, kills=kills, probe=clause_probe(world, rows))
     assert r.separation_losses == 0, f"closest approach {float(r.approach.min()):.1f} m"
     assert float(r.approach.min()) > m.comms.safety
     assert r.extras["recovered"] == 0  # the invariant held: no trajectory in force was replaced
@@ -57,7 +60,8 @@ def test_no_uav_comes_within_r_s_of_a_dead_one(
         cx, cy = loiter_centre(r.trajectory[:, j, :2])
         ring = np.hypot(r.trajectory[-10:, j, 0] - cx, r.trajectory[-10:, j, 1] - cy)
         assert np.allclose(ring, world.safety.loiter_radius, atol=1e-6)
-        by = kills[j] + m.comms.peer_timeout_steps + LEAVE_STEPS
         for i in set(range(n)) - set(dead):
+            cleared = rows[kills[j] - 1][min(i, j), max(i, j)] > 0  # the last step j's companion took
+            by = kills[j] if cleared else kills[j] + m.comms.peer_timeout_steps + LEAVE_STEPS
             near = np.hypot(r.trajectory[by:, i, 0] - cx, r.trajectory[by:, i, 1] - cy) <= wide
             assert not near.any(), f"uav {i} within {wide:.0f} m of dead uav {j}'s loiter after step {by}"

@@ -261,7 +261,10 @@ def _in_process(
     ],
 )
 def test_bad_input_is_a_clear_error(
-    args: tuple[str, ...], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    args: tuple[str, ...],
+    message: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     code, err = _in_process(capsys, monkeypatch, *args, "--quiet", "--out", str(tmp_path))

@@ -1,6 +1,8 @@
 """The mission's end (`Observation.closing`): every UAV flies out its trajectory in force and, after
-horizon + 1 steps, is in its loiter; flown on forever, those loiters keep the swarm separated. This
-is what the companion's hand-over (`Companion._close`, `failsafe.hand_over`) relies on."""
+horizon + 1 steps, is in its loiter; flown on forever, those loiters keep the swarm separated, at
+equal times and, by the safety layer's contingency clause, at any phases and at the wider radius
+ArduPlane flies them. This is what the companion's hand-over (`Companion._close`,
+`failsafe.hand_over`) relies on."""
 
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from hypothesis import strategies as st
 from companion.batch.engine import Radio, initial_poses
 from companion.core.agent import Agent, Observation
 from companion.core.messages import StateMsg
-from companion.core.world import Stream, build_world, instance_rng
+from companion.core.world import FAILSAFE_WIDE, Stream, build_world, instance_rng
 from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -68,6 +70,11 @@ def test_closed_swarm_loiters_apart(name: str, seed: int, open_steps: int) -> No
         gaps = np.linalg.norm(track[:, None] - track[None, :], axis=-1)
         gaps[np.arange(len(agents)), np.arange(len(agents))] = np.inf
         assert gaps.min() > world.mission.comms.safety
+    # and whatever their phases, at the radius ArduPlane flies them (the hand-over's AUTO loiters)
+    centres = lim.loiter_centres(pts, [a.commitments.inforce for a in agents], k)
+    apart = np.linalg.norm(centres[:, None] - centres[None, :], axis=-1)
+    apart[np.arange(len(agents)), np.arange(len(agents))] = np.inf
+    assert apart.min() > 2 * FAILSAFE_WIDE * world.safety.loiter_radius + world.mission.comms.safety
 
 
 def test_a_searching_swarm_is_not_loitering() -> None:

@@ -1,0 +1,40 @@
+"""The contingency clause of the safety layer, read off the agents of a batch run (a `simulate`
+probe): for every pair of UAVs, how far each one's trajectory in force keeps from the disk where
+the other's aircraft may circle if its companion falls silent (`safety.contingency_clearance`),
+beyond the disk separation."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from companion.core.agent import Agent
+from companion.core.safety import contingency_clearance
+from companion.core.world import World
+
+
+def clause_probe(world: World, rows: list[np.ndarray]) -> Callable[[int, list[Agent]], None]:
+    """A `simulate` probe appending, at every step k, the (n, n) matrix of the pairs' contingency
+    clearances (upper triangle; +inf elsewhere): positive where the pair clears both disks."""
+    lim, reach = world.safety.limits, world.safety.failsafe_reach
+
+    def probe(k: int, agents: list[Agent]) -> None:
+        trajs = [a.commitments.inforce for a in agents]
+        pts = lim.expand(lim.rows(trajs), k)  # covers all later time (the loiters repeat)
+        centres = lim.loiter_centres(pts, trajs, k)
+        out = np.full((len(trajs), len(trajs)), np.inf)
+        for i in range(len(trajs)):
+            for j in range(i + 1, len(trajs)):
+                c = contingency_clearance(pts[i], *centres[i], pts[j], *centres[j], reach)
+                out[i, j] = c - lim.disk_separation
+        rows.append(out)
+
+    return probe
+
+
+def clear_pairs(rows: list[np.ndarray]) -> np.ndarray:
+    """(steps, pairs) booleans: the pair clears the clause at that step."""
+    c = np.array(rows)
+    iu = np.triu_indices(c.shape[1], 1)
+    return c[:, iu[0], iu[1]] > 0
