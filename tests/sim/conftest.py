@@ -45,8 +45,14 @@ def free_tcp_port() -> int:
 
 
 def write_mission(
-    directory: Path, *, n: int = 2, mode: str = "continuous", flavour: str = "ardupilot",
-    sensor: str = "", sim: str = "", heading: float = 90.0,
+    directory: Path,
+    *,
+    n: int = 2,
+    mode: str = "continuous",
+    flavour: str = "ardupilot",
+    sensor: str = "",
+    sim: str = "",
+    heading: float = 90.0,
     starts: list[tuple[float, float]] | None = None,
 ) -> tuple[Path, list[int], str]:
     """A mission derived from scenario1 with n vehicles on free ports and a unique key prefix."""
@@ -74,7 +80,10 @@ class SimProcess:
     def __init__(self, mission: Path, *args: str) -> None:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "sim_vehicles", "--mission", str(mission), *args],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
         )
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -102,8 +111,14 @@ class SimProcess:
             self.proc.kill()
             rc = self.proc.wait()
         self._reader.join(timeout=5)
-        stats = next((json.loads(line.split(": ", 1)[1]) for line in self.lines
-                      if line.startswith("sim_vehicles stats: ")), {})
+        stats = next(
+            (
+                json.loads(line.split(": ", 1)[1])
+                for line in self.lines
+                if line.startswith("sim_vehicles stats: ")
+            ),
+            {},
+        )
         return rc, stats
 
     def kill(self) -> None:
@@ -143,8 +158,13 @@ class Mav:
     def hello(self) -> None:
         self.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
 
-    def wait(self, kind: str | list[str], cond: Callable[[object], bool] | None = None,
-             timeout: float = 20.0, hello: bool = False) -> object | None:
+    def wait(
+        self,
+        kind: str | list[str],
+        cond: Callable[[object], bool] | None = None,
+        timeout: float = 20.0,
+        hello: bool = False,
+    ) -> object | None:
         """The next message of `kind` from our vehicle satisfying `cond`, or None on timeout."""
         deadline = time.monotonic() + timeout
         if hello:
@@ -161,8 +181,9 @@ class Mav:
                 return msg
         return None
 
-    def need(self, kind: str | list[str], cond: Callable[[object], bool] | None = None,
-             timeout: float = 20.0) -> object:
+    def need(
+        self, kind: str | list[str], cond: Callable[[object], bool] | None = None, timeout: float = 20.0
+    ) -> object:
         msg = self.wait(kind, cond, timeout)
         assert msg is not None, f"no {kind} within {timeout} s"
         return msg
@@ -173,10 +194,22 @@ class Mav:
         ack = self.need("COMMAND_ACK", lambda m: m.command == command, timeout)
         return ack.result
 
-    def command_int(self, command: int, frame: int, p1: float, p2: float, p3: float, p4: float,
-                    lat: float, lon: float, alt: float, timeout: float = 10.0) -> int:
-        self.mav.command_int_send(self.sysid, 1, frame, command, 0, 0, p1, p2, p3, p4,
-                                  round(lat * 1e7), round(lon * 1e7), alt)
+    def command_int(
+        self,
+        command: int,
+        frame: int,
+        p1: float,
+        p2: float,
+        p3: float,
+        p4: float,
+        lat: float,
+        lon: float,
+        alt: float,
+        timeout: float = 10.0,
+    ) -> int:
+        self.mav.command_int_send(
+            self.sysid, 1, frame, command, 0, 0, p1, p2, p3, p4, round(lat * 1e7), round(lon * 1e7), alt
+        )
         return self.need("COMMAND_ACK", lambda m: m.command == command, timeout).result
 
     def sim_time(self) -> float:
@@ -199,8 +232,10 @@ def distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
 
 
 def offset(lat: float, lon: float, north: float, east: float) -> tuple[float, float]:
-    return (lat + math.degrees(north / 6_371_000.0),
-            lon + math.degrees(east / (6_371_000.0 * math.cos(math.radians(lat)))))
+    return (
+        lat + math.degrees(north / 6_371_000.0),
+        lon + math.degrees(east / (6_371_000.0 * math.cos(math.radians(lat)))),
+    )
 
 
 def fit_circle(points: list[tuple[float, float]]) -> tuple[float, float, float]:

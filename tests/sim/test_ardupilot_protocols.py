@@ -44,7 +44,10 @@ def _guided_armed(mav: Mav) -> None:
 def test_identity_streams_and_requests(mav: Mav) -> None:
     hb = mav.need("HEARTBEAT")
     assert (hb.type, hb.autopilot, hb.custom_mode) == (
-        M.MAV_TYPE_FIXED_WING, M.MAV_AUTOPILOT_ARDUPILOTMEGA, 0)
+        M.MAV_TYPE_FIXED_WING,
+        M.MAV_AUTOPILOT_ARDUPILOTMEGA,
+        0,
+    )
     assert not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
     status = mav.need("SYS_STATUS")
     for field in ("onboard_control_sensors_present", "onboard_control_sensors_health"):
@@ -101,9 +104,22 @@ def test_parameters_change_behaviour(mav: Mav) -> None:
     first = mav.need("PARAM_VALUE")
     names = {first.param_id} | {mav.need("PARAM_VALUE").param_id for _ in range(first.param_count - 1)}
     assert names == {
-        "AIRSPEED_CRUISE", "AIRSPEED_MIN", "AIRSPEED_MAX", "SIM_TURN_LIMIT", "ROLL_LIMIT_DEG",
-        "SIM_GUIDED_TMO", "WP_RADIUS", "WP_LOITER_RAD", "FENCE_ENABLE", "FENCE_ACTION", "FENCE_TYPE",
-        "FS_GCS_ENABL", "MAV_GCS_SYSID", "FS_SHORT_ACTN", "FS_SHORT_TIMEOUT", "FS_LONG_ACTN",
+        "AIRSPEED_CRUISE",
+        "AIRSPEED_MIN",
+        "AIRSPEED_MAX",
+        "SIM_TURN_LIMIT",
+        "ROLL_LIMIT_DEG",
+        "SIM_GUIDED_TMO",
+        "WP_RADIUS",
+        "WP_LOITER_RAD",
+        "FENCE_ENABLE",
+        "FENCE_ACTION",
+        "FENCE_TYPE",
+        "FS_GCS_ENABL",
+        "MAV_GCS_SYSID",
+        "FS_SHORT_ACTN",
+        "FS_SHORT_TIMEOUT",
+        "FS_LONG_ACTN",
         "FS_LONG_TIMEOUT",
     }
     mav.mav.param_request_read_send(mav.sysid, 1, b"WP_RADIUS", -1)
@@ -130,8 +146,11 @@ def test_reposition_flies_there_and_loiters(mav: Mav) -> None:
     assert mav.command_int(M.MAV_CMD_DO_REPOSITION, 3, -1, 95.0, 0, 0, 95.0, tlon, 100) == M.MAV_RESULT_DENIED
     assert mav.command_int(M.MAV_CMD_DO_REPOSITION, 3, -1, 1, 0, 0, tlat, tlon, 120) == 0
     mav.need("HEARTBEAT", lambda m: m.custom_mode == 15)
-    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < ARRIVED_M,
-             timeout=60)
+    mav.need(
+        "GLOBAL_POSITION_INT",
+        lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < ARRIVED_M,
+        timeout=60,
+    )
     t0 = mav.sim_time()
     while mav.sim_time() < t0 + 40:  # then it loiters around the point
         g = mav.need("GLOBAL_POSITION_INT")
@@ -141,8 +160,11 @@ def test_reposition_flies_there_and_loiters(mav: Mav) -> None:
     blat, blon = offset(tlat, tlon, -400.0, 0.0)
     mav.mav.command_long_send(mav.sysid, 1, M.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, blat, blon, 100)
     assert mav.need("COMMAND_ACK", lambda m: m.command == M.MAV_CMD_DO_REPOSITION).result == 0
-    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, blat, blon) < ARRIVED_M,
-             timeout=60)
+    mav.need(
+        "GLOBAL_POSITION_INT",
+        lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, blat, blon) < ARRIVED_M,
+        timeout=60,
+    )
     assert mav.command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH) == 0
     mav.need("HEARTBEAT", lambda m: m.custom_mode == 11)
 
@@ -176,8 +198,23 @@ def test_heading_hold_param3_and_altitude(mav: Mav) -> None:
     lat, lon, _ = mav.position()
     flat, flon = offset(lat, lon, 5000.0, 5000.0)
     mav.mav.set_position_target_global_int_send(
-        0, mav.sysid, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0b110111111000,
-        round(flat * 1e7), round(flon * 1e7), 130, 0, 0, 0, 0, 0, 0, 0, 0)
+        0,
+        mav.sysid,
+        1,
+        M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        0b110111111000,
+        round(flat * 1e7),
+        round(flon * 1e7),
+        130,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )
     mav.need("GLOBAL_POSITION_INT", lambda g: abs(g.relative_alt / 1000 - 130) < 0.5, timeout=30)
     assert abs(math.degrees(mav.need("ATTITUDE").yaw) + 90) < 2
     assert mav.command(M.MAV_CMD_GUIDED_CHANGE_SPEED, 0, 18) == 0
@@ -196,6 +233,7 @@ def test_turn_rate_bank_limit_and_guidance_timeout(mav: Mav) -> None:
         def check(a: object) -> bool:
             mav.mav.set_attitude_target_send(0, mav.sysid, 1, 195, [1, 0, 0, 0], 0, 0, rate_sent, 0)
             return abs(a.yawspeed - expected) < 1e-3
+
         return check
 
     rate_sent = rate
@@ -229,8 +267,21 @@ def test_mission_upload_download_fly(mav: Mav) -> None:
         req = mav.need("MISSION_REQUEST_INT")
         plat, plon = points[req.seq]
         mav.mav.mission_item_int_send(
-            mav.sysid, 1, req.seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_NAV_WAYPOINT,
-            0, 1, 0, 0, 0, 0, round(plat * 1e7), round(plon * 1e7), 100)
+            mav.sysid,
+            1,
+            req.seq,
+            M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            M.MAV_CMD_NAV_WAYPOINT,
+            0,
+            1,
+            0,
+            0,
+            0,
+            0,
+            round(plat * 1e7),
+            round(plon * 1e7),
+            100,
+        )
     assert mav.need("MISSION_ACK").type == M.MAV_MISSION_ACCEPTED
     mav.mav.mission_request_list_send(mav.sysid, 1, M.MAV_MISSION_TYPE_MISSION)
     assert mav.need("MISSION_COUNT").count == 3

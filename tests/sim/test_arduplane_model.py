@@ -30,8 +30,22 @@ def _upload_fence(mav: Mav, corners: list[tuple[float, float]], count: int | Non
         req = mav.need("MISSION_REQUEST_INT", lambda r: r.mission_type == fence)
         lat, lon = corners[req.seq]
         mav.mav.mission_item_int_send(
-            mav.sysid, 1, req.seq, M.MAV_FRAME_GLOBAL, M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
-            0, 1, count or len(corners), 0, 0, 0, round(lat * 1e7), round(lon * 1e7), 0, fence)
+            mav.sysid,
+            1,
+            req.seq,
+            M.MAV_FRAME_GLOBAL,
+            M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+            0,
+            1,
+            count or len(corners),
+            0,
+            0,
+            0,
+            round(lat * 1e7),
+            round(lon * 1e7),
+            0,
+            fence,
+        )
     return mav.need("MISSION_ACK", lambda a: a.mission_type == fence).type
 
 

@@ -24,9 +24,19 @@ def test_mavproxy_guided(tmp_path: Path, start_sim) -> None:
     lat, lon, _ = monitor.position()
     tlat, tlon = offset(lat, lon, 500.0, -300.0)
     proxy = subprocess.Popen(
-        [str(Path(sys.executable).parent / "mavproxy.py"), f"--master=udpout:127.0.0.1:{ports[0]}",
-         "--state-basedir", str(tmp_path), "--logfile", str(tmp_path / "mav.tlog")],
-        cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        [
+            str(Path(sys.executable).parent / "mavproxy.py"),
+            f"--master=udpout:127.0.0.1:{ports[0]}",
+            "--state-basedir",
+            str(tmp_path),
+            "--logfile",
+            str(tmp_path / "mav.tlog"),
+        ],
+        cwd=tmp_path,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
     )
     out: list[str] = []
     try:
@@ -43,8 +53,11 @@ def test_mavproxy_guided(tmp_path: Path, start_sim) -> None:
             proxy.stdin.flush()
             time.sleep(1.0)
         assert monitor.wait("HEARTBEAT", lambda m: m.custom_mode == 15, timeout=30), "".join(out)
-        monitor.need("GLOBAL_POSITION_INT",
-                     lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < ARRIVED_M, timeout=60)
+        monitor.need(
+            "GLOBAL_POSITION_INT",
+            lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, tlat, tlon) < ARRIVED_M,
+            timeout=60,
+        )
     finally:
         proxy.terminate()
         try:

@@ -23,8 +23,23 @@ def _stream(mav: Mav, lat: float, lon: float, seconds: float) -> None:
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         mav.mav.set_position_target_global_int_send(
-            0, mav.sysid, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0b110111111000,
-            round(lat * 1e7), round(lon * 1e7), 100, 0, 0, 0, 0, 0, 0, 0, 0)
+            0,
+            mav.sysid,
+            1,
+            M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            0b110111111000,
+            round(lat * 1e7),
+            round(lon * 1e7),
+            100,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
         time.sleep(0.05)
 
 
@@ -86,8 +101,11 @@ def test_px4_surface(tmp_path: Path, start_sim) -> None:
     assert mav.command_int(M.MAV_CMD_DO_REPOSITION, frame, -1, 0, 0, 0, *args) == M.MAV_RESULT_UNSUPPORTED
     assert mav.command_int(M.MAV_CMD_DO_REPOSITION, frame, -1, 1, 30, 0, *args) == 0
     mav.need("HEARTBEAT", lambda m: m.custom_mode == HOLD)
-    mav.need("GLOBAL_POSITION_INT", lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, blat, blon) < ARRIVED_M,
-             timeout=60)
+    mav.need(
+        "GLOBAL_POSITION_INT",
+        lambda g: distance_m(g.lat * 1e-7, g.lon * 1e-7, blat, blon) < ARRIVED_M,
+        timeout=60,
+    )
     time.sleep(8.0)  # settle on the circle
     radii, ups = [], []
     for _ in range(20):
@@ -129,6 +147,20 @@ def _upload_fence(mav: Mav, vertices: list[tuple[float, float]]) -> None:
         req = mav.need("MISSION_REQUEST_INT")
         lat, lon = vertices[req.seq]
         mav.mav.mission_item_int_send(
-            mav.sysid, 1, req.seq, M.MAV_FRAME_GLOBAL, M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
-            0, 1, n, 0, 0, 0, round(lat * 1e7), round(lon * 1e7), 0, M.MAV_MISSION_TYPE_FENCE)
+            mav.sysid,
+            1,
+            req.seq,
+            M.MAV_FRAME_GLOBAL,
+            M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+            0,
+            1,
+            n,
+            0,
+            0,
+            0,
+            round(lat * 1e7),
+            round(lon * 1e7),
+            0,
+            M.MAV_MISSION_TYPE_FENCE,
+        )
     assert mav.need("MISSION_ACK").type == M.MAV_MISSION_ACCEPTED

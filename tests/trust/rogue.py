@@ -78,6 +78,7 @@ def outsider(mission: Mission, foreign: Path) -> int:
     heard = [0]
     seed = (mission.mesh.seed_endpoint,)
     sessions = [zenoh.open(peer_config(("tcp/127.0.0.1:0",), seed, sec)) for sec in securities]
+
     def on_sample(_sample: zenoh.Sample) -> None:
         heard[0] += 1
 
