@@ -9,7 +9,7 @@ switches it to AUTO and it circles that loiter (seen on our own MAVLink connecti
 `safety.failsafe_reach` of its centre, as the survivors' model of a silent UAV assumes. The
 simulator's physics-rate record (approach.csv) gives its closest approach to a survivor after the
 kill, which should never be within R_s (docs/algorithm.md, "A silent UAV stays an obstacle"): where
-it is, the documented gaps (1)-(2), the test is an expected failure once everything else passed,
+it is, the documented gap (1), the test is an expected failure once everything else passed,
 two survivors within R_s included.
 """
 
@@ -151,6 +151,6 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
     assert min(live, default=math.inf) > m.comms.safety, "two survivors came within R_s"
     if closest <= m.comms.safety:
         pytest.xfail(
-            f"the dead UAV's aircraft came {closest:.1f} m from a survivor: gaps (1)-(2), docs/algorithm.md "
-            '("A silent UAV stays an obstacle"), a survivor on a plan only time-compatible with it'
+            f"the dead UAV's aircraft came {closest:.1f} m from a survivor: gap (1), docs/algorithm.md "
+            '("A silent UAV stays an obstacle"): the aircraft off its plan before its failsafe circles'
         )

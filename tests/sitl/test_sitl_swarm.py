@@ -10,7 +10,7 @@ is scored: targets found, every logged pose inside the fence, each UAV at its al
 separation: the camera's record of every pair's closest approach (approach.csv, from the vehicles'
 position streams at 10 Hz) should never have the dead UAV's aircraft within R_s of a survivor
 horizontally after the kill (docs/algorithm.md, "A silent UAV stays an obstacle"; an expected
-failure where it does, the documented gap (2), once everything else has passed), and wherever two
+failure where it does, the documented gap (1), once everything else has passed), and wherever two
 UAVs are closer than R_s horizontally they are apart by their altitude layers (the vertical
 backstop: on a real autopilot the plans' tracking error exceeds `safety.buffer`).
 """
@@ -158,6 +158,6 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
                 )
     if closest <= m.comms.safety:  # apart by their layers (checked above), not horizontally
         pytest.xfail(
-            f"the dead UAV's aircraft came {closest:.1f} m from a survivor: gap (2) of docs/algorithm.md "
-            '("A silent UAV stays an obstacle"), a survivor on a plan only time-compatible with it'
+            f"the dead UAV's aircraft came {closest:.1f} m from a survivor: gap (1) of docs/algorithm.md "
+            '("A silent UAV stays an obstacle"): the aircraft off its plan before its failsafe circles'
         )
