@@ -191,12 +191,13 @@ class Commitments:
 
     def _arrays(
         self, resolving: bool, proposals: bool = True
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, np.ndarray]:
         """From this step's gathering: what a trajectory of this UAV must keep clear of, and keep
         within range of (tethers: parents and children), over the check's window from t_k (the
         resolution of the pending proposal: the others' proposals only for lower ids) or from
-        t_k+1 (a new proposal: everything), and the loiter centres of the trajectories to keep
-        clear of. Without `proposals`: the trajectories in force only."""
+        t_k+1 (a new proposal: everything), the loiter centres of the trajectories to keep clear
+        of, and which of them are trajectories in force. Without `proposals`: the trajectories in
+        force only."""
         _, owners, is_proposal, pts = self._step
         links = (set(self.parents) | self._children()) - self.dead
         rows = [
@@ -215,6 +216,7 @@ class Commitments:
             span[tethered],
             disks[tether_disks, 1:],
             self._centres[rows],
+            ~np.array(is_proposal, dtype=bool)[rows],
         )
 
     # -- the protocol, step by step --------------------------------------------------------------
@@ -226,12 +228,12 @@ class Commitments:
         chosen = self.inforce
         self._gather(k, x, y)
         if self.proposal is not None and self.proposal.start == k:
-            others, disks, tethers, tether_disks, centres = self._arrays(resolving=True)
+            others, disks, tethers, tether_disks, centres, in_force = self._arrays(resolving=True)
             both = [self.proposal, self.inforce]
             pts, inforce = expanded = lim.expand(lim.rows(both), k)
             (px, py), (ix, iy) = lim.loiter_centres(expanded, both, k)
             sep = lim.disk_separation
-            normal, crowded, need = self._crowded(inforce, others)
+            normal, crowded, need = self._crowded(inforce, others, in_force)
             if (
                 compatible(pts, normal, disks, tethers, tether_disks, *lim.clearances)
                 and keeps_apart(pts, crowded, need)[0]
@@ -249,13 +251,14 @@ class Commitments:
         return self.inforce
 
     def _crowded(
-        self, reference: FloatArray, others: FloatArray
+        self, reference: FloatArray, others: FloatArray, in_force: np.ndarray
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """`others` split by whether the trajectory in force (at `reference`, the same steps) is
-        compatible with them: those it is, and those it is already too close to (after a fault),
-        with its clearance from each (`safety.keeps_apart`)."""
+        compatible with them: those it is, and the others' trajectories in force (`in_force`) it is
+        already too close to (after a fault), with its clearance from each (`safety.keeps_apart`).
+        A proposal it is too close to stays a strict obstacle: its owner will not switch to it."""
         gaps = clearances(reference, others)
-        close = gaps <= self.limits.separation
+        close = (gaps <= self.limits.separation) & in_force
         return others[~close], others[close], gaps[close]
 
     def loitering(self) -> bool:
@@ -275,7 +278,7 @@ class Commitments:
         lim = self.limits
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
-        others, _, tethers, _, _ = self._arrays(resolving=True, proposals=False)
+        others, _, tethers, _, _, _ = self._arrays(resolving=True, proposals=False)
         no_disks = np.zeros((0, 3))
         options = [trajectory] + [
             Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
@@ -346,13 +349,13 @@ class Commitments:
         others may fly then), and its loiter side; (-1, 0) if none."""
         lim = self.limits
         x, y, heading = pose
-        others, disks, tethers, tether_disks, centres = self._arrays(resolving=False)
+        others, disks, tethers, tether_disks, centres, in_force = self._arrays(resolving=False)
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         shapes, centres_rel = self._shapes[h], self._shape_centres[h]
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
         reference = lim.expand(lim.rows([self.inforce]), k + 1)
         reference_centre = lim.loiter_centres(reference, [self.inforce], k + 1)[0]
-        normal, crowded, need = self._crowded(reference[0], others)
+        normal, crowded, need = self._crowded(reference[0], others, in_force)
         return first_allowed(
             order,
             shapes,
