@@ -16,6 +16,12 @@ out of those disks, or, from inside one, head out of it. A UAV that says its veh
 (`UavState.steered`) commits to nothing and is kept clear of like a gone one, its disk about its
 latest report (`adrift_reach`). Rejecting a proposal is always safe: the trajectory in force ends
 in a loiter inside the fence.
+
+With `safety.contingency`, compatibility also asks each of two trajectories to keep clear of the
+other's failsafe disk (`safety.keeps_contingencies`; docs/algorithm.md, "The contingency
+clause"), and of the disk of the trajectory in force a live UAV announced before its latest. A
+pair whose trajectories in force are already too close (after a fault) is only kept from getting
+closer, and the proposal that opens it fastest is taken (`safety.keeps_apart`, "Recovery").
 """
 
 from __future__ import annotations
