@@ -40,7 +40,7 @@ from companion.core.messages import (
     UavState,
 )
 from companion.core.rhc import rank_candidates, rank_grid_candidates
-from companion.core.tasks import keep_task, rewards, task_completion, total_cost
+from companion.core.tasks import holding_cost, keep_task, rewards, task_completion, total_cost
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
@@ -192,6 +192,9 @@ class Agent:
         self.eta = self._eta_padded[:-1]
         self.eta[:] = m.uncertainty.eta0
         self._values = self._eta_padded if self.algorithm == "proposed" else np.zeros(n + 1)
+        # no-ta scores importance s = eta Pr (eq. 12) on eta's scale: Pr relative to its peak, so that
+        # eq. 22 weighs its search term against eq. 29's barriers as it does the proposed method's eta
+        self._relative_prior = world.prior / max(float(world.prior.max()), np.finfo(float).tiny)
         self.seen = np.zeros(n, dtype=bool)
         self.found: set[int] = set()
         self.peers: dict[int, UavState] = {}
@@ -307,9 +310,10 @@ class Agent:
         done = self.covered > a.v_max * tess.cell_counts
         if done.all():
             return ()
-        cost = total_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs)
-        reward = rewards(self.eta * w.prior, cost, tess)
-        worthless = done | (cost > a.c_max)
+        reward = rewards(
+            self.eta * w.prior, total_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs), tess
+        )
+        worthless = done | (holding_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs) > a.c_max)
         if self.task >= 0:
             worthless |= reward <= reward[self.task]
         return tuple(np.where(worthless, 0.0, reward).tolist())
@@ -345,7 +349,9 @@ class Agent:
             j = self.task
             completion = task_completion(int(self.covered[j]), int(tess.cell_counts[j]))
             cost = float(
-                total_cost(position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs)[0]
+                holding_cost(position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs)[
+                    0
+                ]
             )
             if lost or not keep_task(completion, cost, a.v_max, a.c_max):
                 self.task, self.task_reward = -1, 0.0
@@ -406,7 +412,7 @@ class Agent:
         # RHC: eq. 24 over every path of eq. 23, best first (eq. 22); the safety layer takes the first
         # it allows
         if self.algorithm == "no-ta":
-            self._values[:-1] = self.eta * w.prior
+            self._values[:-1] = self.eta * self._relative_prior
         elif self.phi is not None:
             self.phi = phero.step_field(grid, self.phi, self.eta, w.prior, a.pheromone, self._values)
         tess = w.tessellation

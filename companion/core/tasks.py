@@ -43,18 +43,21 @@ def time_cost(position: FloatArray, generators: FloatArray, areas: FloatArray, w
 
 
 @njit(cache=True)
-def communication_cost(neighbours: FloatArray, generators: FloatArray, w: CostWeights) -> FloatArray:
+def communication_cost(
+    neighbours: FloatArray, generators: FloatArray, w: CostWeights, cap: float
+) -> FloatArray:
     """Eq. 17: C^c_ij = sum over MST neighbours l of (exp(max(0, (d_lj - R'_c)/(R_c - d_lj))) - 1).
 
-    Each neighbour's term saturates at exp(comm_cap) - 1: a task beyond R_c of a neighbour is
-    expensive, not impossible, since the swarm moves as a whole and the RHC (eq. 29) keeps the links.
+    Each neighbour's term saturates at exp(cap) - 1. The auction caps it at `comm_cap` (a task
+    beyond R_c of a neighbour is expensive, not impossible, since the swarm moves as a whole and
+    the RHC keeps the links); eq. 21's test does not (cap = inf: beyond R_c is prohibitive).
     """
     out = np.zeros(generators.shape[0])
-    cap = math.expm1(w.comm_cap)
+    limit = math.expm1(cap)
     for j in range(generators.shape[0]):
         for n in range(neighbours.shape[0]):
             d = math.hypot(generators[j, 0] - neighbours[n, 0], generators[j, 1] - neighbours[n, 1])
-            out[j] += min(link_cost(d, w.r_c, w.r_c_attr), cap)
+            out[j] += min(link_cost(d, w.r_c, w.r_c_attr), limit)
     return out
 
 
@@ -62,9 +65,21 @@ def communication_cost(neighbours: FloatArray, generators: FloatArray, w: CostWe
 def total_cost(
     position: FloatArray, neighbours: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights
 ) -> FloatArray:
-    """Eq. 18: C_ij = beta_1 C^t_ij + beta_2 C^c_ij for the tasks given by their generators and areas."""
+    """Eq. 18: C_ij = beta_1 C^t_ij + beta_2 C^c_ij for the tasks given by their generators and areas,
+    each neighbour's eq. 17 term capped at exp(comm_cap) - 1 (the auction's cost, eq. 15)."""
     return w.beta1 * time_cost(position, generators, areas, w) + w.beta2 * communication_cost(
-        neighbours, generators, w
+        neighbours, generators, w, w.comm_cap
+    )
+
+
+@njit(cache=True)
+def holding_cost(
+    position: FloatArray, neighbours: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights
+) -> FloatArray:
+    """C*_{i,k} of eq. 21: eq. 18 with eq. 17 uncapped, so a task whose generator is near or beyond
+    R_c of an MST neighbour (keeping it threatens that link) costs more than any C_max."""
+    return w.beta1 * time_cost(position, generators, areas, w) + w.beta2 * communication_cost(
+        neighbours, generators, w, math.inf
     )
 
 

@@ -98,6 +98,26 @@ def test_a_task_holder_is_a_greedy_bidder(scenario1) -> None:
             assert outs[0][0].task not in (-1, held)
 
 
+def test_eq_21_ends_and_refuses_tasks_beyond_a_neighbours_range(scenario1) -> None:
+    """Eq. 21 with eq. 17 uncapped: a UAV neither bids for a task whose generator is beyond R_c of
+    an MST neighbour nor keeps one it was given (UAV 0 at the start line's west end, UAV 1 400 m east)."""
+    r_c = scenario1.comms.range
+    far = None
+    for k, world, agents, outs in run_agents(scenario1, 4):
+        if k == 1:
+            gens = world.tessellation.generators
+            me, uav1 = (np.array(outs[i][1][0].state.plan[0]) for i in (0, 1))  # both next poses
+            beyond = np.hypot(*(gens - uav1).T) > r_c
+            agents[0].task = -1  # bids as a UAV without a task: every task it could keep
+            bids = np.array(agents[0]._my_bids(me, uav1[None, :]))
+            assert beyond.any() and (bids[~beyond] > 0).any()
+            assert np.all(bids[beyond] == 0.0)
+            far = int(np.flatnonzero(beyond)[0])
+            agents[0].task, agents[0].task_reward = far, 1e9  # given a far task by hand
+        if k == 2:  # reevaluated at step 2 (its cost is above any C_max): dropped, not won back
+            assert far is not None and outs[0][0].task != far
+
+
 def test_agent_eta_never_rises_and_agents_share_no_state(scenario1) -> None:
     prev = None
     for _, _, agents, _ in run_agents(scenario1, 15):
@@ -130,6 +150,16 @@ def test_baselines_never_take_tasks(scenario1, algorithm: str) -> None:
         for cmd, out in outs:
             assert cmd.task == -1
             assert not any(isinstance(m, BidsMsg) for m in out)
+
+
+def test_no_ta_scores_importance_on_etas_scale(scenario1) -> None:
+    """no-ta's search term is s = eta Pr (eq. 12) relative to the prior's peak: on eta's scale, as
+    the proposed method's eta is, so eq. 22 weighs both against eq. 29's barriers alike."""
+    for _, world, agents, _ in run_agents(scenario1.with_algorithm("no-ta"), 2):
+        values = agents[0]._values[:-1]
+        s = agents[0].eta * world.prior
+        assert values == pytest.approx(s / world.prior.max())
+        assert values.max() == pytest.approx(scenario1.uncertainty.eta0)  # the peak cell is not seen yet
 
 
 def _hops(near: np.ndarray) -> np.ndarray:

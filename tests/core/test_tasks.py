@@ -11,6 +11,7 @@ from companion.core.cvt import describe
 from companion.core.tasks import (
     CostWeights,
     communication_cost,
+    holding_cost,
     keep_task,
     rewards,
     task_completion,
@@ -40,26 +41,50 @@ def test_communication_cost_with_cap() -> None:
     # task 1 (0, 0):     A at 1000 = R_c -> capped at 19.085537;
     #                    B at 850 -> (850 - 700) / (1000 - 850) = 1 -> e - 1 = 1.718282
     cap = 19.085537
-    assert communication_cost(NBRS, GENS, W) == pytest.approx([cap, cap + 1.718282], rel=1e-6)
+    assert communication_cost(NBRS, GENS, W, W.comm_cap) == pytest.approx([cap, cap + 1.718282], rel=1e-6)
     # no MST neighbours: no communication cost
-    assert communication_cost(np.zeros((0, 2)), GENS, W).tolist() == [0.0, 0.0]
+    assert communication_cost(np.zeros((0, 2)), GENS, W, W.comm_cap).tolist() == [0.0, 0.0]
     # a neighbour inside R'_c of both generators costs nothing
-    assert communication_cost(np.array([[100.0, 100.0]]), GENS, W).tolist() == [0.0, 0.0]
+    assert communication_cost(np.array([[100.0, 100.0]]), GENS, W, W.comm_cap).tolist() == [0.0, 0.0]
 
 
 def test_comm_cap_saturates_each_neighbour_term() -> None:
     far = np.array([[5000.0, 0.0]])
     for cap in (1.0, 3.0, 10.0):
         w = W._replace(comm_cap=cap)
-        assert communication_cost(far, GENS, w) == pytest.approx([math.expm1(cap)] * 2)
+        assert communication_cost(far, GENS, w, cap) == pytest.approx([math.expm1(cap)] * 2)
     # below the cap the term is the uncapped eq. 17 value: d = 900 -> e^2 - 1 = 6.389056 < e^3 - 1
-    assert communication_cost(np.array([[900.0, 0.0]]), GENS[1:], W)[0] == pytest.approx(6.389056, rel=1e-6)
+    assert communication_cost(np.array([[900.0, 0.0]]), GENS[1:], W, W.comm_cap)[0] == pytest.approx(
+        6.389056, rel=1e-6
+    )
 
 
 def test_total_cost() -> None:
     # C = beta_1 C^t + beta_2 C^c: task 0: 16 + 2 * 19.085537 = 54.171074
     #                              task 1: 1.5 + 2 * (19.085537 + 1.718282) = 43.107638
     assert total_cost(HERE, NBRS, GENS, AREAS, W) == pytest.approx([54.171074, 43.107638], rel=1e-6)
+
+
+def test_holding_cost_is_eq_18_without_the_cap() -> None:
+    # below the cap both costs agree: one neighbour at 900 m of task 1 -> 1.5 + 2 (e^2 - 1)
+    near = np.array([[900.0, 0.0]])
+    assert holding_cost(HERE, near, GENS[1:], AREAS[1:], W) == pytest.approx(
+        total_cost(HERE, near, GENS[1:], AREAS[1:], W)
+    )
+    # d = 960 m: (960 - 700) / 40 = 6.5 -> e^6.5 - 1 = 664.1 > C_max 300, capped at e^3 - 1 in the auction
+    edge = np.array([[960.0, 0.0]])
+    strict = holding_cost(HERE, edge, GENS[1:], AREAS[1:], W)[0]
+    assert strict == pytest.approx(1.5 + 2 * math.expm1(6.5), rel=1e-6)
+    assert total_cost(HERE, edge, GENS[1:], AREAS[1:], W)[0] == pytest.approx(
+        1.5 + 2 * math.expm1(3.0), rel=1e-6
+    )
+    assert keep_task(0.1, total_cost(HERE, edge, GENS[1:], AREAS[1:], W)[0], 0.85, 300.0)
+    assert not keep_task(0.1, strict, 0.85, 300.0)
+    # at or beyond R_c the link is lost: no C_max keeps the task
+    for d in (1000.0, 1500.0, 5000.0):
+        assert not keep_task(
+            0.1, holding_cost(HERE, np.array([[d, 0.0]]), GENS[1:], AREAS[1:], W)[0], 0.85, 1e9
+        )
 
 
 def test_income_and_reward_on_a_tiny_tessellation() -> None:
