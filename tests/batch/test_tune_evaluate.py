@@ -33,7 +33,7 @@ from companion.batch.tune import (
     tune,
     weights_table,
 )
-from companion.mission import MissionError, load_mission
+from companion.mission import Algorithm, MissionError, load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO = load_mission(ROOT / "mission_files/scenario1.toml")
@@ -69,7 +69,7 @@ def test_weights_table_keeps_pairs_and_nested_tables_whole() -> None:
     m = apply_weights(SCENARIO, parsed, "snippet")
     assert m.algorithm.beta == (1.0, 0.5) and m.algorithm.kappa == 2.0
     assert m.algorithm.pheromone.weight == 3.0 and m.algorithm.pheromone.evaporation == 0.1
-    assert SCENARIO.algorithm.beta == (1.0, 1.0)  # the mission itself is untouched
+    assert SCENARIO.algorithm.beta == Algorithm().beta  # the mission itself is untouched
     assert current_value(m, "pheromone.weight") == 3.0 and current_value(m, "beta.0") == 1.0
     with pytest.raises(ValueError, match="'gamma' is not a field"):
         current_value(m, "gamma")
@@ -137,7 +137,12 @@ def test_tune_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
     assert [int(r["trial"]) for r in history] == list(range(5))
     first = history[0]
     assert float(first["objective"]) == 0.0
-    assert (float(first["kappa"]), float(first["v_max"]), float(first["beta.1"])) == (3.0, 0.85, 1.0)
+    default = Algorithm()  # trial 0: the generated missions' weights, the defaults
+    assert (float(first["kappa"]), float(first["v_max"]), float(first["beta.1"])) == (
+        default.kappa,
+        default.v_max,
+        default.beta[1],
+    )
     assert len({r["kappa"] for r in history}) == 5  # TPE proposed new candidates
     study = json.loads((out / "study.json").read_text())
     assert study["runs_used"] == 24 and study["trials_planned"] == 5 and study["seed"] == 8
