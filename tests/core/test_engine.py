@@ -127,7 +127,8 @@ def test_connected_and_safe_throughout(scenario1, runs, algorithm: str) -> None:
 
 
 def test_tasks_after_synchronisation(scenario1) -> None:
-    """After the first auction, no task is held by two UAVs, and a UAV without a task is one that
+    """After the first auction, no task is held by two UAVs in direct range (the claims of UAVs out of
+    range meet a few hops later: the next test), and a UAV without a task is one that
     could not get one: a UAV that drops a task (eqs. 20-21) bids at once and holds a new one a step
     later, unless it bid for nothing (every task it could keep complete or, by eq. 21, too costly)
     or every task it bid for went to others, or it won one that eq. 21 no longer let it keep a step
@@ -146,8 +147,12 @@ def test_tasks_after_synchronisation(scenario1) -> None:
         for k in range(2, 60):
             if r.lambda2[k] <= 0:
                 continue
-            held = r.tasks[k][r.tasks[k] >= 0]
-            assert len(set(held.tolist())) == len(held), (run, k, r.tasks[k])
+            t, xy = r.tasks[k], r.trajectory[k - 1, :, :2]
+            for i, j in zip(
+                *np.nonzero(np.triu(t[:, None] == t[None, :], 1) & (t >= 0)[:, None]), strict=True
+            ):
+                # claims travel one hop per step: only UAVs out of direct range may hold one task
+                assert np.hypot(*(xy[i] - xy[j])) > scenario1.comms.range, (run, k, t)
             for i in np.flatnonzero((r.tasks[k] < 0) & (r.tasks[k - 1] < 0)):
                 wanted = {j for j, v in enumerate(bids[k - 1][i] or ()) if v > 0}
                 taken = {int(t) for u, t in enumerate(r.tasks[k]) if u != i and t >= 0}
