@@ -40,7 +40,7 @@ from companion.core.messages import (
     UavState,
 )
 from companion.core.rhc import rank_candidates, rank_grid_candidates
-from companion.core.tasks import holding_cost, keep_task, rewards, task_completion, total_cost
+from companion.core.tasks import keep_task, rewards, task_completion, task_costs
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
@@ -310,10 +310,9 @@ class Agent:
         done = self.covered > a.v_max * tess.cell_counts
         if done.all():
             return ()
-        reward = rewards(
-            self.eta * w.prior, total_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs), tess
-        )
-        worthless = done | (holding_cost(position, mst_nbrs, tess.generators, tess.areas, w.costs) > a.c_max)
+        auction, holding = task_costs(position, mst_nbrs, tess.generators, tess.areas, w.costs)
+        reward = rewards(self.eta * w.prior, auction, tess)
+        worthless = done | (holding > a.c_max)
         if self.task >= 0:
             worthless |= reward <= reward[self.task]
         return tuple(np.where(worthless, 0.0, reward).tolist())
@@ -348,11 +347,10 @@ class Agent:
             )
             j = self.task
             completion = task_completion(int(self.covered[j]), int(tess.cell_counts[j]))
-            cost = float(
-                holding_cost(position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs)[
-                    0
-                ]
+            _, holding = task_costs(
+                position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs
             )
+            cost = float(holding[0])
             if lost or not keep_task(completion, cost, a.v_max, a.c_max):
                 self.task, self.task_reward = -1, 0.0
         self.bids = None

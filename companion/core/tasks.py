@@ -43,44 +43,36 @@ def time_cost(position: FloatArray, generators: FloatArray, areas: FloatArray, w
 
 
 @njit(cache=True)
-def communication_cost(
-    neighbours: FloatArray, generators: FloatArray, w: CostWeights, cap: float
-) -> FloatArray:
-    """Eq. 17: C^c_ij = sum over MST neighbours l of (exp(max(0, (d_lj - R'_c)/(R_c - d_lj))) - 1).
-
-    Each neighbour's term saturates at exp(cap) - 1. The auction caps it at `comm_cap` (a task
-    beyond R_c of a neighbour is expensive, not impossible, since the swarm moves as a whole and
-    the RHC keeps the links); eq. 21's test does not (cap = inf: beyond R_c is prohibitive).
-    """
-    out = np.zeros(generators.shape[0])
-    limit = math.expm1(cap)
+def communication_costs(
+    neighbours: FloatArray, generators: FloatArray, w: CostWeights
+) -> tuple[FloatArray, FloatArray]:
+    """Eq. 17: C^c_ij = sum over MST neighbours l of (exp(max(0, (d_lj - R'_c)/(R_c - d_lj))) - 1),
+    twice: with each neighbour's term capped at exp(comm_cap) - 1, for the auction (a task beyond
+    R_c of a neighbour is expensive, not impossible, since the swarm moves as a whole and the RHC
+    keeps the links), and uncapped, for eq. 21 (beyond R_c is prohibitive)."""
+    capped = np.zeros(generators.shape[0])
+    uncapped = np.zeros(generators.shape[0])
+    limit = math.expm1(w.comm_cap)
     for j in range(generators.shape[0]):
         for n in range(neighbours.shape[0]):
             d = math.hypot(generators[j, 0] - neighbours[n, 0], generators[j, 1] - neighbours[n, 1])
-            out[j] += min(link_cost(d, w.r_c, w.r_c_attr), limit)
-    return out
+            term = link_cost(d, w.r_c, w.r_c_attr)
+            capped[j] += min(term, limit)
+            uncapped[j] += term
+    return capped, uncapped
 
 
 @njit(cache=True)
-def total_cost(
+def task_costs(
     position: FloatArray, neighbours: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights
-) -> FloatArray:
-    """Eq. 18: C_ij = beta_1 C^t_ij + beta_2 C^c_ij for the tasks given by their generators and areas,
-    each neighbour's eq. 17 term capped at exp(comm_cap) - 1 (the auction's cost, eq. 15)."""
-    return w.beta1 * time_cost(position, generators, areas, w) + w.beta2 * communication_cost(
-        neighbours, generators, w, w.comm_cap
-    )
-
-
-@njit(cache=True)
-def holding_cost(
-    position: FloatArray, neighbours: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights
-) -> FloatArray:
-    """C*_{i,k} of eq. 21: eq. 18 with eq. 17 uncapped, so a task whose generator is near or beyond
-    R_c of an MST neighbour (keeping it threatens that link) costs more than any C_max."""
-    return w.beta1 * time_cost(position, generators, areas, w) + w.beta2 * communication_cost(
-        neighbours, generators, w, math.inf
-    )
+) -> tuple[FloatArray, FloatArray]:
+    """Eq. 18, C_ij = beta_1 C^t_ij + beta_2 C^c_ij, for the tasks given by their generators and areas:
+    the auction's cost (eq. 15; eq. 17 capped) and C*_{i,k} of eq. 21 (eq. 17 uncapped, so a task
+    whose generator is near or beyond R_c of an MST neighbour, keeping it threatens that link,
+    costs more than any C_max)."""
+    time = w.beta1 * time_cost(position, generators, areas, w)
+    capped, uncapped = communication_costs(neighbours, generators, w)
+    return time + w.beta2 * capped, time + w.beta2 * uncapped
 
 
 def rewards(importance: FloatArray, cost: FloatArray, tess: Tessellation) -> FloatArray:

@@ -10,14 +10,13 @@ import pytest
 from companion.core.cvt import describe
 from companion.core.tasks import (
     CostWeights,
-    communication_cost,
-    holding_cost,
+    communication_costs,
     keep_task,
     rewards,
     task_completion,
+    task_costs,
     task_income,
     time_cost,
-    total_cost,
 )
 
 # beta_1 = 1, beta_2 = 2, kappa = 3, S_A = 1000 m^2, diagonal 50 m, R_c = 1000, R'_c = 700, cap 3
@@ -41,49 +40,49 @@ def test_communication_cost_with_cap() -> None:
     # task 1 (0, 0):     A at 1000 = R_c -> capped at 19.085537;
     #                    B at 850 -> (850 - 700) / (1000 - 850) = 1 -> e - 1 = 1.718282
     cap = 19.085537
-    assert communication_cost(NBRS, GENS, W, W.comm_cap) == pytest.approx([cap, cap + 1.718282], rel=1e-6)
+    assert communication_costs(NBRS, GENS, W)[0] == pytest.approx([cap, cap + 1.718282], rel=1e-6)
     # no MST neighbours: no communication cost
-    assert communication_cost(np.zeros((0, 2)), GENS, W, W.comm_cap).tolist() == [0.0, 0.0]
+    assert communication_costs(np.zeros((0, 2)), GENS, W)[0].tolist() == [0.0, 0.0]
     # a neighbour inside R'_c of both generators costs nothing
-    assert communication_cost(np.array([[100.0, 100.0]]), GENS, W, W.comm_cap).tolist() == [0.0, 0.0]
+    assert communication_costs(np.array([[100.0, 100.0]]), GENS, W)[0].tolist() == [0.0, 0.0]
 
 
 def test_comm_cap_saturates_each_neighbour_term() -> None:
     far = np.array([[5000.0, 0.0]])
     for cap in (1.0, 3.0, 10.0):
         w = W._replace(comm_cap=cap)
-        assert communication_cost(far, GENS, w, cap) == pytest.approx([math.expm1(cap)] * 2)
+        assert communication_costs(far, GENS, w)[0] == pytest.approx([math.expm1(cap)] * 2)
     # below the cap the term is the uncapped eq. 17 value: d = 900 -> e^2 - 1 = 6.389056 < e^3 - 1
-    assert communication_cost(np.array([[900.0, 0.0]]), GENS[1:], W, W.comm_cap)[0] == pytest.approx(
+    assert communication_costs(np.array([[900.0, 0.0]]), GENS[1:], W)[0][0] == pytest.approx(
         6.389056, rel=1e-6
     )
 
 
-def test_total_cost() -> None:
+def test_task_costs() -> None:
     # C = beta_1 C^t + beta_2 C^c: task 0: 16 + 2 * 19.085537 = 54.171074
     #                              task 1: 1.5 + 2 * (19.085537 + 1.718282) = 43.107638
-    assert total_cost(HERE, NBRS, GENS, AREAS, W) == pytest.approx([54.171074, 43.107638], rel=1e-6)
+    assert task_costs(HERE, NBRS, GENS, AREAS, W)[0] == pytest.approx([54.171074, 43.107638], rel=1e-6)
 
 
-def test_holding_cost_is_eq_18_without_the_cap() -> None:
+def test_eq_21_cost_is_eq_18_without_the_cap() -> None:
     # below the cap both costs agree: one neighbour at 900 m of task 1 -> 1.5 + 2 (e^2 - 1)
     near = np.array([[900.0, 0.0]])
-    assert holding_cost(HERE, near, GENS[1:], AREAS[1:], W) == pytest.approx(
-        total_cost(HERE, near, GENS[1:], AREAS[1:], W)
+    assert task_costs(HERE, near, GENS[1:], AREAS[1:], W)[1] == pytest.approx(
+        task_costs(HERE, near, GENS[1:], AREAS[1:], W)[0]
     )
     # d = 960 m: (960 - 700) / 40 = 6.5 -> e^6.5 - 1 = 664.1 > C_max 300, capped at e^3 - 1 in the auction
     edge = np.array([[960.0, 0.0]])
-    strict = holding_cost(HERE, edge, GENS[1:], AREAS[1:], W)[0]
+    strict = task_costs(HERE, edge, GENS[1:], AREAS[1:], W)[1][0]
     assert strict == pytest.approx(1.5 + 2 * math.expm1(6.5), rel=1e-6)
-    assert total_cost(HERE, edge, GENS[1:], AREAS[1:], W)[0] == pytest.approx(
+    assert task_costs(HERE, edge, GENS[1:], AREAS[1:], W)[0][0] == pytest.approx(
         1.5 + 2 * math.expm1(3.0), rel=1e-6
     )
-    assert keep_task(0.1, total_cost(HERE, edge, GENS[1:], AREAS[1:], W)[0], 0.85, 300.0)
+    assert keep_task(0.1, task_costs(HERE, edge, GENS[1:], AREAS[1:], W)[0][0], 0.85, 300.0)
     assert not keep_task(0.1, strict, 0.85, 300.0)
     # at or beyond R_c the link is lost: no C_max keeps the task
     for d in (1000.0, 1500.0, 5000.0):
         assert not keep_task(
-            0.1, holding_cost(HERE, np.array([[d, 0.0]]), GENS[1:], AREAS[1:], W)[0], 0.85, 1e9
+            0.1, task_costs(HERE, np.array([[d, 0.0]]), GENS[1:], AREAS[1:], W)[1][0], 0.85, 1e9
         )
 
 
@@ -96,7 +95,7 @@ def test_income_and_reward_on_a_tiny_tessellation() -> None:
     assert task_income(s, tess) == pytest.approx([0.3, 0.7])
     # from (40, 20), no neighbours: C^t = d / 50 + 3 * 3200 / 1000 = [0 + 9.6, 80/50 + 9.6] = [9.6, 11.2]
     # R = r / C = [0.3 / 9.6, 0.7 / 11.2] = [0.03125, 0.0625]
-    cost = total_cost(np.array([40.0, 20.0]), np.zeros((0, 2)), tess.generators, tess.areas, W)
+    cost = task_costs(np.array([40.0, 20.0]), np.zeros((0, 2)), tess.generators, tess.areas, W)[0]
     r = rewards(s, cost, tess)
     assert r == pytest.approx([0.03125, 0.0625])
 
