@@ -1,10 +1,12 @@
 """Plan versus flight, and what the companion does when the vehicle leaves the area.
 
 `PlanTracker`: every steered step k the plan puts the UAV at a point and heading at time k·dT
-(the Agent's command of step k-1: its next path point and the heading after the step). When the
-vehicle's telemetry reaches that time the tracker measures how far the vehicle is from it
-(position in metres, heading in degrees), keeps the figures for the report (median, p95) and
-warns when the position error stays beyond a bound for several steps.
+(the Agent's command of step k-1: its next path point and the heading after the step). The tracker
+measures how far the vehicle is from it at that time (position in metres, heading in degrees),
+from the last telemetry sample before it (the vehicle has not yet taken step k's guidance; in grid
+mode the heading changes at the step boundary) or, without one, the first after it; it keeps the
+figures for the report (median, p95) and warns when the position error stays beyond a bound for
+several steps.
 
 `RegionGuard`: when the vehicle is outside the region plus its safety margin (the fence) the
 companion stops flying the plan and repositions the vehicle back inside (the nearest point one
@@ -60,6 +62,7 @@ class PlanTracker:
         self.uav, self.speed, self.dt = uav, speed, dt
         self.bound_m, self.warn_steps = bound_m, warn_steps
         self.pending: deque[tuple[int, float, float, float]] = deque()  # plans not yet measured
+        self._early: tuple[float, float, float, float] | None = None  # last sample before the next plan
         self.errors: list[PlanError] = []
         self.missed = 0  # plans whose time passed without telemetry near it
         self.warnings = 0
@@ -74,17 +77,29 @@ class PlanTracker:
         self.pending.clear()
 
     def measure(self, t: float, x: float, y: float, heading: float) -> PlanError | None:
-        """Compare the oldest pending plan with the vehicle's pose at vehicle time `t`, once `t` has
-        reached the plan's time; the planned point is moved on along its heading by the sample's
-        lateness. Plans whose time passed by more than half a step without telemetry are missed."""
-        while self.pending and t - self.pending[0][0] * self.dt > 0.5 * self.dt:
-            self.pending.popleft()
+        """Compare the oldest pending plan with the vehicle's pose once vehicle time `t` has reached
+        the plan's time: the pose of the last sample before that time if it was at most half a step
+        early, else this one; the planned point is moved along its heading by the sample's offset
+        from the plan's time. A plan without a sample within half a step of its time is missed."""
+        half = 0.5 * self.dt
+        while self.pending:
+            when = self.pending[0][0] * self.dt
+            if t < when - 1e-6:
+                self._early = (t, x, y, heading)
+                return None
+            early, self._early = self._early, None
+            if early is not None and when - early[0] <= half:
+                t, x, y, heading = early
+                break
+            if t - when <= half:
+                break
+            self.pending.popleft()  # its time passed by more than half a step without telemetry
             self.missed += 1
-        if not self.pending or t < self.pending[0][0] * self.dt - 1e-6:
+        if not self.pending:
             return None
         k, px, py, ph = self.pending.popleft()
-        late = t - k * self.dt
-        px, py = px + self.speed * late * math.cos(ph), py + self.speed * late * math.sin(ph)
+        offset = t - k * self.dt
+        px, py = px + self.speed * offset * math.cos(ph), py + self.speed * offset * math.sin(ph)
         position = math.hypot(x - px, y - py)
         turn = math.degrees(abs(math.remainder(heading - ph, 2 * math.pi)))
         error = PlanError(k, (px, py, ph), (x, y, heading), position, turn)

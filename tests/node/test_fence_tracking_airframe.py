@@ -56,18 +56,25 @@ def test_nearest_point_inside() -> None:
 def test_plan_versus_flight() -> None:
     tracker = PlanTracker(0, speed=20.0, dt=2.0, bound_m=40.0, warn_steps=3)
     tracker.expect(1, 40.0, 0.0, 0.0)
-    assert tracker.measure(1.9, 0.0, 0.0, 0.0) is None  # the plan's time has not come
+    assert tracker.measure(0.9, 0.0, 0.0, 0.0) is None  # the plan's time has not come
     e = tracker.measure(2.1, 45.0, 3.0, math.radians(10.0))  # 0.1 s late: the plan moved on 2 m
     assert e is not None and e.position_m == pytest.approx(math.hypot(3.0, 3.0))
     assert e.heading_deg == pytest.approx(10.0)
+    # grid mode turns at the step boundary: the sample just before it is the one that counts, the
+    # planned point moved back by its earliness; the sample after it has the next step's heading
     tracker.expect(2, 80.0, 0.0, 0.0)
-    assert tracker.measure(5.5, 80.0, 0.0, 0.0) is None and tracker.missed == 1  # telemetry too late
-    for k in range(3, 6):
+    assert tracker.measure(3.95, 79.0, 0.5, 0.0) is None
+    e = tracker.measure(4.05, 81.0, 1.0, math.radians(45.0))
+    assert e is not None and e.step == 2 and e.flown == (79.0, 0.5, 0.0)
+    assert e.position_m == pytest.approx(0.5) and e.heading_deg == pytest.approx(0.0)
+    tracker.expect(3, 80.0, 0.0, 0.0)
+    assert tracker.measure(7.5, 80.0, 0.0, 0.0) is None and tracker.missed == 1  # telemetry too late
+    for k in range(4, 7):
         tracker.expect(k, 0.0, 0.0, 0.0)
         tracker.measure(2.0 * k, 100.0, 0.0, 0.0)
     assert tracker.warnings == 1
     summary = tracker.summary()
-    assert summary["steps"] == 4 and summary["position_m"]["max"] == pytest.approx(100.0)
+    assert summary["steps"] == 5 and summary["position_m"]["max"] == pytest.approx(100.0)
 
 
 def test_region_guard_repositions_then_releases() -> None:
