@@ -269,7 +269,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     with open_executor(args.scheduler, args.workers) as executor, _bar(total, label, args.quiet) as advance:
         result = evaluate(missions, args.runs, args.steps, out, executor, layouts, origin, advance)
     _print_evaluation(result)
-    print(f"wrote {out}/evaluate.json, missions.csv, overall.csv, runs.csv and evaluate.png")
+    print(f"wrote {out}/evaluate.json, missions.csv, overall.csv, runs.csv, evaluate(_density).png")
     return 0
 
 
@@ -341,6 +341,18 @@ def _print_evaluation(result: dict) -> None:
             f"{r['wins']}/{r['missions']}: " + interval(r, "win_rate", 100, 3),
         )
     console.print(table)
+    halves = Table(title="by area per UAV: dense and thin halves of the missions")
+    for col in ("baseline", "metric", "km2 per UAV", "mean difference [95 % CI]", "win rate [Wilson 95 %]"):
+        halves.add_column(col, justify="right")
+    for r in result["by_density"]:
+        halves.add_row(
+            r["baseline"],
+            r["metric"],
+            r["km2_per_uav"],
+            interval(r, "difference"),
+            f"{r['wins']}/{r['missions']}: " + interval(r, "win_rate", 100, 3),
+        )
+    console.print(halves)
 
 
 def _faults(args: argparse.Namespace) -> int:

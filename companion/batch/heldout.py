@@ -6,7 +6,8 @@ paired differences proposed - baseline over the R runs give the mission's mean d
 Student t 95 % interval; the proposed method *wins* the mission when that mean is below 0. Overall,
 the missions are the sample: the mean of the per-mission mean differences with its t interval over
 the N missions (and the same for the differences relative to the baseline's mission mean), and the
-win rate with its Wilson interval.
+win rate with its Wilson interval. `by_density` splits the missions at the median area per UAV
+(the held-out study's finding: the proposed method's lead is on thin swarms; docs/results.md).
 """
 
 from __future__ import annotations
@@ -78,6 +79,52 @@ def paired_table(values: np.ndarray, algorithms: Sequence[str], names: Sequence[
     return {"missions": rows, "overall": overall}
 
 
+def mission_features(mission: Mission) -> dict:
+    """What describes a mission in the evaluation's tables: swarm size, kinematics, region area,
+    area per UAV (the swarm's density), prior centres and targets."""
+    x, y = np.asarray(mission.region.polygon, dtype=float).T
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))) / 1e6
+    return {
+        "mission": mission.name,
+        "uavs": mission.n_uavs,
+        "mode": mission.kinematics.mode,
+        "seed": mission.seed,
+        "area_km2": area,
+        "km2_per_uav": area / mission.n_uavs,
+        "centres": len(mission.prior.centres or ()),
+        "targets": mission.prior.targets,
+    }
+
+
+def by_density(missions: Sequence[dict], info: Sequence[dict]) -> list[dict]:
+    """Per baseline and metric, the per-mission rows of `paired_table` split at the median area per
+    UAV (`mission_features`): for the dense half (at most the median) and the thin half, the mean
+    difference with its t interval over the missions and the win rate with its Wilson interval."""
+    per_uav = {i["mission"]: i["km2_per_uav"] for i in info}
+    median = float(np.median(list(per_uav.values())))
+    out = []
+    for baseline, metric in dict.fromkeys((r["baseline"], r["metric"]) for r in missions):
+        rows = [r for r in missions if (r["baseline"], r["metric"]) == (baseline, metric)]
+        for half, thin in (("dense", False), ("thin", True)):
+            d = np.array([r["difference"] for r in rows if (per_uav[r["mission"]] > median) == thin])
+            if d.size == 0:
+                continue
+            wins = int(np.sum(d < 0))
+            out.append(
+                {
+                    "baseline": baseline,
+                    "metric": metric,
+                    "half": half,
+                    "km2_per_uav": f"{'>' if thin else '<='} {median:.3g}",
+                    "missions": int(d.size),
+                    **mean_ci(d).as_dict("difference"),
+                    "wins": wins,
+                    **wilson(wins, int(d.size)).as_dict("win_rate"),
+                }
+            )
+    return out
+
+
 def evaluate(
     missions: Sequence[Mission],
     runs: int,
@@ -89,8 +136,8 @@ def evaluate(
     advance: Callable[[], object] | None = None,
 ) -> dict:
     """Run the three algorithms on the missions (on `executor`, default a local pool) and write
-    evaluate.json, missions.csv, overall.csv, runs.csv and evaluate.png into `out`; returns the
-    evaluate.json content."""
+    evaluate.json, missions.csv, overall.csv, runs.csv, evaluate.png and evaluate_density.png into
+    `out`; returns the evaluate.json content."""
     if runs < MIN_RUNS:
         raise ValueError(f"--runs must be at least {MIN_RUNS} (a per-mission interval needs two paired runs)")
     algorithms = (PROPOSED, *(a for a in ALGORITHMS if a != PROPOSED))
@@ -98,6 +145,7 @@ def evaluate(
     values = measure(specs, executor, advance).reshape(len(missions), len(algorithms), runs, len(METRICS))
     names = [m.name for m in missions]
     table = paired_table(values, algorithms, names)
+    info = [mission_features(m) for m in missions]
     result = {
         "meta": {
             "missions": len(missions),
@@ -113,10 +161,9 @@ def evaluate(
             "win": "the proposed method's mean over the mission's runs is below the baseline's",
             **(meta or {}),
         },
-        "mission_info": [
-            {"mission": m.name, "uavs": m.n_uavs, "mode": m.kinematics.mode, "seed": m.seed} for m in missions
-        ],
+        "mission_info": info,
         **table,
+        "by_density": by_density(table["missions"], info),
     }
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "evaluate.json", result)
@@ -130,6 +177,7 @@ def evaluate(
                 for r in range(runs):
                     w.writerow([name, algorithm, r, *(f"{v:.10g}" for v in values[m, a, r])])
     plots.plot_paired(out / "evaluate.png", table, METRICS)
+    plots.plot_density(out / "evaluate_density.png", table, info, METRICS)
     return result
 
 

@@ -219,6 +219,39 @@ def plot_paired(path: Path, table: dict, metrics: Sequence[str]) -> None:
     plt.close(fig)
 
 
+def plot_density(path: Path, table: dict, info: Sequence[dict], metrics: Sequence[str]) -> None:
+    """`uavsearch evaluate`: each mission's paired difference proposed - baseline (95 % interval)
+    against its area per UAV, per baseline and metric; the median area per UAV splits the missions
+    into `heldout.by_density`'s halves."""
+    per_uav = {i["mission"]: i["km2_per_uav"] for i in info}
+    median = float(np.median(list(per_uav.values())))
+    baselines = list(dict.fromkeys(row["baseline"] for row in table["overall"]))
+    fig, axes = plt.subplots(
+        len(metrics), len(baselines), figsize=(5.5 * len(baselines), 4.0 * len(metrics)), squeeze=False
+    )
+    for i, metric in enumerate(metrics):
+        for j, baseline in enumerate(baselines):
+            ax = axes[i, j]
+            rows = [r for r in table["missions"] if r["baseline"] == baseline and r["metric"] == metric]
+            x = np.array([per_uav[r["mission"]] for r in rows])
+            d = np.array([r["difference"] for r in rows])
+            lo = np.array([r["difference_low"] for r in rows])
+            hi = np.array([r["difference_high"] for r in rows])
+            ax.errorbar(
+                x, d, yerr=[d - lo, hi - d], fmt="o", markersize=3, color=COLOURS.get(baseline), capsize=2
+            )
+            ax.axhline(0.0, color="black", linestyle="--")
+            ax.axvline(median, color="tab:grey", linestyle=":", label=f"median {median:.3g} km$^2$ per UAV")
+            ax.set_xscale("log")
+            ax.set_xlabel("region area per UAV (km$^2$)")
+            ax.set_ylabel(f"{metric}: proposed - {baseline}")
+            ax.legend(loc="lower left", fontsize=8)
+            ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def plot_study(path: Path, history: Sequence[dict], title: str) -> None:
     """`uavsearch tune`: each trial's objective and the best so far; each trial's relative change of
     the mean target time against that of the mean uncertainty (trial 0, the weights before, at 0)."""

@@ -235,7 +235,29 @@ def test_evaluate_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
             assert o["wins"] == wins and o["win_rate_high"] == pytest.approx(wilson(wins, 3).high)
             assert o["difference"] == pytest.approx(np.mean(means))
     assert {r["baseline"] for r in _rows(out / "overall.csv")} == {"no-ta", "pheromone"}
+    # the dense / thin halves: the missions split at the median area per UAV (shoelace by hand)
+    per_uav = {}
+    for info in result["mission_info"]:
+        m = load_mission(out / "missions" / f"{info['mission']}.toml")
+        (x, y) = np.array(m.region.polygon).T
+        area = sum(x[i - 1] * y[i] - x[i] * y[i - 1] for i in range(len(x))) / 2e6
+        assert info["area_km2"] == pytest.approx(abs(area)) and info["uavs"] == m.n_uavs
+        per_uav[info["mission"]] = abs(area) / m.n_uavs
+    median = float(np.median(list(per_uav.values())))
+    for o in result["overall"]:
+        key = (o["baseline"], o["metric"])
+        halves = [h for h in result["by_density"] if (h["baseline"], h["metric"]) == key]
+        assert sum(h["missions"] for h in halves) == 3 and sum(h["wins"] for h in halves) == o["wins"]
+        for h in halves:
+            thin = h["half"] == "thin"
+            d = [
+                x["difference"]
+                for x in result["missions"]
+                if (x["baseline"], x["metric"]) == key and (per_uav[x["mission"]] > median) == thin
+            ]
+            assert h["missions"] == len(d) and h["difference"] == pytest.approx(np.mean(d))
     assert (out / "evaluate.png").read_bytes()[:4] == b"\x89PNG"
+    assert (out / "evaluate_density.png").read_bytes()[:4] == b"\x89PNG"
     assert "overall (3 missions x 2 runs)" in proc.stdout
 
 
