@@ -105,5 +105,7 @@ def summarize(results: list[RunResult]) -> dict[str, float | int]:
         "final_coverage": float(np.mean([r.coverage[-1] for r in results])),
         "min_lambda2": float(min(r.lambda2.min() for r in results)),
         "min_distance": float(min(r.min_distance.min() for r in results)),
+        "closest_approach": float(min(r.approach.min() for r in results)),
+        "runs_with_event": sum(r.separation_losses > 0 or r.link_losses > 0 for r in results),
         "seconds_per_1000_steps": float(np.mean([1000.0 * r.seconds / r.steps for r in results])),
     }

@@ -31,7 +31,9 @@ def write_summary(out: Path, results: Mapping[str, Sequence[RunResult]], extra: 
 
 
 def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
-    """runs.csv: one row of metrics per run."""
+    """runs.csv: one row of metrics per run (mean_uncertainty: eq. 30 averaged over the run;
+    closest_approach: of any pair between sampling moments; separation_losses, link_losses: steps
+    with a pair within R_s, sampling moments with lambda_2 = 0)."""
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -44,9 +46,13 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                 "targets_found",
                 "targets",
                 "final_uncertainty",
+                "mean_uncertainty",
                 "final_coverage",
                 "min_lambda2",
                 "min_distance",
+                "closest_approach",
+                "separation_losses",
+                "link_losses",
                 "seconds",
             ]
         )
@@ -63,9 +69,13 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                         int(np.sum(r.target_steps >= 0)),
                         len(r.target_steps),
                         f"{r.uncertainty[-1]:.6f}",
+                        f"{r.uncertainty.mean():.6f}",
                         f"{r.coverage[-1]:.6f}",
                         f"{r.lambda2.min():.6f}",
                         f"{r.min_distance.min():.3f}",
+                        f"{r.approach.min():.3f}",
+                        r.separation_losses,
+                        r.link_losses,
                         f"{r.seconds:.4f}",
                     ]
                 )

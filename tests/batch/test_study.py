@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from companion.batch.montecarlo import SUMMARY_KEYS, run_specs, specs_for, summarize
 from companion.mission import load_mission
@@ -72,7 +73,17 @@ def test_mc_cli_writes_summary_runs_curves_trajectories_and_plots(tmp_path: Path
     assert {"run", "step", "uav", "x", "y", "heading"} <= set(rows[0])
     assert len(rows) == 3 * 2 * 25 * 4
     with (out / "runs.csv").open() as f:
-        assert len(list(csv.DictReader(f))) == 6
+        runs = list(csv.DictReader(f))
+    assert len(runs) == 6
+    for name in ("proposed", "no-ta", "pheromone"):
+        mine = [r for r in runs if r["algorithm"] == name]
+        mean = np.mean([float(r["mean_uncertainty"]) for r in mine])
+        assert mean == pytest.approx(summary[name]["mean_uncertainty_over_run"], abs=1e-6)
+        events = sum(int(r["separation_losses"]) > 0 or int(r["link_losses"]) > 0 for r in mine)
+        assert summary[name]["runs_with_event"] == events == 0
+        closest = min(float(r["closest_approach"]) for r in mine)
+        assert closest == pytest.approx(summary[name]["closest_approach"], abs=1e-3)
+        assert 60.0 < closest <= min(float(r["min_distance"]) for r in mine) + 1e-3
     for png in ("prior_cvt.png", "trajectories.png", "uncertainty.png", "targets_found.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
 
