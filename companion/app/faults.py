@@ -97,14 +97,17 @@ def loopback_mission(
 
 # -- the vehicles' side: a lockstep driver and a link that can be cut -------------------------------
 class LockstepDriver(threading.Thread):
-    """Releases one vehicle's lockstep steps up to `until`, in place of its companion: the vehicle
-    flies on with the guidance it last had (then its autopilot's failsafe)."""
+    """Releases one vehicle's lockstep steps up to `until`, and at least `span` steps past the step
+    it takes over at (the companion may have stepped once more before its link was cut), in place
+    of its companion: the vehicle flies on with the guidance it last had (then its autopilot's
+    failsafe)."""
 
-    def __init__(self, port: int, sysid: int, dt: float, until: int) -> None:
+    def __init__(self, port: int, sysid: int, dt: float, until: int, span: int = 0) -> None:
         super().__init__(daemon=True)
-        self.port, self.sysid, self.dt, self.until = port, sysid, dt, until
+        self.port, self.sysid, self.dt, self.until, self.span = port, sysid, dt, until, span
         self.step = -1  # the vehicle's latest step seen
         self.first = -1  # the step it was at when the driver took over
+        self.started = threading.Event()  # `first` and the final `until` are known
         self.stopped = threading.Event()
 
     def run(self) -> None:
@@ -129,7 +132,9 @@ class LockstepDriver(threading.Thread):
                     continue
                 self.step = round(k)
                 if self.first < 0:
+                    self.until = max(self.until, self.step + self.span)
                     self.first = self.step
+                    self.started.set()
                 if self.step < self.until:
                     self._report(conn, self.step + 1)
         finally:
@@ -386,11 +391,15 @@ def _link_loss(swarm: Swarm, plan: Plan, outcome: RowOutcome, proxy: LinkProxy) 
     swarm.wait_steps([v], plan.at)
     proxy.cut()
     lost_steps = math.ceil(10.0 / m.kinematics.step)  # 10 s of simulated time
-    driver = LockstepDriver(m.vehicle_port(v), v + 1, m.kinematics.step, plan.at + 1 + lost_steps)
+    driver = LockstepDriver(
+        m.vehicle_port(v), v + 1, m.kinematics.step, plan.at + 1 + lost_steps, span=lost_steps
+    )
     driver.start()
     others = [i for i in range(m.n_uavs) if i != v]
     try:
         swarm.wait_text(f"companion{v}", "vehicle link lost")
+        if not driver.started.wait(STEP_S):
+            raise RuntimeError(f"the vehicle of UAV {v} sent no step after its link was cut")
         swarm.wait_steps(others, driver.until)
     finally:
         driver.stop()
