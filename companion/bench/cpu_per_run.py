@@ -1,0 +1,49 @@
+"""CPU seconds of one 1,000-step batch run of each scenario file and algorithm, in this process.
+
+Run as a script so that `companion` is imported from PYTHONPATH: the same measurement then times
+another checkout (docs/performance.md, "Against an older commit"), interleaved with this one so
+that the machine's drift hits both alike:
+
+    for i in 1 2; do
+      PYTHONPATH=../old python companion/bench/cpu_per_run.py --label old
+      PYTHONPATH=. python companion/bench/cpu_per_run.py --label new
+    done
+
+CPU time (`time.process_time`), not wall time: other processes on the machine slow a run's wall
+time, much less its CPU time. It uses only `load_mission`, `Mission.with_algorithm` and `simulate`,
+and the timed checkout's own mission files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+
+def main() -> None:
+    import companion
+    from companion.batch.engine import simulate
+    from companion.mission import load_mission
+
+    root = Path(companion.__file__).resolve().parents[1]  # the checkout timed, its own mission files
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--label", default="", help="printed first on the line")
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--run", type=int, default=0)
+    args = parser.parse_args()
+    cells = []
+    for s in (1, 2, 3):
+        mission = load_mission(root / "mission_files" / f"scenario{s}.toml")
+        simulate(mission, args.seed, args.run, steps=20)  # numba's kernels loaded before timing
+        for algorithm in ("proposed", "no-ta", "pheromone"):
+            flown = mission.with_algorithm(algorithm)
+            started = time.process_time()
+            simulate(flown, args.seed, args.run, steps=args.steps)
+            cells.append(time.process_time() - started)
+    print(args.label, " ".join(f"{c:.3f}" for c in cells), f"total {sum(cells):.2f} s")
+
+
+if __name__ == "__main__":
+    main()
