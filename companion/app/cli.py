@@ -329,30 +329,19 @@ def _print_evaluation(result: dict) -> None:
         cells = {(r["baseline"], r["metric"]): r for r in result["missions"] if r["mission"] == name}
         per.add_row(name, str(i["uavs"]), *(interval(cells[k], "difference", digits=3) for k in keys))
     console.print(per)
-    table = Table(title=f"overall ({result['meta']['missions']} missions x {result['meta']['runs']} runs)")
-    for col in ("baseline", "metric", "mean difference [95 % CI]", "relative (%)", "win rate [Wilson 95 %]"):
-        table.add_column(col, justify="right")
-    for r in result["overall"]:
-        table.add_row(
-            r["baseline"],
-            r["metric"],
-            interval(r, "difference"),
-            interval(r, "relative_difference", 100, 3),
-            f"{r['wins']}/{r['missions']}: " + interval(r, "win_rate", 100, 3),
-        )
-    console.print(table)
-    halves = Table(title="by area per UAV: dense and thin halves of the missions")
-    for col in ("baseline", "metric", "km2 per UAV", "mean difference [95 % CI]", "win rate [Wilson 95 %]"):
-        halves.add_column(col, justify="right")
-    for r in result["by_density"]:
-        halves.add_row(
-            r["baseline"],
-            r["metric"],
-            r["km2_per_uav"],
-            interval(r, "difference"),
-            f"{r['wins']}/{r['missions']}: " + interval(r, "win_rate", 100, 3),
-        )
-    console.print(halves)
+    overall = f"overall ({result['meta']['missions']} missions x {result['meta']['runs']} runs)"
+    halves = "by area per UAV: dense and thin halves of the missions"
+    for title, rows, column, cell in (
+        (overall, result["overall"], "relative (%)", lambda r: interval(r, "relative_difference", 100, 3)),
+        (halves, result["by_density"], "km2 per UAV", lambda r: r["km2_per_uav"]),
+    ):
+        table = Table(title=title)
+        for col in ("baseline", "metric", column, "mean difference [95 % CI]", "win rate [Wilson 95 %]"):
+            table.add_column(col, justify="right")
+        for r in rows:
+            wins = f"{r['wins']}/{r['missions']}: " + interval(r, "win_rate", 100, 3)
+            table.add_row(r["baseline"], r["metric"], cell(r), interval(r, "difference"), wins)
+        console.print(table)
 
 
 def _faults(args: argparse.Namespace) -> int:

@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
 
 from companion.batch.engine import RunResult
 from companion.batch.report import mean_band
@@ -181,39 +182,48 @@ def plot_links(path: Path, result: RunResult, safety: float) -> None:
     plt.close(fig)
 
 
+def _paired_panels(table: dict, metrics: Sequence[str], height: float) -> tuple[Figure, list[tuple]]:
+    """A grid of axes, a row per metric and a column per baseline, each with its per-mission rows of
+    `heldout.paired_table` and their differences with 95 % intervals: (ax, baseline, metric, rows,
+    difference, low, high)."""
+    baselines = list(dict.fromkeys(row["baseline"] for row in table["overall"]))
+    fig, axes = plt.subplots(
+        len(metrics), len(baselines), figsize=(5.5 * len(baselines), height * len(metrics)), squeeze=False
+    )
+    panels = []
+    for i, metric in enumerate(metrics):
+        for j, baseline in enumerate(baselines):
+            rows = [r for r in table["missions"] if r["baseline"] == baseline and r["metric"] == metric]
+            rows.sort(key=lambda r: r["difference"])
+            d, lo, hi = (
+                np.array([r[k] for r in rows]) for k in ("difference", "difference_low", "difference_high")
+            )
+            panels.append((axes[i, j], baseline, metric, rows, d, lo, hi))
+    return fig, panels
+
+
 def plot_paired(path: Path, table: dict, metrics: Sequence[str]) -> None:
     """`uavsearch evaluate`: per mission, the paired difference proposed - baseline with its 95 %
     interval (sorted), the overall mean difference (band) and the win rate, per baseline and metric."""
-    baselines = list(dict.fromkeys(row["baseline"] for row in table["overall"]))
-    fig, axes = plt.subplots(
-        len(metrics), len(baselines), figsize=(5.5 * len(baselines), 4.5 * len(metrics)), squeeze=False
-    )
-    for i, metric in enumerate(metrics):
-        for j, baseline in enumerate(baselines):
-            ax = axes[i, j]
-            rows = [r for r in table["missions"] if r["baseline"] == baseline and r["metric"] == metric]
-            rows.sort(key=lambda r: r["difference"])
-            d = np.array([r["difference"] for r in rows])
-            lo = np.array([r["difference_low"] for r in rows])
-            hi = np.array([r["difference_high"] for r in rows])
-            y = np.arange(len(rows))
-            ax.errorbar(
-                d, y, xerr=[d - lo, hi - d], fmt="o", markersize=3, color=COLOURS.get(baseline), capsize=2
-            )
-            o = next(r for r in table["overall"] if r["baseline"] == baseline and r["metric"] == metric)
-            ax.axvspan(
-                o["difference_low"], o["difference_high"], color="tab:red", alpha=0.2, label="overall 95 % CI"
-            )
-            ax.axvline(o["difference"], color="tab:red", label=f"overall mean {o['difference']:.3g}")
-            ax.axvline(0.0, color="black", linestyle="--")
-            ax.set_yticks([])
-            ax.set_ylabel("missions (sorted)")
-            ax.set_xlabel(f"{metric}: proposed - {baseline} (lower: proposed better)")
-            p, lo, hi = (100 * o[k] for k in ("win_rate", "win_rate_low", "win_rate_high"))
-            rate = f"{p:.0f} %, {lo:.0f}-{hi:.0f} %"
-            ax.set_title(f"vs {baseline}: wins {o['wins']}/{o['missions']} ({rate})")
-            ax.legend(loc="lower right", fontsize=8)
-            ax.grid(alpha=0.3)
+    fig, panels = _paired_panels(table, metrics, 4.5)
+    for ax, baseline, metric, rows, d, lo, hi in panels:
+        y = np.arange(len(rows))
+        ax.errorbar(
+            d, y, xerr=[d - lo, hi - d], fmt="o", markersize=3, color=COLOURS.get(baseline), capsize=2
+        )
+        o = next(r for r in table["overall"] if r["baseline"] == baseline and r["metric"] == metric)
+        ax.axvspan(
+            o["difference_low"], o["difference_high"], color="tab:red", alpha=0.2, label="overall 95 % CI"
+        )
+        ax.axvline(o["difference"], color="tab:red", label=f"overall mean {o['difference']:.3g}")
+        ax.axvline(0.0, color="black", linestyle="--")
+        ax.set_yticks([])
+        ax.set_ylabel("missions (sorted)")
+        ax.set_xlabel(f"{metric}: proposed - {baseline} (lower: proposed better)")
+        p, low, high = (100 * o[k] for k in ("win_rate", "win_rate_low", "win_rate_high"))
+        ax.set_title(f"vs {baseline}: wins {o['wins']}/{o['missions']} ({p:.0f} %, {low:.0f}-{high:.0f} %)")
+        ax.legend(loc="lower right", fontsize=8)
+        ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -225,28 +235,19 @@ def plot_density(path: Path, table: dict, info: Sequence[dict], metrics: Sequenc
     into `heldout.by_density`'s halves."""
     per_uav = {i["mission"]: i["km2_per_uav"] for i in info}
     median = float(np.median(list(per_uav.values())))
-    baselines = list(dict.fromkeys(row["baseline"] for row in table["overall"]))
-    fig, axes = plt.subplots(
-        len(metrics), len(baselines), figsize=(5.5 * len(baselines), 4.0 * len(metrics)), squeeze=False
-    )
-    for i, metric in enumerate(metrics):
-        for j, baseline in enumerate(baselines):
-            ax = axes[i, j]
-            rows = [r for r in table["missions"] if r["baseline"] == baseline and r["metric"] == metric]
-            x = np.array([per_uav[r["mission"]] for r in rows])
-            d = np.array([r["difference"] for r in rows])
-            lo = np.array([r["difference_low"] for r in rows])
-            hi = np.array([r["difference_high"] for r in rows])
-            ax.errorbar(
-                x, d, yerr=[d - lo, hi - d], fmt="o", markersize=3, color=COLOURS.get(baseline), capsize=2
-            )
-            ax.axhline(0.0, color="black", linestyle="--")
-            ax.axvline(median, color="tab:grey", linestyle=":", label=f"median {median:.3g} km$^2$ per UAV")
-            ax.set_xscale("log")
-            ax.set_xlabel("region area per UAV (km$^2$)")
-            ax.set_ylabel(f"{metric}: proposed - {baseline}")
-            ax.legend(loc="lower left", fontsize=8)
-            ax.grid(alpha=0.3)
+    fig, panels = _paired_panels(table, metrics, 4.0)
+    for ax, baseline, metric, rows, d, lo, hi in panels:
+        x = np.array([per_uav[r["mission"]] for r in rows])
+        ax.errorbar(
+            x, d, yerr=[d - lo, hi - d], fmt="o", markersize=3, color=COLOURS.get(baseline), capsize=2
+        )
+        ax.axhline(0.0, color="black", linestyle="--")
+        ax.axvline(median, color="tab:grey", linestyle=":", label=f"median {median:.3g} km$^2$ per UAV")
+        ax.set_xscale("log")
+        ax.set_xlabel("region area per UAV (km$^2$)")
+        ax.set_ylabel(f"{metric}: proposed - {baseline}")
+        ax.legend(loc="lower left", fontsize=8)
+        ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
