@@ -86,11 +86,11 @@ def compare(
     summary = report.write_summary(out, results, meta)
     report.write_runs(out, results)
     report.write_curves(out, results)
+    report.write_targets(out, results)
     if save_trajectories or runs == 1:
         recorded = {a: [r for r in rs if r.trajectory is not None] for a, rs in results.items()}
         report.write_trajectories(out, recorded)
         report.write_steps(out, recorded)
-        report.write_targets(out, recorded)
     worlds = {a: build_world(mission.with_algorithm(a), seed, 0) for a in algorithms}
     plots.plot_prior(out / "prior_cvt.png", build_world(mission.with_algorithm("proposed"), seed, 0))
     plots.plot_trajectories(out / "trajectories.png", worlds, {a: results[a][0] for a in algorithms})

@@ -178,12 +178,13 @@ def write_steps(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
 
 
 def write_targets(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
-    """targets.csv for every recorded run: each ground-truth target's cell and the step it was
-    first seen (-1: never)."""
+    """targets.csv for every run: each ground-truth target's cell and the step it was first seen
+    (-1: never), from which per-target questions (which targets one algorithm finds sooner) are
+    answered paired, run by run."""
     with (out / "targets.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(TARGET_COLUMNS)
-        for r in _recorded(results):
+        for r in (r for runs in results.values() for r in runs):
             for cell, step in zip(r.target_cells.tolist(), r.target_steps.tolist(), strict=True):
                 w.writerow([r.algorithm, r.run, cell, step])
 

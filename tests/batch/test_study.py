@@ -118,6 +118,16 @@ def test_a_run_is_the_same_whatever_else_is_in_the_batch(tmp_path: Path) -> None
         assert first[key] == same[key]
     traj = np.loadtxt(a / "trajectories.csv", delimiter=",", skiprows=1, usecols=(4, 5))
     assert traj.shape == (20 * 4, 2)
+    # targets.csv holds every run, recorded or not, and agrees with runs.csv run by run
+    with (b / "targets.csv").open() as f:
+        targets = list(csv.DictReader(f))
+    with (b / "runs.csv").open() as f:
+        for row in csv.DictReader(f):
+            mine = [int(t["found_step"]) for t in targets if t["run"] == row["run"]]
+            assert len(mine) == int(row["targets"]) > 0
+            assert sum(s >= 0 for s in mine) == int(row["targets_found"])
+            times = [s if s >= 0 else 20 for s in mine]
+            assert np.mean(times) == pytest.approx(float(row["mean_target_time"]), abs=1e-3)
 
 
 def test_sweep_cli_writes_points_and_plot(tmp_path: Path) -> None:
