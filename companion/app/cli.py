@@ -81,6 +81,49 @@ def _print_summary(summary: dict) -> None:
     Console().print(table)
 
 
+def _targets(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from companion.batch.by_distance import targets_by_distance, write_csv
+
+    out = Path(args.dir)
+    for name in ("summary.json", "mission.toml", "targets.csv"):
+        if not (out / name).is_file():
+            raise ValueError(f"{out}: no {name} (the output folder of `uavsearch mc`)")
+    try:
+        edges = [float(e) for e in args.edges.split(",")]
+    except ValueError as exc:
+        raise ValueError(f"--edges: {args.edges!r} is not a list of distances in metres") from exc
+    bins = targets_by_distance(out, args.algorithm, args.baseline, edges)
+    table = Table(title=f"{args.algorithm} - {args.baseline}: first-seen step by distance from the start")
+    for col in (
+        "distance (m)",
+        "targets",
+        args.algorithm,
+        args.baseline,
+        "difference [95 % CI] (runs)",
+        "sooner / later",
+    ):
+        table.add_column(col, justify="right")
+    for b in bins:
+        d = b.difference
+        high = "" if b.high >= 1e9 else f"{b.high:.0f}"
+        table.add_row(
+            f"{b.low:.0f}-{high}",
+            str(b.targets),
+            f"{b.mean_step:.1f}",
+            f"{b.baseline_mean_step:.1f}",
+            f"{d.estimate:+.1f} [{d.low:+.1f}, {d.high:+.1f}] ({d.n})",
+            f"{b.sooner} / {b.later}",
+        )
+    Console().print(table)
+    path = out / f"targets_by_distance_{args.algorithm}_{args.baseline}.csv"
+    write_csv(path, bins)
+    print(f"wrote {path}")
+    return 0
+
+
 def _sweep(args: argparse.Namespace) -> int:
     from companion.batch.executors import open_executor
     from companion.batch.experiments import sweep, sweep_values
@@ -526,6 +569,15 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--quiet", action="store_true", help="no progress bar")
     _random_starts_option(mc)
     mc.set_defaults(func=_mc)
+
+    ta = sub.add_parser(
+        "targets", help="which targets one algorithm finds sooner than another, by distance from the start"
+    )
+    ta.add_argument("dir", help="an `uavsearch mc` output folder")
+    ta.add_argument("--algorithm", default="proposed")
+    ta.add_argument("--baseline", default="no-ta")
+    ta.add_argument("--edges", default="0,400,800,1200,1600,1e9", help="distance bins' edges, metres")
+    ta.set_defaults(func=_targets)
 
     sw = sub.add_parser("sweep", help="sweep one algorithm parameter (the paper's Figure 11)")
     sw.add_argument("--mission", required=True)
