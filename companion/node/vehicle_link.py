@@ -6,7 +6,8 @@ vehicle state (pose in the mission's local frame, mode, armed flag, vehicle time
 .tlog of everything it receives and sends. It speaks as the vehicle's own system id, or as a system
 id of its own (the companion's `COMPANION_SYSTEM`, which the autopilot's GCS failsafe watches:
 `companion.node.failsafe`); with `heartbeat` it sends its HEARTBEAT from `poll` whenever one is
-due, in vehicle time and in wall time, so the autopilot hears it in every phase of the flight.
+due, in vehicle time and in wall time (also between the messages of a long backlog), so the autopilot
+hears it in every phase of the flight.
 It never changes the vehicle's mode or arms it unless asked to (`companion.node.takeover`).
 Replies to requests (COMMAND_ACK, PARAM_VALUE, the mission protocol's requests and acks) are kept
 for the code that waits for them (`await_reply`).
@@ -232,6 +233,8 @@ class VehicleLink:
             while msg is not None:
                 count += 1
                 self._handle(msg)
+                if self._heartbeat:  # a long backlog (a loaded machine, a fast vehicle) must not silence us
+                    self._beat_if_due()
                 msg = self._conn.recv_match(blocking=False)
         except (OSError, ValueError):  # a TCP vehicle gone: pymavlink's reconnect was refused
             time.sleep(timeout)
