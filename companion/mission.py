@@ -127,7 +127,10 @@ class Safety(_Base, kw_only=True):
     `buffer`: metres added to R_s (and taken from R_c) in every check, for tracking error.
     `failsafe_timeout`: seconds without the companion's HEARTBEAT before the autopilot's failsafe
     makes the aircraft circle the loiter of its trajectory in force (the companion sets ArduPlane's
-    FS_LONG_TIMEOUT to it; `companion.node.failsafe`).
+    FS_LONG_TIMEOUT to it; `companion.node.failsafe`); default one step (at least 1 s,
+    `Mission.failsafe_seconds`). Until it fires the aircraft holds its last command, off its plan:
+    the contingency clause covers that (`companion.core.world.failsafe_stray`), so the longer it
+    is, the farther apart the UAVs keep.
     `failsafe_reach`: how far (m) from the centre of that loiter the aircraft of a UAV whose
     companion fell silent may be once circling (default: `companion.core.world.failsafe_reach`).
     `contingency`: every trajectory in force keeps clear of every other UAV's failsafe disk (the
@@ -136,7 +139,7 @@ class Safety(_Base, kw_only=True):
 
     margin: NonNegative = 100.0
     buffer: NonNegative = 5.0
-    failsafe_timeout: Annotated[float, msgspec.Meta(ge=1, le=300)] = 5.0
+    failsafe_timeout: Annotated[float, msgspec.Meta(ge=1, le=300)] | None = None
     failsafe_reach: NonNegative | None = None
     contingency: bool = True
 
@@ -299,6 +302,12 @@ class Mission(_Base, kw_only=True):
 
     def with_seed(self, seed: int) -> Mission:
         return msgspec.structs.replace(self, seed=seed)
+
+    @property
+    def failsafe_seconds(self) -> float:
+        """`safety.failsafe_timeout`, by default one step (ArduPlane's FS_LONG_TIMEOUT is at least 1 s)."""
+        t = self.safety.failsafe_timeout
+        return t if t is not None else max(1.0, float(self.kinematics.step))
 
     @property
     def secured(self) -> bool:

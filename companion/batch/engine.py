@@ -15,6 +15,7 @@ import msgspec
 import numpy as np
 from numba import njit
 
+from companion.batch.dead_vehicle import DeadVehicle
 from companion.core.agent import Agent, Observation
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance, pairwise_distances
 from companion.core.messages import Message, decode, encode
@@ -215,8 +216,8 @@ def simulate(
 
     `wire=True` sends every message through its msgpack encoding, as the mesh does. `kills` maps
     a UAV to the step at which its companion dies: from then on it sends nothing and its vehicle
-    flies on along its last trajectory in force (plan, then loiter), as an autopilot holding its
-    last guidance would. `takeovers` maps a UAV to the step from which its companion no longer
+    holds its last turn until its failsafe fires, then flies onto its failsafe loiter and circles
+    it (`DeadVehicle`). `takeovers` maps a UAV to the step from which its companion no longer
     steers its vehicle (a pilot took over, the autopilot fell back to Hold): the vehicle circles
     where it is, turning at the loiter turn, and its agent, told so (`Observation.steered`), goes
     on publishing its position and commits to nothing. `probe(k, agents)`, if given, is called
@@ -237,6 +238,8 @@ def simulate(
     death = {i: d for i, d in (kills or {}).items() if 0 <= i < n}
     held = {i: d for i, d in (takeovers or {}).items() if 0 <= i < n}
     loiter_turn = world.safety.limits.reach.loiter_turn
+    dead: dict[int, DeadVehicle] = {}
+    last = np.zeros(n)  # each vehicle's latest turn: the command a dead companion leaves held
     for k in range(steps):
         sees = scorer.record(k, poses[:, :2])
         turns = np.empty(n)
@@ -244,7 +247,9 @@ def simulate(
         seen = sees.any(axis=1).tolist()
         for i, agent in enumerate(agents):
             if death.get(i, steps) <= k:
-                turns[i] = agent.commitments.inforce.turn_at(k, loiter_turn)
+                if i not in dead:
+                    dead[i] = DeadVehicle.of(world, k, float(last[i]), agent.commitments.inforce)
+                turns[i] = dead[i].turn(k, *poses[i].tolist())
                 outboxes.append([])
                 continue
             x, y, h = poses[i].tolist()
@@ -263,6 +268,7 @@ def simulate(
             traj[k] = poses
         inboxes = radio.deliver(poses[:, :2], outboxes)
         scorer.record_flight(k, poses, turns)
+        last = turns
         poses = world.kinematics.advance_poses(poses, turns)
     return scorer.result(
         run,

@@ -59,8 +59,16 @@ class Commitments:
         plan = world.safety
         self.world, self.uav, self.limits = world, uav, plan.limits
         self.ranks, self.failsafe = plan.ranks, plan.failsafe_reach
-        # the contingency clause's disk radius (`keeps_contingencies`); -inf: every pair clears it
-        self.contingency = plan.failsafe_reach if world.mission.safety.contingency else -math.inf
+        # how far from its fan a silent UAV's aircraft may fly: holding its last command off its
+        # path (`failsafe_stray`), then onto and around its failsafe circle (`failsafe_reach`)
+        self.fan_reach = plan.failsafe_reach + plan.failsafe_stray
+        # the contingency clause's fan radius (`keeps_contingencies`); -inf: every pair clears it
+        self.contingency = self.fan_reach if world.mission.safety.contingency else -math.inf
+        # steps after a silent UAV's last message by which its aircraft has flown onto its failsafe
+        # circle: the failsafe's delay, a plan's length and a half turn onto the circle, at its speed
+        dt, speed = world.mission.kinematics.step, plan.limits.reach.step / world.mission.kinematics.step
+        transit = (plan.failsafe_stray + plan.limits.reach.extent + math.pi * plan.loiter_radius) / speed
+        self.settle = math.ceil((world.mission.failsafe_seconds + transit) / dt) + 2
         # any circle an autopilot flies through the latest report (at up to FAILSAFE_WIDE loiter
         # radii), entered off its tangent: what a vehicle nobody steers is taken to stay within
         self.adrift_reach = plan.failsafe_reach + FAILSAFE_WIDE * plan.loiter_radius
@@ -85,9 +93,14 @@ class Commitments:
         ]
         self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
         self._centres = np.zeros((0, 2))  # the loiter centres of `_step`'s trajectories
+        self._entries = np.zeros(0, dtype=np.int64)  # their loiters' entry indices in `_step`'s window
         self._lone = np.zeros((0, 2))  # those of live UAVs' trajectories in force before their latest
+        self._lone_rows = np.zeros(0, dtype=np.int64)  # the rows of `_step` of those UAVs' latest
         self._disks = np.zeros((0, 4))
-        self._loiters = np.zeros((0, 3))  # where gone UAVs' aircraft circle (`failsafe_loiters`)
+        # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
+        self._loiters = np.zeros((0, 3))
+        self._fans = np.zeros((0, plan.limits.horizon + 1, 2))
+        self._fan_counts = np.zeros(0, dtype=np.int64)
         self.progress = LEAVING_PROGRESS * plan.limits.reach.step  # per planned step, leaving a disk
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
@@ -148,6 +161,31 @@ class Commitments:
             if t is not None
         ]
 
+    def failsafe_regions(self, k: int, j: int) -> list[tuple[Disk, FloatArray]]:
+        """Where the aircraft of gone UAV j flies from its companion's death on (`clears_loiters`):
+        for each of its `failsafe_loiters`, the fan of each path it may have been flying (its last
+        trajectory in force and proposal, from their anchors to their loiters' entries) about that
+        loiter's centre, inflated by `fan_reach`; once it must be circling (`settle` steps after
+        its last message), the disks of `failsafe_loiters` alone (an empty path). A vehicle its
+        companion does not steer: the disk about its latest report, and the region of the last
+        trajectory in force it had (its companion may have lost the link to it, whose failsafe
+        then flies that trajectory's loiter)."""
+        s = self.latest[j]
+        disks = self.failsafe_loiters(j)
+        lim = self.limits
+        if not s.steered:  # a lost vehicle link leaves its autopilot's failsafe on its last trajectory
+            last = self.before.get(j)
+            if last is None:
+                return [(d, np.zeros((0, 2))) for d in disks]
+            path = lim.expand(lim.rows([last]), last.start)[0, : lim.horizon + 1]
+            centre = lim.loiter_circle(last)[:2]
+            return [(d, np.zeros((0, 2))) for d in disks] + [((*centre, self.fan_reach), path)]
+        if k - s.stamp > self.settle:
+            return [(d, np.zeros((0, 2))) for d in disks]
+        flown = [t for t in (s.committed, s.proposal) if t is not None]
+        paths = [lim.expand(lim.rows([t]), t.start)[0, : lim.horizon + 1] for t in flown]
+        return [((cx, cy, self.fan_reach), path) for cx, cy, _ in disks for path in paths]
+
     def _children(self) -> set[int]:
         return {c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead}
 
@@ -165,12 +203,13 @@ class Commitments:
         owners: list[int] = []
         proposals: list[bool] = []
         disks: list[tuple[float, float, float, float]] = []  # owner, cx, cy, r
-        loiters: list[Disk] = []
+        regions: list[tuple[Disk, FloatArray]] = []
         lone: list[Trajectory] = []
+        lone_rows: list[int] = []
         for j in self.latest:
             mine, dsk = self._possible(k, j, both=True)
             if j in self.dead and k > 0:
-                loiters += self.failsafe_loiters(j)
+                regions += self.failsafe_regions(k, j)
             elif j not in links:
                 s = self.fresh[j].state if j in self.fresh else self.latest[j]
                 near = math.hypot(s.x - x, s.y - y)
@@ -178,6 +217,7 @@ class Commitments:
                     continue
             if j not in self.dead and mine and j in self.before:
                 lone.append(self.before[j])
+                lone_rows.append(len(trajs))  # the row of j's trajectory in force, mine[0]
             for t in mine:
                 trajs.append(t)
                 owners.append(j)
@@ -191,18 +231,28 @@ class Commitments:
         )
         self._step = (k, owners, proposals, pts)
         self._centres = lim.loiter_centres(pts, trajs, k) if trajs else np.zeros((0, 2))
+        turn = lim.reach.loiter_turn
+        self._entries = np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64)
         self._lone = lim.loiter_centres(lim.expand(lim.rows(lone), k), lone, k) if lone else np.zeros((0, 2))
+        self._lone_rows = np.array(lone_rows, dtype=np.int64)
         self._disks = np.array(disks, dtype=float).reshape(-1, 4)
-        self._loiters = np.array(loiters, dtype=float).reshape(-1, 3)
+        self._loiters = np.array([d for d, _ in regions], dtype=float).reshape(-1, 3)
+        self._fans = np.zeros((len(regions), lim.horizon + 1, 2))
+        self._fan_counts = np.array([len(p) for _, p in regions], dtype=np.int64)
+        for r, (_, path) in enumerate(regions):
+            self._fans[r, : len(path)] = path
 
     def _arrays(
         self, resolving: bool, proposals: bool = True
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, np.ndarray]:
+    ) -> tuple[
+        FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, np.ndarray, np.ndarray, np.ndarray
+    ]:
         """From this step's gathering: what a trajectory of this UAV must keep clear of, and keep
         within range of (tethers: parents and children), over the check's window from t_k (the
         resolution of the pending proposal: the others' proposals only for lower ids) or from
         t_k+1 (a new proposal: everything), the loiter centres of the trajectories to keep clear
-        of, and which of them are trajectories in force. Without `proposals`: the trajectories in
+        of, which of them are trajectories in force, their loiters' entry indices in the window,
+        and which of them flies to each `_lone` centre. Without `proposals`: the trajectories in
         force only."""
         _, owners, is_proposal, pts = self._step
         links = (set(self.parents) | self._children()) - self.dead
@@ -213,6 +263,8 @@ class Commitments:
         ]
         tethered = [i for i in rows if owners[i] in links]
         span = pts[:, : pts.shape[1] - 1] if resolving else pts[:, 1:]
+        position = {row: p for p, row in enumerate(rows)}
+        lone_owners = np.array([position[r] for r in self._lone_rows.tolist()], dtype=np.int64)
         disks = self._disks
         tether_disks = [d for d in range(len(disks)) if int(disks[d, 0]) in links]
         # contiguous copies: the kernels are compiled for C-ordered arrays (warm_up), never in flight
@@ -223,6 +275,8 @@ class Commitments:
             disks[tether_disks, 1:],
             self._centres[rows],
             ~np.array(is_proposal, dtype=bool)[rows],
+            self._entries[rows] - (0 if resolving else 1),
+            lone_owners,
         )
 
     # -- the protocol, step by step --------------------------------------------------------------
@@ -234,18 +288,36 @@ class Commitments:
         chosen = self.inforce
         self._gather(k, x, y)
         if self.proposal is not None and self.proposal.start == k:
-            others, disks, tethers, tether_disks, centres, in_force = self._arrays(resolving=True)
+            others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = self._arrays(
+                resolving=True
+            )
             both = [self.proposal, self.inforce]
             pts, inforce = expanded = lim.expand(lim.rows(both), k)
             (px, py), (ix, iy) = lim.loiter_centres(expanded, both, k)
+            pe, ie = (t.loiter_entry(turn) - k for t in both)
             sep = lim.disk_separation
             normal, crowded, need = self._crowded(inforce, others, in_force)
+            fans = self._loiters, self._fans, self._fan_counts
             if (
                 compatible(pts, normal, disks, tethers, tether_disks, *lim.clearances)
                 and keeps_apart(pts, crowded, need)[0]
-                and leaves_loiters(pts, inforce, self._loiters, sep, lim.horizon, self.progress)
+                and leaves_loiters(pts, inforce, *fans, sep, lim.horizon, self.progress)
                 and keeps_contingencies(
-                    pts, px, py, inforce, ix, iy, others, centres, self._lone, self.contingency, sep
+                    pts,
+                    pe,
+                    px,
+                    py,
+                    inforce,
+                    ie,
+                    ix,
+                    iy,
+                    others,
+                    entries,
+                    centres,
+                    self._lone,
+                    lone_owners,
+                    self.contingency,
+                    sep,
                 )[0]
             ):
                 chosen = self.proposal
@@ -284,7 +356,7 @@ class Commitments:
         lim = self.limits
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
-        others, _, tethers, _, _, _ = self._arrays(resolving=True, proposals=False)
+        others, _, tethers, *_ = self._arrays(resolving=True, proposals=False)
         no_disks = np.zeros((0, 3))
         options = [trajectory] + [
             Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
@@ -355,7 +427,9 @@ class Commitments:
         others may fly then), and its loiter side; (-1, 0) if none."""
         lim = self.limits
         x, y, heading = pose
-        others, disks, tethers, tether_disks, centres, in_force = self._arrays(resolving=False)
+        others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = self._arrays(
+            resolving=False
+        )
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         shapes, centres_rel = self._shapes[h], self._shape_centres[h]
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
@@ -378,12 +452,17 @@ class Commitments:
             tethers,
             tether_disks,
             self._loiters,
+            self._fans,
+            self._fan_counts,
             self.progress,
-            reference[0],  # a proposal that does not clear the disks must keep as far from them as this
+            reference[0],  # a proposal that does not clear the regions must keep as far from them as this
+            self.inforce.loiter_entry(lim.reach.loiter_turn) - (k + 1),
             centres_rel,
             others,
+            entries,
             centres,
             self._lone,
+            lone_owners,
             reference_centre,
             self.contingency,
             crowded,

@@ -242,39 +242,48 @@ def keeps_apart(pts: FloatArray, crowded: FloatArray, need: FloatArray) -> tuple
 
 @njit(cache=True)
 def clears_loiters(
-    pts: FloatArray, loiters: FloatArray, disk_separation: float, horizon: int, progress: float
+    pts: FloatArray,
+    loiters: FloatArray,
+    paths: FloatArray,
+    counts: IntArray,
+    disk_separation: float,
+    horizon: int,
+    progress: float,
 ) -> bool:
     """Whether the trajectory at `pts` (window + 1 positions, its M = `horizon` planned steps first)
-    keeps clear of every disk (cx, cy, r) in `loiters`, the disks where silent UAVs' aircraft circle
-    (`Commitments`): either it is out of the disk, farther than `disk_separation` from it, from some
-    step on and for good (its loiter repeats within the window), or it starts within that distance
-    and every planned step takes it at least `progress` farther from the centre (a UAV deep inside
-    cannot get out within one plan: it gets out plan by plan)."""
+    keeps clear of every region where a silent UAV's aircraft flies (`Commitments`): the fan of
+    paths[d][:counts[d]] about (cx, cy) of loiters[d] = (cx, cy, r), inflated by r (a disk where
+    counts[d] is 0): either it is out of the region, farther than `disk_separation` from it, from
+    some step on and for good (its loiter repeats within the window), or it starts within that
+    distance and every planned step takes it at least `progress` farther from the fan (a UAV deep
+    inside cannot get out within one plan: it gets out plan by plan)."""
     for d in range(loiters.shape[0]):
         cx, cy, r = loiters[d, 0], loiters[d, 1], loiters[d, 2]
+        path, count = paths[d], counts[d]
         out = -1
         for t in range(pts.shape[0]):
-            if math.hypot(pts[t, 0] - cx, pts[t, 1] - cy) - r > disk_separation:
+            if fan_clearance(pts[t : t + 1], path, count, cx, cy) - r > disk_separation:
                 out = t
                 break
-        if out >= 0 and point_clearance(pts[out:], cx, cy) - r > disk_separation:
+        if out >= 0 and fan_clearance(pts[out:], path, count, cx, cy) - r > disk_separation:
             continue
         if out == 0:
             return False
         for t in range(horizon):
-            before = math.hypot(pts[t, 0] - cx, pts[t, 1] - cy)
-            if math.hypot(pts[t + 1, 0] - cx, pts[t + 1, 1] - cy) < before + progress:
+            before = fan_clearance(pts[t : t + 1], path, count, cx, cy)
+            if fan_clearance(pts[t + 1 : t + 2], path, count, cx, cy) < before + progress:
                 return False
     return True
 
 
 @njit(cache=True)
-def loiter_clearance(pts: FloatArray, loiters: FloatArray) -> float:
-    """The trajectory's closest approach over the window to the nearest of the `loiters` disks
-    (cx, cy, r): negative inside one, infinite without disks."""
+def loiter_clearance(pts: FloatArray, loiters: FloatArray, paths: FloatArray, counts: IntArray) -> float:
+    """The trajectory's closest approach over the window to the nearest of the regions of
+    `clears_loiters`: negative inside one, infinite without any."""
     best = math.inf
     for d in range(loiters.shape[0]):
-        best = min(best, point_clearance(pts, loiters[d, 0], loiters[d, 1]) - loiters[d, 2])
+        cx, cy = loiters[d, 0], loiters[d, 1]
+        best = min(best, fan_clearance(pts, paths[d], counts[d], cx, cy) - loiters[d, 2])
     return best
 
 
@@ -283,71 +292,213 @@ def leaves_loiters(
     pts: FloatArray,
     reference: FloatArray,
     loiters: FloatArray,
+    paths: FloatArray,
+    counts: IntArray,
     disk_separation: float,
     horizon: int,
     progress: float,
 ) -> bool:
     """Whether the trajectory at `pts` may replace the one in force at `reference` (the same steps)
-    near the `loiters` disks: for each disk, it clears it (`clears_loiters`), or its closest
-    approach to the disk's centre over the window is larger than the reference's. Where nothing
-    that clears them all is flyable (a UAV boxed in by the fence and its neighbours), flying it
-    keeps the UAV farther from each silent UAV's aircraft than flying on would, and the next plan
-    starts from there."""
+    near the regions of `clears_loiters`: for each, it clears it, or its closest approach to the
+    region's fan over the window is larger than the reference's. Where nothing that clears them
+    all is flyable (a UAV boxed in by the fence and its neighbours), flying it keeps the UAV
+    farther from each silent UAV's aircraft than flying on would, and the next plan starts from
+    there."""
     for d in range(loiters.shape[0]):
-        if clears_loiters(pts, loiters[d : d + 1], disk_separation, horizon, progress):
+        one = loiters[d : d + 1]
+        if clears_loiters(pts, one, paths[d : d + 1], counts[d : d + 1], disk_separation, horizon, progress):
             continue
-        cx, cy = loiters[d, 0], loiters[d, 1]
-        if point_clearance(pts, cx, cy) <= point_clearance(reference, cx, cy):
+        cx, cy, path, count = loiters[d, 0], loiters[d, 1], paths[d], counts[d]
+        if fan_clearance(pts, path, count, cx, cy) <= fan_clearance(reference, path, count, cx, cy):
             return False
     return True
 
 
 @njit(cache=True)
-def contingency_clearance(
-    pts: FloatArray, cx: float, cy: float, other: FloatArray, ox: float, oy: float, reach: float
+def _to_segment(px: float, py: float, ax: float, ay: float, bx: float, by: float) -> float:
+    """The distance from (px, py) to the segment from (ax, ay) to (bx, by)."""
+    dx, dy = bx - ax, by - ay
+    dd = dx * dx + dy * dy
+    s = 0.0 if dd == 0.0 else min(max(((px - ax) * dx + (py - ay) * dy) / dd, 0.0), 1.0)
+    return math.hypot(px - ax - s * dx, py - ay - s * dy)
+
+
+@njit(cache=True)
+def _cross(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
+    return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+
+
+@njit(cache=True)
+def _segments_distance(
+    ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float
 ) -> float:
-    """How far each of two trajectories (positions `pts` and `other`, loiter centres (cx, cy) and
-    (ox, oy)) keeps from the disk of radius `reach` about the other's loiter centre, the smaller
-    of the two: where either UAV's aircraft may circle if its companion falls silent."""
-    return min(point_clearance(pts, ox, oy), point_clearance(other, cx, cy)) - reach
+    """The distance between the segments AB and CD (0 where they cross)."""
+    d1, d2 = _cross(cx, cy, dx, dy, ax, ay), _cross(cx, cy, dx, dy, bx, by)
+    d3, d4 = _cross(ax, ay, bx, by, cx, cy), _cross(ax, ay, bx, by, dx, dy)
+    if d1 * d2 < 0 and d3 * d4 < 0:
+        return 0.0
+    return min(
+        _to_segment(ax, ay, cx, cy, dx, dy),
+        _to_segment(bx, by, cx, cy, dx, dy),
+        _to_segment(cx, cy, ax, ay, bx, by),
+        _to_segment(dx, dy, ax, ay, bx, by),
+    )
+
+
+@njit(cache=True)
+def _in_fan(px: float, py: float, path: FloatArray, count: int, cx: float, cy: float) -> bool:
+    """Whether (px, py) lies in one of the fan's triangles (path[p], path[p + 1], centre)."""
+    for p in range(count - 1):
+        ax, ay, bx, by = path[p, 0], path[p, 1], path[p + 1, 0], path[p + 1, 1]
+        area = _cross(ax, ay, bx, by, cx, cy)
+        if area == 0.0:
+            continue  # degenerate: its edges are the fan's spokes and path
+        d1 = _cross(ax, ay, bx, by, px, py) * area
+        d2 = _cross(bx, by, cx, cy, px, py) * area
+        d3 = _cross(cx, cy, ax, ay, px, py) * area
+        if d1 >= 0 and d2 >= 0 and d3 >= 0:
+            return True
+    return False
+
+
+@njit(cache=True)
+def fan_clearance(a: FloatArray, path: FloatArray, count: int, cx: float, cy: float) -> float:
+    """The closest approach of the polyline `a` (its chords between sampling moments; a point if
+    it has one) to the *fan* of path[:count] about the centre (cx, cy): the union of the triangles
+    (path[p], path[p + 1], centre), the spokes path[p] -> centre and the centre itself. A silent
+    UAV's aircraft, from wherever on its path its failsafe fires, flies towards that centre (its
+    committed loiter's): inflated by the failsafe's reach, the fan holds all it flies
+    (docs/algorithm.md, "The contingency clause")."""
+    for t in range(a.shape[0]):
+        if _in_fan(a[t, 0], a[t, 1], path, count, cx, cy):
+            return 0.0
+    best = math.inf
+    if a.shape[0] == 1:
+        best = math.hypot(a[0, 0] - cx, a[0, 1] - cy)
+        for p in range(count):
+            best = min(best, _to_segment(a[0, 0], a[0, 1], path[p, 0], path[p, 1], cx, cy))
+        return best
+    for t in range(a.shape[0] - 1):
+        ax, ay, bx, by = a[t, 0], a[t, 1], a[t + 1, 0], a[t + 1, 1]
+        best = min(best, _to_segment(cx, cy, ax, ay, bx, by))
+        for p in range(count):
+            best = min(best, _segments_distance(ax, ay, bx, by, path[p, 0], path[p, 1], cx, cy))
+            if p + 1 < count:
+                qx, qy, rx, ry = path[p, 0], path[p, 1], path[p + 1, 0], path[p + 1, 1]
+                best = min(best, _segments_distance(ax, ay, bx, by, qx, qy, rx, ry))
+    return best
+
+
+@njit(cache=True)
+def fan_count(entry: int, width: int) -> int:
+    """How many points of an expanded trajectory (`width` of them) its fan takes: those up to its
+    loiter's entry index `entry`; none once it loiters (its aircraft, holding the loiter turn, then
+    stays on the loiter circle: the centre, inflated, covers it)."""
+    return 0 if entry <= 0 else min(entry, width - 1) + 1
+
+
+@njit(cache=True)
+def fan_radius(path: FloatArray, count: int, cx: float, cy: float) -> float:
+    """The radius about (cx, cy) of the disk that holds the fan of path[:count]."""
+    r = 0.0
+    for p in range(count):
+        r = max(r, math.hypot(path[p, 0] - cx, path[p, 1] - cy))
+    return r
+
+
+@njit(cache=True)
+def _clearly_clear(
+    pts: FloatArray,
+    count: int,
+    cx: float,
+    cy: float,
+    other: FloatArray,
+    other_count: int,
+    ox: float,
+    oy: float,
+    beyond: float,
+) -> bool:
+    """Whether `contingency_clearance` is certainly above `beyond`, from the disks about the centres
+    that hold the fans (cheap: most pairs are far apart)."""
+    mine = point_clearance(pts, ox, oy) - fan_radius(other, other_count, ox, oy)
+    theirs = point_clearance(other, cx, cy) - fan_radius(pts, count, cx, cy)
+    return min(mine, theirs) > beyond
+
+
+@njit(cache=True)
+def contingency_clearance(
+    pts: FloatArray,
+    entry: int,
+    cx: float,
+    cy: float,
+    other: FloatArray,
+    other_entry: int,
+    ox: float,
+    oy: float,
+    reach: float,
+) -> float:
+    """How far each of two trajectories (positions `pts` and `other` over the same steps, loiter
+    entry indices `entry` and `other_entry`, loiter centres (cx, cy) and (ox, oy)) keeps from the
+    region where the other UAV's aircraft may fly if its companion falls silent now or later: the
+    other's fan (`fan_clearance`: its path from now to its loiter, spoked to the loiter's centre)
+    inflated by `reach`; the smaller of the two."""
+    width = pts.shape[0]
+    mine = fan_clearance(pts, other, fan_count(other_entry, width), ox, oy)
+    theirs = fan_clearance(other, pts, fan_count(entry, width), cx, cy)
+    return min(mine, theirs) - reach
 
 
 @njit(cache=True)
 def keeps_contingencies(
     pts: FloatArray,
+    entry: int,
     cx: float,
     cy: float,
     reference: FloatArray,
+    reference_entry: int,
     rx: float,
     ry: float,
     others: FloatArray,
+    entries: IntArray,
     centres: FloatArray,
     lone: FloatArray,
+    lone_owners: IntArray,
     reach: float,
     disk_separation: float,
 ) -> tuple[int, float]:
-    """The contingency clause of compatibility for the trajectory at `pts` (loiter centre (cx, cy)),
-    against the others' trajectories at `others` (loiter centres `centres`) and the loiter centres
-    `lone` of the trajectories in force a UAV announced before its latest (its failsafe may still
-    circle there; one-sided): 2 if it clears every such disk by more than `disk_separation`
-    (`contingency_clearance`); else 1 if, against every disk it does not clear, it keeps at least
-    as far as the trajectory in force at `reference` (loiter centre (rx, ry)) over the same steps
-    (a start layout closer than the clause: pairs only move apart); else 0. Also the smallest
-    clearance of a pair it does not clear (infinite if none)."""
+    """The contingency clause of compatibility for the trajectory at `pts` (loiter entry index
+    `entry`, loiter centre (cx, cy)), against the others' trajectories at `others` (loiter entries
+    `entries`, centres `centres`) and the loiter centres `lone` of the trajectories in force a UAV
+    announced before its latest (its failsafe may still circle there, reached along its trajectory
+    in force, others[lone_owners]; one-sided): 2 if it clears every such region by more than
+    `disk_separation` (`contingency_clearance`); else 1 if, against every region it does not clear,
+    it keeps at least as far as the trajectory in force at `reference` (`reference_entry`, loiter
+    centre (rx, ry)) over the same steps (a start layout closer than the clause: pairs only move
+    apart); else 0. Also the smallest clearance of a pair it does not clear (infinite if none)."""
     code, worst = 2, math.inf
+    width = pts.shape[0]
+    count = fan_count(entry, width)
     for o in range(others.shape[0]):
-        ox, oy = centres[o, 0], centres[o, 1]
-        c = contingency_clearance(pts, cx, cy, others[o], ox, oy, reach)
+        ox, oy, oe = centres[o, 0], centres[o, 1], entries[o]
+        beyond = reach + disk_separation
+        if _clearly_clear(pts, count, cx, cy, others[o], fan_count(oe, width), ox, oy, beyond):
+            continue
+        c = contingency_clearance(pts, entry, cx, cy, others[o], oe, ox, oy, reach)
         if c > disk_separation:
             continue
-        if c < contingency_clearance(reference, rx, ry, others[o], ox, oy, reach):
+        if c < contingency_clearance(reference, reference_entry, rx, ry, others[o], oe, ox, oy, reach):
             return 0, c
         code, worst = 1, min(worst, c)
     for o in range(lone.shape[0]):
-        c = point_clearance(pts, lone[o, 0], lone[o, 1]) - reach
+        owner = lone_owners[o]
+        flown = fan_count(entries[owner], width)
+        lx, ly = lone[o, 0], lone[o, 1]
+        if point_clearance(pts, lx, ly) - fan_radius(others[owner], flown, lx, ly) - reach > disk_separation:
+            continue
+        c = fan_clearance(pts, others[owner], flown, lx, ly) - reach
         if c > disk_separation:
             continue
-        if c < point_clearance(reference, lone[o, 0], lone[o, 1]) - reach:
+        if c < fan_clearance(reference, others[owner], flown, lx, ly) - reach:
             return 0, c
         code, worst = 1, min(worst, c)
     return code, worst
@@ -380,12 +531,17 @@ def first_allowed(
     tethers: FloatArray,
     tether_disks: FloatArray,
     loiters: FloatArray,
+    loiter_paths: FloatArray,
+    loiter_counts: IntArray,
     progress: float,
     reference: FloatArray,
+    reference_entry: int,
     centres_rel: FloatArray,
     contingent: FloatArray,
+    entries: IntArray,
     centres: FloatArray,
     lone: FloatArray,
+    lone_owners: IntArray,
     reference_centre: FloatArray,
     reach: float,
     crowded: FloatArray,
@@ -395,20 +551,23 @@ def first_allowed(
     link: float,
 ) -> tuple[int, int]:
     """The first candidate path in `order` whose trajectory, with one of the loiter sides, stays in the
-    fence, is compatible with everything given, clears the others' contingency disks
-    (`keeps_contingencies` with the others' loiter `centres`, the `lone` ones and `reach`) and clears
-    the `loiters` (`clears_loiters`, with `progress`): (path, side +1 or -1); if none does, of those
-    in the fence and compatible that may replace the trajectory in force at `reference` (loiter
-    centre `reference_centre`; `keeps_contingencies`, `leaves_loiters`, and `keeps_apart` from the
-    `crowded` trajectories the one in force is already too close to), the one farthest from what
-    it does not clear; (-1, 0) if none. `others` are the trajectories to be compatible with,
-    `contingent` (with their loiter `centres`) those whose failsafe disks to clear.
+    fence, is compatible with everything given, clears the others' contingency regions
+    (`keeps_contingencies` with the others' loiter `entries` and `centres`, the `lone` centres of
+    `lone_owners`, and `reach`) and clears the `loiters` (`clears_loiters` with their
+    `loiter_paths` and `loiter_counts`, and `progress`): (path, side +1 or -1); if none does, of
+    those in the fence and compatible that may replace the trajectory in force at `reference`
+    (loiter entry `reference_entry`, centre `reference_centre`; `keeps_contingencies`,
+    `leaves_loiters`, and `keeps_apart` from the `crowded` trajectories the one in force is
+    already too close to), the one farthest from what it does not clear; (-1, 0) if none.
+    `others` are the trajectories to be compatible with, `contingent` those whose failsafe regions
+    to clear.
     `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
     (`Limits.shapes`) and `centres_rel` (n_paths, 2 sides, 2) their loiter centres, placed at (x, y)
     and turned by the heading (cos_h, sin_h). The side that turns towards `centre` (the region's
     centroid) at the plan's end is tried first."""
     width = shapes.shape[2]
     pts = np.empty((width, 2))
+    fans = (loiters, loiter_paths, loiter_counts)
     best, best_side, farthest = -1, 0, -math.inf
     for i in order:
         s0 = shapes[i, 0]
@@ -431,14 +590,18 @@ def first_allowed(
             ox, oy = centres_rel[i, side, 0], centres_rel[i, side, 1]
             code, worst = keeps_contingencies(
                 pts,
+                horizon,
                 x + cos_h * ox - sin_h * oy,
                 y + sin_h * ox + cos_h * oy,
                 reference,
+                reference_entry,
                 reference_centre[0],
                 reference_centre[1],
                 contingent,
+                entries,
                 centres,
                 lone,
+                lone_owners,
                 reach,
                 disk_separation,
             )
@@ -448,11 +611,11 @@ def first_allowed(
             if (
                 code == 2
                 and crowded.shape[0] == 0
-                and clears_loiters(pts, loiters, disk_separation, horizon, progress)
+                and clears_loiters(pts, *fans, disk_separation, horizon, progress)
             ):
                 return i, 1 if side == 0 else -1
-            if leaves_loiters(pts, reference, loiters, disk_separation, horizon, progress):
-                clearance = min(worst, gap - separation, loiter_clearance(pts, loiters))
+            if leaves_loiters(pts, reference, *fans, disk_separation, horizon, progress):
+                clearance = min(worst, gap - separation, loiter_clearance(pts, *fans))
                 if clearance > farthest:
                     farthest, best, best_side = clearance, i, 1 if side == 0 else -1
     return best, best_side

@@ -51,6 +51,15 @@ class Trajectory(msgspec.Struct, frozen=True, array_like=True):
         i = step - self.start
         return self.turns[i] if 0 <= i < len(self.turns) else self.loiter * loiter_turn
 
+    def loiter_entry(self, loiter_turn: float) -> int:
+        """The step from which it only loiters: after its last turn that is not the loiter's
+        (`reanchored` pads with loiter turns; a plan ending in them is on the loiter circle already)."""
+        turn = self.loiter * loiter_turn
+        planned = len(self.turns)
+        while planned and abs(self.turns[planned - 1] - turn) < 1e-12:
+            planned -= 1
+        return self.start + planned
+
     def reanchored(self, step: int, x: float, y: float, heading: float, loiter_turn: float) -> Trajectory:
         """The same promise anchored at `step` at the pose (x, y, heading): the turns still ahead,
         then loiter turns, so that every row keeps M turns."""

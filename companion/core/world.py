@@ -71,14 +71,16 @@ def build_kinematics(mission: Mission) -> Kinematics:
 @dataclass(frozen=True)
 class SafetyPlan:
     """The safety layer's common knowledge (core.safety): what compatibility means, every UAV's
-    start contingency, the tether tree of the start layout, and how far a silent UAV's aircraft
-    may stray from the centre of its committed loiter once its failsafe circles it."""
+    start contingency, the tether tree of the start layout, how far a silent UAV's aircraft may
+    stray from the centre of its committed loiter once its failsafe circles it, and from its path
+    before the failsafe fires."""
 
     limits: Limits
     start: tuple[Trajectory, ...]
     ranks: tuple[int, ...]
     parents: tuple[int, ...]
     failsafe_reach: float
+    failsafe_stray: float
     shapes: FloatArray  # `Limits.shapes` of the mission's paths (eq. 23)
     centres: FloatArray  # their loiter centres (`Limits.shape_centres`)
 
@@ -103,6 +105,21 @@ def failsafe_reach(mission: Mission, limits: Limits) -> float:
     return FAILSAFE_WIDE * radius + turn_radius
 
 
+FAILSAFE_CHECK_S = 1 / 3  # ArduPlane checks its GCS failsafe at 3 Hz (ArduPlane/events.cpp)
+
+
+def failsafe_stray(mission: Mission, limits: Limits) -> float:
+    """How far from its trajectory's path the aircraft of a UAV whose companion fell silent may be
+    when its failsafe fires: it holds its last command for up to tau = `Mission.failsafe_seconds`
+    plus one failsafe check instead of the plan's next turns. Two eq. 2 paths from one pose whose
+    turn rates differ by up to 2 omega_max part by at most 2 R (1 - cos omega_max tau) <= v omega_max
+    tau^2 (R = v / omega_max), and neither leaves v tau of that pose."""
+    tau = mission.failsafe_seconds + FAILSAFE_CHECK_S
+    dt = float(mission.kinematics.step)
+    speed, rate = limits.reach.step / dt, limits.reach.loiter_turn / dt
+    return min(speed * rate * tau**2, speed * tau)
+
+
 def build_safety(
     mission: Mission, kin: Kinematics, region: ConvexPolygon, sequences: FloatArray
 ) -> SafetyPlan:
@@ -113,7 +130,8 @@ def build_safety(
     start = tuple(initial_trajectories(poses, parents, ranks, limits))  # ValueError: no contingency
     reach = s.failsafe_reach if s.failsafe_reach is not None else failsafe_reach(mission, limits)
     shapes = limits.shapes(sequences)
-    return SafetyPlan(limits, start, ranks, parents, reach, shapes, limits.shape_centres(shapes))
+    stray = failsafe_stray(mission, limits)
+    return SafetyPlan(limits, start, ranks, parents, reach, stray, shapes, limits.shape_centres(shapes))
 
 
 def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> World:

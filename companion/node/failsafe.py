@@ -121,7 +121,7 @@ def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
         return f"{sysid_param} = {link.system_id} not confirmed"
     link.send_heartbeat()  # heard before the failsafe is enabled: it must not fire on an old silence
     settings = {
-        "FS_LONG_TIMEOUT": mission.safety.failsafe_timeout,
+        "FS_LONG_TIMEOUT": mission.failsafe_seconds,
         "FS_LONG_ACTN": float(FS_LONG_AUTO),
         "FS_GCS_ENABL": float(FS_GCS_HEARTBEAT),
     }

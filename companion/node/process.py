@@ -264,7 +264,7 @@ class Companion:
             "uav %d: failsafe armed: %g s without our HEARTBEAT, the aircraft circles the loiter of its "
             "trajectory in force",
             self.opts.uav,
-            m.safety.failsafe_timeout,
+            m.failsafe_seconds,
         )
 
     # -- one step --------------------------------------------------------------------------------

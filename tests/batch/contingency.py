@@ -1,7 +1,7 @@
 """The contingency clause of the safety layer, read off the agents of a batch run (a `simulate`
-probe): for every pair of UAVs, how far each one's trajectory in force keeps from the disk where
-the other's aircraft may circle if its companion falls silent (`safety.contingency_clearance`),
-beyond the disk separation."""
+probe): for every pair of UAVs, how far each one's trajectory in force keeps from the region where
+the other's aircraft may fly if its companion falls silent (`safety.contingency_clearance`: its
+path's fan about its loiter's centre, inflated), beyond the disk separation."""
 
 from __future__ import annotations
 
@@ -16,17 +16,21 @@ from companion.core.world import World
 
 def clause_probe(world: World, rows: list[np.ndarray]) -> Callable[[int, list[Agent]], None]:
     """A `simulate` probe appending, at every step k, the (n, n) matrix of the pairs' contingency
-    clearances (upper triangle; +inf elsewhere): positive where the pair clears both disks."""
-    lim, reach = world.safety.limits, world.safety.failsafe_reach
+    clearances (upper triangle; +inf elsewhere): positive where the pair clears both regions."""
+    plan = world.safety
+    lim, reach = plan.limits, plan.failsafe_reach + plan.failsafe_stray
 
     def probe(k: int, agents: list[Agent]) -> None:
         trajs = [a.commitments.inforce for a in agents]
         pts = lim.expand(lim.rows(trajs), k)  # covers all later time (the loiters repeat)
         centres = lim.loiter_centres(pts, trajs, k)
+        entries = [t.loiter_entry(lim.reach.loiter_turn) - k for t in trajs]
         out = np.full((len(trajs), len(trajs)), np.inf)
         for i in range(len(trajs)):
             for j in range(i + 1, len(trajs)):
-                c = contingency_clearance(pts[i], *centres[i], pts[j], *centres[j], reach)
+                c = contingency_clearance(
+                    pts[i], entries[i], *centres[i], pts[j], entries[j], *centres[j], reach
+                )
                 out[i, j] = c - lim.disk_separation
         rows.append(out)
 

@@ -289,11 +289,12 @@ def test_the_loiter_circle_goes_through_every_loiter_point(
 def test_a_trajectory_must_stay_out_of_a_loiter_disk_or_head_out_of_it() -> None:
     lim = limits(CONT)  # 40 m per step, 3 planned steps, then a 51 m loiter circle
     disk = np.array([[0.0, 0.0, 80.0]])
+    no_path, none = np.zeros((1, 4, 2)), np.zeros(1, dtype=np.int64)  # a disk: a fan of no path
     sep, progress = lim.disk_separation, 10.0  # 68.9 m
 
     def clears(x: float, heading: float, turns: tuple[float, ...] = (0.0, 0.0, 0.0)) -> bool:
         t = Trajectory(0, x, 0.0, heading, turns, 1)
-        return clears_loiters(lim.expand(lim.rows([t]), 0)[0], disk, sep, 3, progress)
+        return clears_loiters(lim.expand(lim.rows([t]), 0)[0], disk, no_path, none, sep, 3, progress)
 
     assert clears(-90.0, math.pi)  # inside, straight out, and its loiter stays clear
     assert clears(-50.0, math.pi)  # its loiter comes back in, but it heads straight out: next plan
@@ -303,4 +304,5 @@ def test_a_trajectory_must_stay_out_of_a_loiter_disk_or_head_out_of_it() -> None
     assert not clears(-50.0, math.pi, (q, q, q))  # inside, turning back in within its plan
     assert not clears(-250.0, 0.0)  # outside, flying in
     assert clears(-250.0, math.pi)  # outside, flying away
-    assert clears_loiters(np.zeros((5, 2)), np.zeros((0, 3)), sep, 3, progress)  # no silent UAV
+    empty = np.zeros((0, 3)), np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64)
+    assert clears_loiters(np.zeros((5, 2)), *empty, sep, 3, progress)  # no silent UAV

@@ -47,7 +47,9 @@ GUIDED, LOITER = 15, 12  # ArduPlane custom modes
 # CPU on a loaded 2-core machine; 20 s (2 s wall) keeps the tests about steering, not about load.
 SLACK_GUIDED_TIMEOUT = "guided_timeout = 20.0"
 # The same for the autopilot's failsafe for a silent companion (FS_LONG_TIMEOUT, which the
-# companion sets with --takeover): 5 s by default, 0.5 s of wall time at --speedup 10.
+# companion sets with --takeover): one step (2 s) by default, 0.2 s of wall time at --speedup 10.
+# The contingency clause widens with it (`world.failsafe_stray`: 530 m of failsafe region at 20 s),
+# so these swarms keep far apart and loiter more: none of the tests using it minds.
 SLACK_FAILSAFE_TIMEOUT = "failsafe_timeout = 20.0"
 
 

@@ -95,7 +95,7 @@ def test_silent_companion_makes_the_vehicle_circle_its_committed_loiter(flying) 
     ground.need("STATUSTEXT", lambda m: m.text == "Mission: 1 LoitUnlim", timeout=30)  # as ArduPlane
     t_on = _text(ground, "GCS Failsafe On: AUTO")
     frame = LocalFrame(mission.region.origin)
-    assert t_on >= silent_from + mission.safety.failsafe_timeout
+    assert t_on >= silent_from + mission.failsafe_seconds
     assert ground.need("HEARTBEAT").custom_mode == AUTO
 
     track, ups = [], []
@@ -134,7 +134,7 @@ def test_a_stalled_simulator_slips_instead_of_tripping_the_failsafe(flying) -> N
     committed = Trajectory(0, s.x, s.y, s.heading, (0.0,) * mission.algorithm.horizon, -1)
     assert arm_failsafe(FailsafeLoiter(link, build_world(mission), 0, link.frame), committed) is None
     _poll_for(link, 3.0)
-    stall = 2 * mission.safety.failsafe_timeout / 10  # wall seconds: twice the timeout at 10x
+    stall = 2 * mission.failsafe_seconds / 10  # wall seconds: twice the timeout at 10x
     sim.proc.send_signal(signal.SIGSTOP)
     try:
         end = time.monotonic() + stall
@@ -142,7 +142,7 @@ def test_a_stalled_simulator_slips_instead_of_tripping_the_failsafe(flying) -> N
             link.poll(0.05)
     finally:
         sim.proc.send_signal(signal.SIGCONT)
-    _poll_for(link, 2 * mission.safety.failsafe_timeout)
+    _poll_for(link, 2 * mission.failsafe_seconds)
     assert not any("Failsafe" in t for t in link.state.texts), link.state.texts
     assert ground.need("HEARTBEAT").custom_mode == GUIDED
     _, stats = sim.stop()

@@ -341,7 +341,7 @@ def test_simulator_failsafe_for_a_silent_companion_like_arduplane(airborne: Airb
         ours = _silence_script(companion, bundled, mission)
 
     (tmp_path / "failsafe.json").write_text(json.dumps({"sitl": sitl, "bundled": ours}))
-    timeout = mission.safety.failsafe_timeout
+    timeout = mission.failsafe_seconds
     for name, run in (("SITL", sitl), ("bundled", ours)):
         t_on = run["failsafe"][0]
         ok = timeout - FAILSAFE_EARLY_S < t_on < timeout + FAILSAFE_LATE_S
