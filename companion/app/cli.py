@@ -85,14 +85,14 @@ def _targets(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from companion.batch.by_distance import targets_by_distance, write_csv
+    from companion.batch.by_distance import DEFAULT_EDGES, targets_by_distance, write_csv
 
     out = Path(args.dir)
     for name in ("summary.json", "mission.toml", "targets.csv"):
         if not (out / name).is_file():
             raise ValueError(f"{out}: no {name} (the output folder of `uavsearch mc`)")
     try:
-        edges = [float(e) for e in args.edges.split(",")]
+        edges = DEFAULT_EDGES if args.edges is None else [float(e) for e in args.edges.split(",")]
     except ValueError as exc:
         raise ValueError(f"--edges: {args.edges!r} is not a list of distances in metres") from exc
     bins = targets_by_distance(out, args.algorithm, args.baseline, edges)
@@ -576,7 +576,7 @@ def build_parser() -> argparse.ArgumentParser:
     ta.add_argument("dir", help="an `uavsearch mc` output folder")
     ta.add_argument("--algorithm", default="proposed")
     ta.add_argument("--baseline", default="no-ta")
-    ta.add_argument("--edges", default="0,400,800,1200,1600,1e9", help="distance bins' edges, metres")
+    ta.add_argument("--edges", help="distance bins' edges, metres, comma-separated (default: 400 m bins)")
     ta.set_defaults(func=_targets)
 
     sw = sub.add_parser("sweep", help="sweep one algorithm parameter (the paper's Figure 11)")

@@ -5,8 +5,6 @@ from __future__ import annotations
 import csv
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,19 +13,10 @@ import pytest
 from companion.batch.by_distance import targets_by_distance
 from companion.core.world import build_grid
 from companion.mission import load_mission
+from tests.cli import uavsearch
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO1 = ROOT / "mission_files" / "scenario1.toml"
-
-
-def _uavsearch(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
 
 
 def _folder(tmp_path: Path, rows: list[tuple[str, int, int, int]], steps: int = 100) -> Path:
@@ -82,12 +71,12 @@ def test_unpaired_runs_and_bad_edges_are_errors(tmp_path: Path) -> None:
 
 def test_cli_on_a_real_study_with_drawn_starts(tmp_path: Path) -> None:
     out = tmp_path / "study"
-    proc = _uavsearch(
+    proc = uavsearch(
         "mc", "--mission", str(SCENARIO1), "--algorithms", "proposed,no-ta", "--runs", "3", "--steps", "40",
         "--seed", "2", "--random-starts", "--workers", "1", "--quiet", "--out", str(out),
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    proc = _uavsearch("targets", str(out), "--edges", "0,500,1000,5000")
+    proc = uavsearch("targets", str(out), "--edges", "0,500,1000,5000")
     assert proc.returncode == 0, proc.stderr
     with (out / "targets_by_distance_proposed_no-ta.csv").open() as f:
         bins = list(csv.DictReader(f))
@@ -101,10 +90,10 @@ def test_cli_on_a_real_study_with_drawn_starts(tmp_path: Path) -> None:
             steps = [int(t["found_step"]) for t in csv.DictReader(f) if t["algorithm"] == name]
         assert total == pytest.approx(np.mean([s if s >= 0 else 40 for s in steps]))
     # against itself every difference is 0
-    proc = _uavsearch("targets", str(out), "--baseline", "proposed")
+    proc = uavsearch("targets", str(out), "--baseline", "proposed")
     assert proc.returncode == 0, proc.stderr
     with (out / "targets_by_distance_proposed_proposed.csv").open() as f:
         for b in csv.DictReader(f):
             assert float(b["difference"]) == 0.0 and b["sooner"] == b["later"] == "0"
-    bad = _uavsearch("targets", str(tmp_path))
+    bad = uavsearch("targets", str(tmp_path))
     assert bad.returncode == 2 and "no summary.json" in bad.stderr and "Traceback" not in bad.stderr

@@ -8,7 +8,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,6 +19,7 @@ from companion.batch.executors import DaskCluster
 from companion.batch.montecarlo import execute, run_specs, specs_for, summarize
 from companion.bench.loopback_cluster import LoopbackCluster, stop
 from companion.mission import load_mission
+from tests.cli import uavsearch
 
 ROOT = Path(__file__).resolve().parents[2]
 ALGORITHMS = ("proposed", "no-ta", "pheromone")
@@ -33,16 +33,6 @@ def cluster(tmp_path: Path) -> Iterator[LoopbackCluster]:
         for i in range(2):
             cluster.start_worker(f"worker{i}")
         yield cluster
-
-
-def _uavsearch(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=600,
-    )
 
 
 def _ok(proc: subprocess.CompletedProcess[str]) -> None:
@@ -73,8 +63,8 @@ def test_mc_sweep_and_soak_on_the_cluster_equal_the_local_pool(
         "3",
         "--quiet",
     ]
-    _ok(_uavsearch("mc", *study, "--out", str(tmp_path / "local"), "--workers", "2"))
-    _ok(_uavsearch("mc", *study, "--out", str(tmp_path / "dask"), "--scheduler", cluster.address))
+    _ok(uavsearch("mc", *study, "--out", str(tmp_path / "local"), "--workers", "2"))
+    _ok(uavsearch("mc", *study, "--out", str(tmp_path / "dask"), "--scheduler", cluster.address))
     local, dask = tmp_path / "local", tmp_path / "dask"
     summaries = [json.loads((d / "summary.json").read_text()) for d in (local, dask)]
     assert _without_timing(summaries[1]) == _without_timing(summaries[0])
@@ -95,15 +85,15 @@ def test_mc_sweep_and_soak_on_the_cluster_equal_the_local_pool(
         "30",
         "--quiet",
     ]
-    _ok(_uavsearch("sweep", *sweep, "--out", str(local), "--workers", "2"))
-    _ok(_uavsearch("sweep", *sweep, "--out", str(dask), "--scheduler", cluster.address))
+    _ok(uavsearch("sweep", *sweep, "--out", str(local), "--workers", "2"))
+    _ok(uavsearch("sweep", *sweep, "--out", str(dask), "--scheduler", cluster.address))
     local_points, dask_points = (json.loads((d / "sweep.json").read_text())["points"] for d in (local, dask))
     assert _without_timing(dict(enumerate(dask_points))) == _without_timing(dict(enumerate(local_points)))
 
     soak = ["soak", "--missions", "3", "--seed", "4", "--steps", "30", "--kill", "--verbose"]
     local_soak, dask_soak = (
-        _uavsearch(*soak, "--workers", "2"),
-        _uavsearch(*soak, "--scheduler", cluster.address),
+        uavsearch(*soak, "--workers", "2"),
+        uavsearch(*soak, "--scheduler", cluster.address),
     )
     assert local_soak.returncode in (0, 1), local_soak.stderr  # 1: a separation event (printed)
     assert (dask_soak.returncode, dask_soak.stdout) == (local_soak.returncode, local_soak.stdout)
@@ -175,7 +165,7 @@ def test_a_worker_with_other_code_is_refused(cluster: LoopbackCluster, tmp_path:
 
 def test_a_bad_scheduler_address_is_a_clear_error(tmp_path: Path) -> None:
     mission = ["--mission", "mission_files/scenario1.toml", "--runs", "1", "--steps", "5"]
-    proc = _uavsearch("mc", *mission, "--out", str(tmp_path), "--scheduler", "tcp://nowhere")
+    proc = uavsearch("mc", *mission, "--out", str(tmp_path), "--scheduler", "tcp://nowhere")
     assert proc.returncode == 2
     assert "--scheduler 'tcp://nowhere'" in proc.stderr and "port" in proc.stderr
     assert "Traceback" not in proc.stderr

@@ -15,6 +15,7 @@ import pytest
 
 from companion.batch.montecarlo import SUMMARY_KEYS, run_specs, specs_for, summarize
 from companion.mission import load_mission
+from tests.cli import uavsearch
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -33,19 +34,9 @@ def test_the_study_on_scenario3_stays_connected_and_separated() -> None:
     assert min(r.approach.min() for r in results) > mission.comms.safety + mission.safety.buffer
 
 
-def _uavsearch(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=600,
-    )
-
-
 def test_mc_cli_writes_summary_runs_curves_trajectories_and_plots(tmp_path: Path) -> None:
     out = tmp_path / "mc"
-    proc = _uavsearch(
+    proc = uavsearch(
         "mc",
         "--mission",
         "mission_files/scenario1.toml",
@@ -91,7 +82,7 @@ def test_mc_cli_writes_summary_runs_curves_trajectories_and_plots(tmp_path: Path
 def test_a_run_is_the_same_whatever_else_is_in_the_batch(tmp_path: Path) -> None:
     a, b = tmp_path / "a", tmp_path / "b"
     for out, runs in ((a, "1"), (b, "3")):
-        proc = _uavsearch(
+        proc = uavsearch(
             "mc",
             "--mission",
             "mission_files/scenario2.toml",
@@ -131,7 +122,7 @@ def test_a_run_is_the_same_whatever_else_is_in_the_batch(tmp_path: Path) -> None
 
 
 def test_sweep_cli_writes_points_and_plot(tmp_path: Path) -> None:
-    proc = _uavsearch(
+    proc = uavsearch(
         "sweep",
         "--mission",
         "mission_files/scenario2.toml",
@@ -154,7 +145,7 @@ def test_sweep_cli_writes_points_and_plot(tmp_path: Path) -> None:
 
 
 def test_bench_cli_prints_figures(tmp_path: Path) -> None:
-    proc = _uavsearch(
+    proc = uavsearch(
         "bench",
         "--missions",
         "mission_files/scenario1.toml",
@@ -183,7 +174,7 @@ def test_bad_mission_file_is_a_clear_error_without_traceback(tmp_path: Path) -> 
         (ROOT / "mission_files/scenario1.toml").read_text().replace("cell_size = 40.0", 'cell_size = "big"')
     )
     bad.write_text(text)
-    proc = _uavsearch("mc", "--mission", str(bad), "--runs", "1", "--steps", "5", "--out", str(tmp_path))
+    proc = uavsearch("mc", "--mission", str(bad), "--runs", "1", "--steps", "5", "--out", str(tmp_path))
     assert proc.returncode == 2
     assert str(bad) in proc.stderr and "region.cell_size" in proc.stderr
     assert "Traceback" not in proc.stderr

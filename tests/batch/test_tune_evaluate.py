@@ -7,8 +7,6 @@ from __future__ import annotations
 import csv
 import json
 import multiprocessing
-import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -34,20 +32,11 @@ from companion.batch.tune import (
     weights_table,
 )
 from companion.mission import Algorithm, MissionError, load_mission
+from tests.cli import uavsearch
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO = load_mission(ROOT / "mission_files/scenario1.toml")
 TINY = ("--uavs", "2-3", "--across", "800-1200", "--targets", "5-6", "--steps", "30")
-
-
-def _uavsearch(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=600,
-    )
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
@@ -131,7 +120,7 @@ def test_tune_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
     weights are the snippet; the same study in this process on one worker gives the same history."""
     out = tmp_path / "tune"
     args = ("--missions", "3", "--seed", "8", "--runs", "1", "--budget", "24", "--confirm", "2", *TINY)
-    proc = _uavsearch("tune", *args, "--out", str(out), "--workers", "2", "--quiet")
+    proc = uavsearch("tune", *args, "--out", str(out), "--workers", "2", "--quiet")
     assert proc.returncode == 0, proc.stderr
     history = _rows(out / "history.csv")
     assert [int(r["trial"]) for r in history] == list(range(5))
@@ -186,7 +175,7 @@ def test_evaluate_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
     first.write_text("[algorithm]\nkappa = 2.5\nbeta = [1.0, 0.5]\n")
     second.write_text("[algorithm]\nkappa = 4.0\npheromone = { weight = 1.5 }\n")
     weights = ("--weights", str(first), str(second))
-    proc = _uavsearch(
+    proc = uavsearch(
         "evaluate",
         "--missions",
         "3",
@@ -328,7 +317,7 @@ def test_tune_a_space_file_on_a_folder_of_missions(tmp_path: Path) -> None:
         "--confirm",
         "0",
     )
-    proc = _uavsearch("tune", *args, "--out", str(out), "--quiet", "--workers", "1")
+    proc = uavsearch("tune", *args, "--out", str(out), "--quiet", "--workers", "1")
     assert proc.returncode == 0, proc.stderr
     history = _rows(out / "history.csv")
     assert history[0]["n_g"] == "50"
