@@ -81,6 +81,41 @@ def _print_summary(summary: dict) -> None:
     Console().print(table)
 
 
+def _versus(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from companion.batch.versus import compare
+
+    changes = compare(Path(args.before), Path(args.after))
+    table = Table(title=f"{args.after} against {args.before}, paired run by run (95 % intervals)")
+    for col in (
+        "algorithm",
+        "runs",
+        "mean target time",
+        "change",
+        "mean uncertainty",
+        "change",
+        "closest approach (m)",
+        "runs with an event",
+    ):
+        table.add_column(col, justify="right", no_wrap=col == "algorithm")
+    for c in changes:
+        t, u = c.change["mean_target_time"], c.change["mean_uncertainty"]
+        table.add_row(
+            c.algorithm,
+            str(c.runs),
+            f"{c.before['mean_target_time']:.1f} -> {c.after['mean_target_time']:.1f}",
+            f"{t.estimate:+.2f} [{t.low:+.2f}, {t.high:+.2f}]",
+            f"{c.before['mean_uncertainty']:.4f} -> {c.after['mean_uncertainty']:.4f}",
+            f"{u.estimate:+.4f} [{u.low:+.4f}, {u.high:+.4f}]",
+            f"{c.closest[0]:.1f} -> {c.closest[1]:.1f}",
+            f"{c.events[0]} -> {c.events[1]}",
+        )
+    Console().print(table)
+    return 0
+
+
 def _targets(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
@@ -578,6 +613,13 @@ def build_parser() -> argparse.ArgumentParser:
     ta.add_argument("--baseline", default="no-ta")
     ta.add_argument("--edges", help="distance bins' edges, metres, comma-separated (default: 400 m bins)")
     ta.set_defaults(func=_targets)
+
+    vs = sub.add_parser(
+        "versus", help="two `uavsearch mc` outputs of the same runs (two versions or settings), paired"
+    )
+    vs.add_argument("before", help="an `uavsearch mc` output folder")
+    vs.add_argument("after", help="another, of the same mission, seed and runs")
+    vs.set_defaults(func=_versus)
 
     sw = sub.add_parser("sweep", help="sweep one algorithm parameter (the paper's Figure 11)")
     sw.add_argument("--mission", required=True)
