@@ -111,6 +111,7 @@ def test_lockstep_distributed_run_reproduces_the_batch_engine(tmp_path: Path, fr
         mission, out, "--lockstep", "--steps", str(steps), "--seed", str(seed), "--keep-going", "--quiet"
     )
     assert proc.returncode in (0, 1), proc.stdout + proc.stderr  # criteria are not the point here
+    assert (out / "trajectories.csv").exists(), proc.stdout + proc.stderr  # 1 from a failed run, not criteria
     m = load_mission(mission)
     batch = simulate(m, seed, 0, steps, record=True)
     assert batch.trajectory is not None
