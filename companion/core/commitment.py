@@ -173,17 +173,15 @@ class Commitments:
         s = self.latest[j]
         disks = self.failsafe_loiters(j)
         lim = self.limits
+        plain: list[tuple[Disk, FloatArray]] = [(d, np.zeros((0, 2))) for d in disks]
         if not s.steered:  # a lost vehicle link leaves its autopilot's failsafe on its last trajectory
             last = self.before.get(j)
             if last is None:
-                return [(d, np.zeros((0, 2))) for d in disks]
-            path = lim.expand(lim.rows([last]), last.start)[0, : lim.horizon + 1]
-            centre = lim.loiter_circle(last)[:2]
-            return [(d, np.zeros((0, 2))) for d in disks] + [((*centre, self.fan_reach), path)]
+                return plain
+            return [*plain, ((*lim.loiter_circle(last)[:2], self.fan_reach), lim.planned_path(last))]
         if k - s.stamp > self.settle:
-            return [(d, np.zeros((0, 2))) for d in disks]
-        flown = [t for t in (s.committed, s.proposal) if t is not None]
-        paths = [lim.expand(lim.rows([t]), t.start)[0, : lim.horizon + 1] for t in flown]
+            return plain
+        paths = [lim.planned_path(t) for t in (s.committed, s.proposal) if t is not None]
         return [((cx, cy, self.fan_reach), path) for cx, cy, _ in disks for path in paths]
 
     def _children(self) -> set[int]:

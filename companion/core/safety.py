@@ -106,6 +106,10 @@ class Limits:
             -1, HEAD + self.horizon
         )
 
+    def planned_path(self, trajectory: Trajectory) -> FloatArray:
+        """Its positions from its anchor to the end of its M planned steps: (horizon + 1, 2)."""
+        return self.expand(self.rows([trajectory]), trajectory.start)[0, : self.horizon + 1]
+
     def loiter_circle(self, trajectory: Trajectory) -> tuple[float, float, float]:
         """The circle (centre x, centre y, radius) of `trajectory`'s loiter: through its sampling points
         in continuous mode; in grid mode the loiter octagon's circumscribed circle (its vertices are
