@@ -316,6 +316,7 @@ class Commitments:
                     lone_owners,
                     self.contingency,
                     sep,
+                    np.full(len(others) + len(self._lone), np.nan),
                 )[0]
             ):
                 chosen = self.proposal

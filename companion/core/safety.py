@@ -469,6 +469,7 @@ def keeps_contingencies(
     lone_owners: IntArray,
     reach: float,
     disk_separation: float,
+    known: FloatArray,
 ) -> tuple[int, float]:
     """The contingency clause of compatibility for the trajectory at `pts` (loiter entry index
     `entry`, loiter centre (cx, cy)), against the others' trajectories at `others` (loiter entries
@@ -478,19 +479,29 @@ def keeps_contingencies(
     `disk_separation` (`contingency_clearance`); else 1 if, against every region it does not clear,
     it keeps at least as far as the trajectory in force at `reference` (`reference_entry`, loiter
     centre (rx, ry)) over the same steps (a start layout closer than the clause: pairs only move
-    apart); else 0. Also the smallest clearance of a pair it does not clear (infinite if none)."""
+    apart); else 0. Also the smallest clearance of a pair it does not clear (infinite if none; with
+    0, the clearance from a region it keeps less far from than the reference).
+    `known` (an entry per row of `others`, then per `lone` centre; NaN until computed) keeps the
+    reference's clearances between calls with the same reference (`first_allowed`'s candidates)."""
     code, worst = 2, math.inf
     width = pts.shape[0]
     count = fan_count(entry, width)
     for o in range(others.shape[0]):
         ox, oy, oe = centres[o, 0], centres[o, 1], entries[o]
+        other_count = fan_count(oe, width)
         beyond = reach + disk_separation
-        if _clearly_clear(pts, count, cx, cy, others[o], fan_count(oe, width), ox, oy, beyond):
+        if _clearly_clear(pts, count, cx, cy, others[o], other_count, ox, oy, beyond):
             continue
-        c = contingency_clearance(pts, entry, cx, cy, others[o], oe, ox, oy, reach)
+        mine = fan_clearance(pts, others[o], other_count, ox, oy) - reach
+        # the pair's clearance, min(mine, theirs) - reach (`contingency_clearance`), is at most mine:
+        # a trajectory closer than the reference to the other's region fails without its own fan
+        reference_pair = (reference, reference_entry, rx, ry, others, entries, centres, reach)
+        if mine <= disk_separation and mine < _reference_clearance(known, o, *reference_pair):
+            return 0, mine
+        c = min(mine, fan_clearance(others[o], pts, count, cx, cy) - reach)
         if c > disk_separation:
             continue
-        if c < contingency_clearance(reference, reference_entry, rx, ry, others[o], oe, ox, oy, reach):
+        if c < _reference_clearance(known, o, *reference_pair):
             return 0, c
         code, worst = 1, min(worst, c)
     for o in range(lone.shape[0]):
@@ -502,10 +513,33 @@ def keeps_contingencies(
         c = fan_clearance(pts, others[owner], flown, lx, ly) - reach
         if c > disk_separation:
             continue
-        if c < fan_clearance(reference, others[owner], flown, lx, ly) - reach:
+        at = others.shape[0] + o
+        if math.isnan(known[at]):
+            known[at] = fan_clearance(reference, others[owner], flown, lx, ly) - reach
+        if c < known[at]:
             return 0, c
         code, worst = 1, min(worst, c)
     return code, worst
+
+
+@njit(cache=True)
+def _reference_clearance(
+    known: FloatArray,
+    o: int,
+    reference: FloatArray,
+    reference_entry: int,
+    rx: float,
+    ry: float,
+    others: FloatArray,
+    entries: IntArray,
+    centres: FloatArray,
+    reach: float,
+) -> float:
+    """`contingency_clearance` of the reference and others[o], computed once (`keeps_contingencies`)."""
+    if math.isnan(known[o]):
+        other, ox, oy = others[o], centres[o, 0], centres[o, 1]
+        known[o] = contingency_clearance(reference, reference_entry, rx, ry, other, entries[o], ox, oy, reach)
+    return known[o]
 
 
 @njit(cache=True)
@@ -572,6 +606,7 @@ def first_allowed(
     width = shapes.shape[2]
     pts = np.empty((width, 2))
     fans = (loiters, loiter_paths, loiter_counts)
+    known = np.full(contingent.shape[0] + lone.shape[0], np.nan)  # the reference's clearances
     best, best_side, farthest = -1, 0, -math.inf
     for i in order:
         s0 = shapes[i, 0]
@@ -608,6 +643,7 @@ def first_allowed(
                 lone_owners,
                 reach,
                 disk_separation,
+                known,
             )
             apart, gap = keeps_apart(pts, crowded, need)
             if code == 0 or not apart:
