@@ -26,6 +26,7 @@ closer, and the proposal that opens it fastest is taken (`safety.keeps_apart`, "
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable
 
@@ -92,6 +93,9 @@ class Commitments:
             ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
         ]
         self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
+        self._owners = np.zeros(0, dtype=np.int64)  # `_step`'s owners and proposals, as arrays
+        self._in_force = np.zeros(0, dtype=bool)
+        self._disk_owners: list[int] = []
         self._centres = np.zeros((0, 2))  # the loiter centres of `_step`'s trajectories
         self._entries = np.zeros(0, dtype=np.int64)  # their loiters' entry indices in `_step`'s window
         self._lone = np.zeros((0, 2))  # those of live UAVs' trajectories in force before their latest
@@ -233,7 +237,10 @@ class Commitments:
         self._entries = np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64)
         self._lone = lim.loiter_centres(lim.expand(lim.rows(lone), k), lone, k) if lone else np.zeros((0, 2))
         self._lone_rows = np.array(lone_rows, dtype=np.int64)
-        self._disks = np.array(disks, dtype=float).reshape(-1, 4)
+        self._disks = np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:])
+        self._disk_owners = [j for j, *_ in disks]
+        self._owners = np.array(owners, dtype=np.int64)
+        self._in_force = ~np.array(proposals, dtype=bool)
         self._loiters = np.array([d for d, _ in regions], dtype=float).reshape(-1, 3)
         self._fans = np.zeros((len(regions), lim.horizon + 1, 2))
         self._fan_counts = np.array([len(p) for _, p in regions], dtype=np.int64)
@@ -252,29 +259,29 @@ class Commitments:
         of, which of them are trajectories in force, their loiters' entry indices in the window,
         and which of them flies to each `_lone` centre. Without `proposals`: the trajectories in
         force only."""
-        _, owners, is_proposal, pts = self._step
+        _, owners, _, pts = self._step
         links = (set(self.parents) | self._children()) - self.dead
-        rows = [
-            i
-            for i, (j, p) in enumerate(zip(owners, is_proposal, strict=True))
-            if not p or (proposals and not (resolving and j > self.uav))
-        ]
-        tethered = [i for i in rows if owners[i] in links]
+        in_force = self._in_force
+        if not proposals:
+            rows = np.flatnonzero(in_force)
+        elif resolving:
+            rows = np.flatnonzero(in_force | (self._owners < self.uav))
+        else:
+            rows = np.arange(len(owners))
+        tethered = [i for i in rows.tolist() if owners[i] in links]
         span = pts[:, : pts.shape[1] - 1] if resolving else pts[:, 1:]
-        position = {row: p for p, row in enumerate(rows)}
-        lone_owners = np.array([position[r] for r in self._lone_rows.tolist()], dtype=np.int64)
         disks = self._disks
-        tether_disks = [d for d in range(len(disks)) if int(disks[d, 0]) in links]
+        tether_disks = [d for d, j in enumerate(self._disk_owners) if j in links]
         # contiguous copies: the kernels are compiled for C-ordered arrays (warm_up), never in flight
         return (
             span[rows],
-            np.ascontiguousarray(disks[:, 1:]),
+            disks,
             span[tethered],
-            disks[tether_disks, 1:],
+            disks[tether_disks],
             self._centres[rows],
-            ~np.array(is_proposal, dtype=bool)[rows],
+            in_force[rows],
             self._entries[rows] - (0 if resolving else 1),
-            lone_owners,
+            np.searchsorted(rows, self._lone_rows),  # the `_lone` owners' rows are in force: in `rows`
         )
 
     # -- the protocol, step by step --------------------------------------------------------------
@@ -357,13 +364,12 @@ class Commitments:
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
         others, _, tethers, *_ = self._arrays(resolving=True, proposals=False)
         no_disks = np.zeros((0, 3))
-        options = [trajectory] + [
+        contingencies = (
             Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
             for turns, side in self._contingencies
-        ]
-        rows = lim.rows(options)
-        for option, row in zip(options, rows, strict=True):
-            pts = expand_rows(row[None], k, lim.reach.window, *lim.kinematics_args)[0]
+        )
+        for option in itertools.chain((trajectory,), contingencies):
+            pts = lim.expand(lim.rows([option]), k)[0]
             flyable = inside_fence(pts, lim.fence_normals, lim.fence_offsets) and compatible(
                 pts, others, no_disks, tethers, no_disks, *lim.clearances
             )
