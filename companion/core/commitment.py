@@ -31,23 +31,23 @@ import math
 from collections.abc import Iterable
 
 import numpy as np
+from numba import njit
 
-from companion.core.geometry import FloatArray
+from companion.core.geometry import BoolArray, FloatArray, IntArray
 from companion.core.messages import StateMsg, UavState
 from companion.core.safety import (
-    clearances,
     compatible,
-    expand_rows,
+    expand_with_centres,
     first_allowed,
-    inside_fence,
-    keeps_apart,
-    keeps_contingencies,
-    leaves_loiters,
+    flyable,
+    may_switch,
+    split_crowded,
 )
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
+NO_CENTRES = np.zeros((0, 2))  # (never written to)
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
 LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
 
@@ -95,16 +95,16 @@ class Commitments:
         self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
         self._owners = np.zeros(0, dtype=np.int64)  # `_step`'s owners and proposals, as arrays
         self._in_force = np.zeros(0, dtype=bool)
-        self._disk_owners: list[int] = []
+        self._disk_owners = np.zeros(0, dtype=np.int64)
         self._centres = np.zeros((0, 2))  # the loiter centres of `_step`'s trajectories
         self._entries = np.zeros(0, dtype=np.int64)  # their loiters' entry indices in `_step`'s window
         self._lone = np.zeros((0, 2))  # those of live UAVs' trajectories in force before their latest
         self._lone_rows = np.zeros(0, dtype=np.int64)  # the rows of `_step` of those UAVs' latest
-        self._disks = np.zeros((0, 4))
+        self._disks = np.zeros((0, 3))  # the disks' (cx, cy, r), their owners in `_disk_owners`
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
-        self._loiters = np.zeros((0, 3))
-        self._fans = np.zeros((0, plan.limits.horizon + 1, 2))
-        self._fan_counts = np.zeros(0, dtype=np.int64)
+        no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
+        self._no_regions = np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64)
+        self._loiters, self._fans, self._fan_counts = self._no_regions
         self.progress = LEAVING_PROGRESS * plan.limits.reach.step  # per planned step, leaving a disk
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
@@ -225,27 +225,25 @@ class Commitments:
                 owners.append(j)
                 proposals.append(t is not mine[0])
             disks += [(j, *d) for d in dsk]
-        count = r.window + 1
-        pts = (
-            expand_rows(lim.rows(trajs), k, count, *lim.kinematics_args)
-            if trajs
-            else np.zeros((0, count + 1, 2))
-        )
+        kinematics = lim.kinematics_args
+        pts, self._centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
         self._step = (k, owners, proposals, pts)
-        self._centres = lim.loiter_centres(pts, trajs, k) if trajs else np.zeros((0, 2))
         turn = lim.reach.loiter_turn
         self._entries = np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64)
-        self._lone = lim.loiter_centres(lim.expand(lim.rows(lone), k), lone, k) if lone else np.zeros((0, 2))
+        self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1] if lone else NO_CENTRES
         self._lone_rows = np.array(lone_rows, dtype=np.int64)
         self._disks = np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:])
-        self._disk_owners = [j for j, *_ in disks]
+        self._disk_owners = np.array([j for j, *_ in disks], dtype=np.int64)
         self._owners = np.array(owners, dtype=np.int64)
         self._in_force = ~np.array(proposals, dtype=bool)
+        if not regions:  # (empty arrays are never written to)
+            self._loiters, self._fans, self._fan_counts = self._no_regions
+            return
         self._loiters = np.array([d for d, _ in regions], dtype=float).reshape(-1, 3)
         self._fans = np.zeros((len(regions), lim.horizon + 1, 2))
         self._fan_counts = np.array([len(p) for _, p in regions], dtype=np.int64)
-        for r, (_, path) in enumerate(regions):
-            self._fans[r, : len(path)] = path
+        for i, (_, path) in enumerate(regions):
+            self._fans[i, : len(path)] = path
 
     def _arrays(
         self, resolving: bool, proposals: bool = True
@@ -259,29 +257,20 @@ class Commitments:
         of, which of them are trajectories in force, their loiters' entry indices in the window,
         and which of them flies to each `_lone` centre. Without `proposals`: the trajectories in
         force only."""
-        _, owners, _, pts = self._step
         links = (set(self.parents) | self._children()) - self.dead
-        in_force = self._in_force
-        if not proposals:
-            rows = np.flatnonzero(in_force)
-        elif resolving:
-            rows = np.flatnonzero(in_force | (self._owners < self.uav))
-        else:
-            rows = np.arange(len(owners))
-        tethered = [i for i in rows.tolist() if owners[i] in links]
-        span = pts[:, : pts.shape[1] - 1] if resolving else pts[:, 1:]
-        disks = self._disks
-        tether_disks = [d for d, j in enumerate(self._disk_owners) if j in links]
-        # contiguous copies: the kernels are compiled for C-ordered arrays (warm_up), never in flight
-        return (
-            span[rows],
-            disks,
-            span[tethered],
-            disks[tether_disks],
-            self._centres[rows],
-            in_force[rows],
-            self._entries[rows] - (0 if resolving else 1),
-            np.searchsorted(rows, self._lone_rows),  # the `_lone` owners' rows are in force: in `rows`
+        return select_checked(
+            self._step[3],
+            self._owners,
+            self._in_force,
+            self._centres,
+            self._entries,
+            self._lone_rows,
+            self._disks,
+            self._disk_owners,
+            np.array(sorted(links), dtype=np.int64),
+            self.uav,
+            resolving,
+            proposals,
         )
 
     # -- the protocol, step by step --------------------------------------------------------------
@@ -296,35 +285,29 @@ class Commitments:
             others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = self._arrays(
                 resolving=True
             )
-            both = [self.proposal, self.inforce]
-            pts, inforce = expanded = lim.expand(lim.rows(both), k)
-            (px, py), (ix, iy) = lim.loiter_centres(expanded, both, k)
-            pe, ie = (t.loiter_entry(turn) - k for t in both)
-            sep = lim.disk_separation
-            normal, crowded, need = self._crowded(inforce, others, in_force)
+            both = lim.rows([self.proposal, self.inforce])
+            pe, ie = (t.loiter_entry(turn) - k for t in (self.proposal, self.inforce))
             fans = self._loiters, self._fans, self._fan_counts
-            if (
-                compatible(pts, normal, disks, tethers, tether_disks, *lim.clearances)
-                and keeps_apart(pts, crowded, need)[0]
-                and leaves_loiters(pts, inforce, *fans, sep, lim.horizon, self.progress)
-                and keeps_contingencies(
-                    pts,
-                    pe,
-                    px,
-                    py,
-                    inforce,
-                    ie,
-                    ix,
-                    iy,
-                    others,
-                    entries,
-                    centres,
-                    self._lone,
-                    lone_owners,
-                    self.contingency,
-                    sep,
-                    np.full(len(others) + len(self._lone), np.nan),
-                )[0]
+            if may_switch(
+                both,
+                k,
+                lim.reach.window,
+                lim.kinematics_args,
+                pe,
+                ie,
+                others,
+                in_force,
+                disks,
+                tethers,
+                tether_disks,
+                fans,
+                self.progress,
+                entries,
+                centres,
+                self._lone,
+                lone_owners,
+                self.contingency,
+                lim.clearances,
             ):
                 chosen = self.proposal
                 self.accepted += 1
@@ -333,17 +316,6 @@ class Commitments:
         self.inforce = self._flyable(k, chosen.reanchored(k, x, y, heading, turn))
         self.proposal = None
         return self.inforce
-
-    def _crowded(
-        self, reference: FloatArray, others: FloatArray, in_force: np.ndarray
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """`others` split by whether the trajectory in force (at `reference`, the same steps) is
-        compatible with them: those it is, and the others' trajectories in force (`in_force`) it is
-        already too close to (after a fault), with its clearance from each (`safety.keeps_apart`).
-        A proposal it is too close to stays a strict obstacle: its owner will not switch to it."""
-        gaps = clearances(reference, others)
-        close = (gaps <= self.limits.separation) & in_force
-        return others[~close], others[close], gaps[close]
 
     def loitering(self) -> bool:
         """Whether the trajectory in force takes only its loiter turns from now on."""
@@ -363,17 +335,14 @@ class Commitments:
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
         others, _, tethers, *_ = self._arrays(resolving=True, proposals=False)
-        no_disks = np.zeros((0, 3))
         contingencies = (
             Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
             for turns, side in self._contingencies
         )
+        window, fence = lim.reach.window, (lim.fence_normals, lim.fence_offsets)
         for option in itertools.chain((trajectory,), contingencies):
-            pts = lim.expand(lim.rows([option]), k)[0]
-            flyable = inside_fence(pts, lim.fence_normals, lim.fence_offsets) and compatible(
-                pts, others, no_disks, tethers, no_disks, *lim.clearances
-            )
-            if flyable:
+            row = lim.rows([option])[0]
+            if flyable(row, k, window, lim.kinematics_args, *fence, others, tethers, lim.clearances):
                 if option is not trajectory:
                     self.recovered += 1
                 return option
@@ -440,7 +409,7 @@ class Commitments:
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
         reference = lim.expand(lim.rows([self.inforce]), k + 1)
         reference_centre = lim.loiter_centres(reference, [self.inforce], k + 1)[0]
-        normal, crowded, need = self._crowded(reference[0], others, in_force)
+        normal, crowded, need = split_crowded(reference[0], others, in_force, lim.separation)
         return first_allowed(
             order,
             shapes,
@@ -477,3 +446,68 @@ class Commitments:
 
     def propose(self, proposal: Trajectory | None) -> None:
         self.proposal = proposal
+
+
+@njit(cache=True)
+def select_checked(
+    pts: FloatArray,
+    owners: IntArray,
+    in_force: BoolArray,
+    centres: FloatArray,
+    entries: IntArray,
+    lone_rows: IntArray,
+    disks: FloatArray,
+    disk_owners: IntArray,
+    links: IntArray,
+    uav: int,
+    resolving: bool,
+    proposals: bool,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, IntArray]:
+    """`Commitments._arrays` from the gathered rows: `pts` (n, window + 2, 2) from t_k, their
+    `owners`, which are trajectories `in_force`, their loiter `centres` and `entries`, the rows of
+    the `lone` centres' owners, the `disks` (cx, cy, r) and their owners, and the tethered UAVs
+    `links` (sorted). Rows checked: trajectories in force, and the others' proposals unless not
+    `proposals`, or when `resolving` only those of lower ids than `uav`; their window from t_k when
+    `resolving`, else from t_k+1. Contiguous copies: the kernels are compiled for C-ordered arrays."""
+    n, width = pts.shape[0], pts.shape[1] - 1
+    lo = 0 if resolving else 1
+    keep = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        keep[i] = in_force[i] or (proposals and not (resolving and owners[i] > uav))
+    rows = np.flatnonzero(keep)
+    linked = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        linked[i] = keep[i] and _member(owners[i], links)
+    tethered = np.flatnonzero(linked)
+    others = np.empty((rows.shape[0], width, 2))
+    for r in range(rows.shape[0]):
+        others[r] = pts[rows[r], lo : lo + width]
+    tethers = np.empty((tethered.shape[0], width, 2))
+    for r in range(tethered.shape[0]):
+        tethers[r] = pts[tethered[r], lo : lo + width]
+    tether_disks = np.empty((0, 3))
+    for d in range(disks.shape[0]):
+        if _member(disk_owners[d], links):
+            tether_disks = np.concatenate((tether_disks, disks[d : d + 1]))
+    position = np.full(n, -1, dtype=np.int64)
+    for r in range(rows.shape[0]):
+        position[rows[r]] = r
+    lone_owners = np.empty(lone_rows.shape[0], dtype=np.int64)
+    for o in range(lone_rows.shape[0]):
+        lone_owners[o] = position[lone_rows[o]]
+    return (
+        others,
+        disks,
+        tethers,
+        tether_disks,
+        centres[rows],
+        in_force[rows],
+        entries[rows] - lo,
+        lone_owners,
+    )
+
+
+@njit(cache=True)
+def _member(value: int, sorted_values: IntArray) -> bool:
+    i = np.searchsorted(sorted_values, value)
+    return i < sorted_values.shape[0] and sorted_values[i] == value

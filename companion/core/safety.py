@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from companion.core.geometry import ConvexPolygon, FloatArray, IntArray
+from companion.core.geometry import BoolArray, ConvexPolygon, FloatArray, IntArray
 from companion.core.kinematics import Kinematics
 from companion.core.trajectory import HEAD, Reach, Trajectory, expand, point_clearance, segment_clearance
 
@@ -186,6 +186,20 @@ def expand_rows(
 
 
 @njit(cache=True)
+def expand_with_centres(
+    rows: FloatArray, first: int, count: int, kinematics: tuple[float, bool, float, float, float]
+) -> tuple[FloatArray, FloatArray]:
+    """`expand_rows` from step `first` (count + 1 points) and the loiter centres of the rows
+    (`Limits.loiter_centres`: the loiter begins after the row's M planned turns)."""
+    pts = expand_rows(rows, first, count, *kinematics)
+    horizon = rows.shape[1] - HEAD
+    starts = np.empty(rows.shape[0], dtype=np.int64)
+    for r in range(rows.shape[0]):
+        starts[r] = int(rows[r, 0]) + horizon - first
+    return pts, loiter_centres(pts, starts)
+
+
+@njit(cache=True)
 def compatible(
     pts: FloatArray,
     others: FloatArray,
@@ -242,6 +256,107 @@ def keeps_apart(pts: FloatArray, crowded: FloatArray, need: FloatArray) -> tuple
             return False, -math.inf
         worst = min(worst, segment_clearance(pts[1:], crowded[o, 1:]))
     return True, worst
+
+
+@njit(cache=True)
+def split_crowded(
+    reference: FloatArray, others: FloatArray, in_force: BoolArray, separation: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """`others` split by whether the trajectory in force (at `reference`, the same steps) is
+    compatible with them: those it is, and the others' trajectories in force (`in_force`) it is
+    already too close to (after a fault), with its clearance from each (`keeps_apart`). A proposal
+    it is too close to stays a strict obstacle: its owner will not switch to it."""
+    gaps = clearances(reference, others)
+    close = (gaps <= separation) & in_force
+    return others[~close], others[close], gaps[close]
+
+
+@njit(cache=True)
+def flyable(
+    row: FloatArray,
+    first: int,
+    window: int,
+    kinematics: tuple[float, bool, float, float, float],
+    normals: FloatArray,
+    offsets: FloatArray,
+    others: FloatArray,
+    tethers: FloatArray,
+    clearances: tuple[float, float, float],
+) -> bool:
+    """Whether the trajectory `row`, expanded from step `first`, stays in the fence and is
+    compatible with the trajectories `others` and `tethers` (`Commitments._flyable`)."""
+    pts = expand(row, first, window, *kinematics)
+    if not inside_fence(pts, normals, offsets):
+        return False
+    no_disks = np.zeros((0, 3))
+    return compatible(pts, others, no_disks, tethers, no_disks, *clearances)
+
+
+@njit(cache=True)
+def may_switch(
+    rows: FloatArray,
+    first: int,
+    window: int,
+    kinematics: tuple[float, bool, float, float, float],
+    entry: int,
+    reference_entry: int,
+    others: FloatArray,
+    in_force: BoolArray,
+    disks: FloatArray,
+    tethers: FloatArray,
+    tether_disks: FloatArray,
+    fans: tuple[FloatArray, FloatArray, IntArray],
+    progress: float,
+    entries: IntArray,
+    centres: FloatArray,
+    lone: FloatArray,
+    lone_owners: IntArray,
+    reach: float,
+    clearances: tuple[float, float, float],
+) -> bool:
+    """Whether the proposal rows[0] may replace the trajectory in force rows[1] at step `first`
+    (`Commitments.resolve`): both expanded from `first`, with their loiters' entry indices `entry`
+    and `reference_entry`, the proposal must be compatible with `others` (their trajectories in
+    force `in_force`), the `disks`, `tethers` and `tether_disks`, except that from a trajectory in
+    force that is already too close it must only keep apart (`split_crowded`, `keeps_apart`), and
+    it must leave the silent UAVs' regions (`leaves_loiters`) and keep the contingency clause
+    (`keeps_contingencies`)."""
+    horizon = rows.shape[1] - HEAD
+    separation, disk_separation, link = clearances
+    expanded = expand_rows(rows, first, window, *kinematics)
+    starts = np.empty(2, dtype=np.int64)
+    for r in range(2):
+        starts[r] = int(rows[r, 0]) + horizon - first
+    loiter = loiter_centres(expanded, starts)
+    pts, inforce = expanded[0], expanded[1]
+    normal, crowded, need = split_crowded(inforce, others, in_force, separation)
+    if not compatible(pts, normal, disks, tethers, tether_disks, separation, disk_separation, link):
+        return False
+    if not keeps_apart(pts, crowded, need)[0]:
+        return False
+    loiters, paths, counts = fans
+    if not leaves_loiters(pts, inforce, loiters, paths, counts, disk_separation, horizon, progress):
+        return False
+    known = np.full(others.shape[0] + lone.shape[0], np.nan)
+    code, _ = keeps_contingencies(
+        pts,
+        entry,
+        loiter[0, 0],
+        loiter[0, 1],
+        inforce,
+        reference_entry,
+        loiter[1, 0],
+        loiter[1, 1],
+        others,
+        entries,
+        centres,
+        lone,
+        lone_owners,
+        reach,
+        disk_separation,
+        known,
+    )
+    return code != 0
 
 
 @njit(cache=True)
