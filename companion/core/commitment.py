@@ -41,7 +41,6 @@ from companion.core.safety import (
     first_allowed,
     flyable,
     may_switch,
-    split_crowded,
 )
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
@@ -407,9 +406,9 @@ class Commitments:
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         shapes, centres_rel = self._shapes[h], self._shape_centres[h]
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
-        reference = lim.expand(lim.rows([self.inforce]), k + 1)
-        reference_centre = lim.loiter_centres(reference, [self.inforce], k + 1)[0]
-        normal, crowded, need = split_crowded(reference[0], others, in_force, lim.separation)
+        reference, reference_centre = expand_with_centres(
+            lim.rows([self.inforce]), k + 1, lim.reach.window, lim.kinematics_args
+        )
         return first_allowed(
             order,
             shapes,
@@ -421,7 +420,8 @@ class Commitments:
             self._centre,
             lim.fence_normals,
             lim.fence_offsets,
-            normal,
+            others,
+            in_force,
             disks,
             tethers,
             tether_disks,
@@ -432,15 +432,12 @@ class Commitments:
             reference[0],  # a proposal that does not clear the regions must keep as far from them as this
             self.inforce.loiter_entry(lim.reach.loiter_turn) - (k + 1),
             centres_rel,
-            others,
             entries,
             centres,
             self._lone,
             lone_owners,
-            reference_centre,
+            reference_centre[0],
             self.contingency,
-            crowded,
-            need,
             *lim.clearances,
         )
 

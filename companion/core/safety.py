@@ -337,7 +337,7 @@ def may_switch(
     loiters, paths, counts = fans
     if not leaves_loiters(pts, inforce, loiters, paths, counts, disk_separation, horizon, progress):
         return False
-    known = np.full(others.shape[0] + lone.shape[0], np.nan)
+    known, hint = np.full(others.shape[0] + lone.shape[0], np.nan), np.full(1, -1)
     code, _ = keeps_contingencies(
         pts,
         entry,
@@ -355,6 +355,7 @@ def may_switch(
         reach,
         disk_separation,
         known,
+        hint,
     )
     return code != 0
 
@@ -585,6 +586,7 @@ def keeps_contingencies(
     reach: float,
     disk_separation: float,
     known: FloatArray,
+    hint: IntArray,
 ) -> tuple[int, float]:
     """The contingency clause of compatibility for the trajectory at `pts` (loiter entry index
     `entry`, loiter centre (cx, cy)), against the others' trajectories at `others` (loiter entries
@@ -596,45 +598,92 @@ def keeps_contingencies(
     centre (rx, ry)) over the same steps (a start layout closer than the clause: pairs only move
     apart); else 0. Also the smallest clearance of a pair it does not clear (infinite if none; with
     0, the clearance from a region it keeps less far from than the reference).
-    `known` (an entry per row of `others`, then per `lone` centre; NaN until computed) keeps the
-    reference's clearances between calls with the same reference (`first_allowed`'s candidates)."""
+    Between calls with the same reference (`first_allowed`'s candidates), `known` (an entry per row
+    of `others`, then per `lone` centre; NaN until computed) keeps the reference's clearances, and
+    hint[0] the entry that failed last (-1: none), which is tried first: the answer is 0 as soon as
+    any entry fails, whichever it is."""
+    args = (pts, entry, cx, cy, reference, reference_entry, rx, ry, others, entries, centres)
+    more = (lone, lone_owners, reach, disk_separation, known)
+    if hint[0] >= 0:
+        state, c = _against(hint[0], *args, *more)
+        if state == 0:
+            return 0, c
     code, worst = 2, math.inf
+    for o in range(others.shape[0] + lone.shape[0]):
+        state, c = _against(o, *args, *more)
+        if state == 0:
+            hint[0] = o
+            return 0, c
+        if state == 1:
+            code, worst = 1, min(worst, c)
+    return code, worst
+
+
+@njit(cache=True)
+def _against(
+    o: int,
+    pts: FloatArray,
+    entry: int,
+    cx: float,
+    cy: float,
+    reference: FloatArray,
+    reference_entry: int,
+    rx: float,
+    ry: float,
+    others: FloatArray,
+    entries: IntArray,
+    centres: FloatArray,
+    lone: FloatArray,
+    lone_owners: IntArray,
+    reach: float,
+    disk_separation: float,
+    known: FloatArray,
+) -> tuple[int, float]:
+    """`keeps_contingencies` against its entry o (a row of `others`, then a `lone` centre): 2 it
+    clears the region, 1 it does not but keeps as far as the reference (and its clearance), 0 it
+    keeps less far."""
     width = pts.shape[0]
-    count = fan_count(entry, width)
-    for o in range(others.shape[0]):
+    if o < others.shape[0]:
         ox, oy, oe = centres[o, 0], centres[o, 1], entries[o]
-        other_count = fan_count(oe, width)
-        beyond = reach + disk_separation
-        if _clearly_clear(pts, count, cx, cy, others[o], other_count, ox, oy, beyond):
-            continue
-        mine = fan_clearance(pts, others[o], other_count, ox, oy) - reach
-        # the pair's clearance, min(mine, theirs) - reach (`contingency_clearance`), is at most mine:
-        # a trajectory closer than the reference to the other's region fails without its own fan
+        count, other_count = fan_count(entry, width), fan_count(oe, width)
+        if _clearly_clear(pts, count, cx, cy, others[o], other_count, ox, oy, reach + disk_separation):
+            return 2, math.inf
+        # the pair's clearance, min(mine, theirs) - reach (`contingency_clearance`), is at most mine,
+        # which is at most the clearance from the other's loiter centre (`_centre_clearance`): a
+        # trajectory closer than the reference to the other's region fails without the fans
         reference_pair = (reference, reference_entry, rx, ry, others, entries, centres, reach)
+        near = _centre_clearance(pts, ox, oy) - reach
+        if near <= disk_separation and near < _reference_clearance(known, o, *reference_pair):
+            return 0, near
+        mine = fan_clearance(pts, others[o], other_count, ox, oy) - reach
         if mine <= disk_separation and mine < _reference_clearance(known, o, *reference_pair):
             return 0, mine
         c = min(mine, fan_clearance(others[o], pts, count, cx, cy) - reach)
         if c > disk_separation:
-            continue
-        if c < _reference_clearance(known, o, *reference_pair):
-            return 0, c
-        code, worst = 1, min(worst, c)
-    for o in range(lone.shape[0]):
-        owner = lone_owners[o]
-        flown = fan_count(entries[owner], width)
-        lx, ly = lone[o, 0], lone[o, 1]
-        if point_clearance(pts, lx, ly) - fan_radius(others[owner], flown, lx, ly) - reach > disk_separation:
-            continue
-        c = fan_clearance(pts, others[owner], flown, lx, ly) - reach
-        if c > disk_separation:
-            continue
-        at = others.shape[0] + o
-        if math.isnan(known[at]):
-            known[at] = fan_clearance(reference, others[owner], flown, lx, ly) - reach
-        if c < known[at]:
-            return 0, c
-        code, worst = 1, min(worst, c)
-    return code, worst
+            return 2, math.inf
+        return (0 if c < _reference_clearance(known, o, *reference_pair) else 1), c
+    lo = o - others.shape[0]
+    owner = lone_owners[lo]
+    flown = fan_count(entries[owner], width)
+    lx, ly = lone[lo, 0], lone[lo, 1]
+    if point_clearance(pts, lx, ly) - fan_radius(others[owner], flown, lx, ly) - reach > disk_separation:
+        return 2, math.inf
+    c = fan_clearance(pts, others[owner], flown, lx, ly) - reach
+    if c > disk_separation:
+        return 2, math.inf
+    if math.isnan(known[o]):
+        known[o] = fan_clearance(reference, others[owner], flown, lx, ly) - reach
+    return (0 if c < known[o] else 1), c
+
+
+@njit(cache=True)
+def _centre_clearance(a: FloatArray, cx: float, cy: float) -> float:
+    """The closest approach of the chords of `a` to (cx, cy), computed as `fan_clearance` does for
+    the fan's centre: never below `fan_clearance(a, ..., cx, cy)`, to the last bit."""
+    best = math.inf
+    for t in range(a.shape[0] - 1):
+        best = min(best, _to_segment(cx, cy, a[t, 0], a[t, 1], a[t + 1, 0], a[t + 1, 1]))
+    return best
 
 
 @njit(cache=True)
@@ -679,7 +728,8 @@ def first_allowed(
     centre: FloatArray,
     normals: FloatArray,
     offsets: FloatArray,
-    others: FloatArray,
+    contingent: FloatArray,
+    in_force: BoolArray,
     disks: FloatArray,
     tethers: FloatArray,
     tether_disks: FloatArray,
@@ -690,15 +740,12 @@ def first_allowed(
     reference: FloatArray,
     reference_entry: int,
     centres_rel: FloatArray,
-    contingent: FloatArray,
     entries: IntArray,
     centres: FloatArray,
     lone: FloatArray,
     lone_owners: IntArray,
     reference_centre: FloatArray,
     reach: float,
-    crowded: FloatArray,
-    need: FloatArray,
     separation: float,
     disk_separation: float,
     link: float,
@@ -710,18 +757,20 @@ def first_allowed(
     `loiter_paths` and `loiter_counts`, and `progress`): (path, side +1 or -1); if none does, of
     those in the fence and compatible that may replace the trajectory in force at `reference`
     (loiter entry `reference_entry`, centre `reference_centre`; `keeps_contingencies`,
-    `leaves_loiters`, and `keeps_apart` from the `crowded` trajectories the one in force is
-    already too close to), the one farthest from what it does not clear; (-1, 0) if none.
-    `others` are the trajectories to be compatible with, `contingent` those whose failsafe regions
-    to clear.
+    `leaves_loiters`, and `keeps_apart` from the trajectories in force it is already too close to,
+    `split_crowded`), the one farthest from what it does not clear; (-1, 0) if none.
+    `contingent` are the others' trajectories (those `in_force` and proposals) to be compatible
+    with and whose failsafe regions to clear.
     `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
     (`Limits.shapes`) and `centres_rel` (n_paths, 2 sides, 2) their loiter centres, placed at (x, y)
     and turned by the heading (cos_h, sin_h). The side that turns towards `centre` (the region's
     centroid) at the plan's end is tried first."""
+    others, crowded, need = split_crowded(reference, contingent, in_force, separation)
     width = shapes.shape[2]
     pts = np.empty((width, 2))
     fans = (loiters, loiter_paths, loiter_counts)
     known = np.full(contingent.shape[0] + lone.shape[0], np.nan)  # the reference's clearances
+    hint = np.full(1, -1)  # the contingency region that failed the latest candidate
     best, best_side, farthest = -1, 0, -math.inf
     for i in order:
         s0 = shapes[i, 0]
@@ -759,6 +808,7 @@ def first_allowed(
                 reach,
                 disk_separation,
                 known,
+                hint,
             )
             apart, gap = keeps_apart(pts, crowded, need)
             if code == 0 or not apart:
