@@ -1,0 +1,64 @@
+"""A hash of every figure of seeded batch runs: whether a change keeps runs bit-identical.
+
+Run as a script so that `companion` is imported from PYTHONPATH, once per checkout, and compare
+the last lines (docs/performance.md):
+
+    PYTHONPATH=../old python companion/bench/run_digest.py
+    PYTHONPATH=. python companion/bench/run_digest.py
+
+It flies the checkout's scenario files (and scenario 1 in continuous mode) with each algorithm,
+runs 0-2 (run 2 kills UAV 1's companion at step 100 and takes UAV 2's vehicle from its companion
+at step 150), and with `--missions DIR` also every mission file in DIR (run 0, UAV 1's companion
+killed at step 120). Every field of each `RunResult` but its wall time is hashed: trajectories,
+tasks, the metric curves, target steps and the protocol's counters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+SCENARIOS = ("scenario1", "scenario2", "scenario3", "scenario1_continuous")
+ALGORITHMS = ("proposed", "no-ta", "pheromone")
+
+
+def main() -> None:
+    import companion
+    from companion.batch.engine import simulate
+    from companion.mission import load_mission
+
+    root = Path(companion.__file__).resolve().parents[1]  # the checkout hashed, its own mission files
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--missions", type=Path, help="also every *.toml in this directory")
+    args = parser.parse_args()
+    faulty = {"kills": {1: 100}, "takeovers": {2: 150}}
+    cases = [
+        (root / "mission_files" / f"{name}.toml", run, faulty if run == 2 else {})
+        for name in SCENARIOS
+        for run in (0, 1, 2)
+    ]
+    if args.missions is not None:
+        cases += [(path, 0, {"kills": {1: 120}}) for path in sorted(args.missions.glob("*.toml"))]
+    total = hashlib.sha256()
+    for path, run, faults in cases:
+        mission = load_mission(path)
+        for algorithm in ALGORITHMS:
+            flown = mission.with_algorithm(algorithm)
+            result = simulate(flown, args.seed, run, args.steps, record=True, **faults)
+            one = hashlib.sha256()
+            for name, value in sorted(vars(result).items()):
+                if name != "seconds":
+                    one.update(name.encode())
+                    one.update(value.tobytes() if isinstance(value, np.ndarray) else repr(value).encode())
+            total.update(one.digest())
+            print(f"{path.stem} {algorithm} run {run}: {one.hexdigest()[:16]}", flush=True)
+    print(f"all {total.hexdigest()}")
+
+
+if __name__ == "__main__":
+    main()
