@@ -129,11 +129,6 @@ class Limits:
             out[index] = loiter_centre(shapes[index], self.horizon)
         return out
 
-    def loiter_centres(self, pts: FloatArray, trajectories: list[Trajectory], first: int) -> FloatArray:
-        """The loiter centres of `trajectories`, expanded at `pts` from step `first`: (n, 2)."""
-        starts = np.array([t.start + self.horizon - first for t in trajectories], dtype=np.int64)
-        return loiter_centres(pts, starts)
-
     @property
     def kinematics_args(self) -> tuple[float, bool, float, float, float]:
         return self.reach.loiter_turn, self.grid, self.speed, self.dt, self.cell
@@ -190,7 +185,7 @@ def expand_with_centres(
     rows: FloatArray, first: int, count: int, kinematics: tuple[float, bool, float, float, float]
 ) -> tuple[FloatArray, FloatArray]:
     """`expand_rows` from step `first` (count + 1 points) and the loiter centres of the rows
-    (`Limits.loiter_centres`: the loiter begins after the row's M planned turns)."""
+    (`loiter_centre`: the loiter begins after a row's M planned turns, at index start + M - first)."""
     pts = expand_rows(rows, first, count, *kinematics)
     horizon = rows.shape[1] - HEAD
     starts = np.empty(rows.shape[0], dtype=np.int64)

@@ -10,7 +10,7 @@ from collections.abc import Callable
 import numpy as np
 
 from companion.core.agent import Agent
-from companion.core.safety import contingency_clearance
+from companion.core.safety import contingency_clearance, expand_with_centres
 from companion.core.world import World
 
 
@@ -22,8 +22,8 @@ def clause_probe(world: World, rows: list[np.ndarray]) -> Callable[[int, list[Ag
 
     def probe(k: int, agents: list[Agent]) -> None:
         trajs = [a.commitments.inforce for a in agents]
-        pts = lim.expand(lim.rows(trajs), k)  # covers all later time (the loiters repeat)
-        centres = lim.loiter_centres(pts, trajs, k)
+        # covers all later time (the loiters repeat)
+        pts, centres = expand_with_centres(lim.rows(trajs), k, lim.reach.window, lim.kinematics_args)
         entries = [t.loiter_entry(lim.reach.loiter_turn) - k for t in trajs]
         out = np.full((len(trajs), len(trajs)), np.inf)
         for i in range(len(trajs)):

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from companion.batch.engine import Radio, initial_poses
 from companion.core.agent import Agent, Observation
 from companion.core.messages import StateMsg
+from companion.core.safety import expand_with_centres
 from companion.core.world import FAILSAFE_WIDE, Stream, build_world, instance_rng
 from companion.mission import load_mission
 
@@ -64,14 +65,14 @@ def test_closed_swarm_loiters_apart(name: str, seed: int, open_steps: int) -> No
     assert proposals == 0, "a closing UAV proposes nothing new"
     assert all(a.commitments.loitering() for a in agents), "every UAV is in its loiter"
     lim = world.safety.limits
-    pts = lim.expand(lim.rows([a.commitments.inforce for a in agents]), k)  # covers all later time
+    rows = lim.rows([a.commitments.inforce for a in agents])
+    pts, centres = expand_with_centres(rows, k, lim.reach.window, lim.kinematics_args)  # all later time
     mids = (pts[:, 1:] + pts[:, :-1]) / 2
     for track in (pts, mids):
         gaps = np.linalg.norm(track[:, None] - track[None, :], axis=-1)
         gaps[np.arange(len(agents)), np.arange(len(agents))] = np.inf
         assert gaps.min() > world.mission.comms.safety
     # and whatever their phases, at the radius ArduPlane flies them (the hand-over's AUTO loiters)
-    centres = lim.loiter_centres(pts, [a.commitments.inforce for a in agents], k)
     apart = np.linalg.norm(centres[:, None] - centres[None, :], axis=-1)
     apart[np.arange(len(agents)), np.arange(len(agents))] = np.inf
     assert apart.min() > 2 * FAILSAFE_WIDE * world.safety.loiter_radius + world.mission.comms.safety
