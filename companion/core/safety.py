@@ -102,9 +102,10 @@ class Limits:
 
     def rows(self, trajectories: list[Trajectory]) -> FloatArray:
         """The kernel rows of `trajectories` (`Trajectory.fields`)."""
-        return np.array([t.fields(self.horizon) for t in trajectories], dtype=float).reshape(
-            -1, HEAD + self.horizon
-        )
+        flat: list[float] = []
+        for t in trajectories:
+            flat += t.fields(self.horizon)
+        return np.array(flat, dtype=float).reshape(-1, HEAD + self.horizon)
 
     def planned_path(self, trajectory: Trajectory) -> FloatArray:
         """Its positions from its anchor to the end of its M planned steps: (horizon + 1, 2)."""

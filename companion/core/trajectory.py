@@ -38,13 +38,12 @@ class Trajectory(msgspec.Struct, frozen=True, array_like=True):
     turns: tuple[float, ...]
     loiter: int  # +1 counter-clockwise, -1 clockwise
 
-    def fields(self, horizon: int) -> list[float]:
-        """The kernel row as a list; turns missing from a short plan are NaN (`expand` then takes
-        the loiter turn)."""
-        turns = list(self.turns[:horizon])
-        return [self.start, self.x, self.y, self.heading, self.loiter, *turns] + [math.nan] * (
-            horizon - len(turns)
-        )
+    def fields(self, horizon: int) -> tuple[float, ...]:
+        """The kernel row; turns missing from a short plan are NaN (`expand` then takes the loiter
+        turn)."""
+        turns = self.turns[:horizon]
+        row = (self.start, self.x, self.y, self.heading, self.loiter, *turns)
+        return row if len(turns) == horizon else row + (math.nan,) * (horizon - len(turns))
 
     def turn_at(self, step: int, loiter_turn: float) -> float:
         """The turn this trajectory takes over [t_step, t_step+1]."""
