@@ -191,6 +191,11 @@ def _bench(args: argparse.Namespace) -> int:
     from companion.batch.executors import open_executor
     from companion.batch.experiments import bench, format_bench
 
+    if args.against is not None:
+        from companion.bench.against import cpu_against, format_against
+
+        print(format_against(cpu_against(Path(args.against), args.rounds, args.steps)))
+        return 0
     missions = [load_mission(m) for m in args.missions]
     with open_executor(args.scheduler, args.workers) as executor:
         result = bench(
@@ -643,6 +648,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--study-runs", type=int, default=8, help="runs per mission and algorithm in the throughput"
     )
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    be.add_argument(
+        "--against",
+        metavar="CHECKOUT",
+        help="instead: CPU seconds per run of this checkout against another's (e.g. a git worktree of an "
+        "older commit), interleaved, with their ratio",
+    )
+    be.add_argument(
+        "--rounds", type=int, default=2, help="with --against: interleaved rounds (the minimum is taken)"
+    )
     be.set_defaults(func=_bench)
 
     cl = sub.add_parser(

@@ -1,0 +1,86 @@
+"""`uavsearch bench --against CHECKOUT`: CPU seconds per batch run of this checkout against another's.
+
+Each round runs `cpu_per_run.py` (one 1,000-step run of each scenario file and algorithm, CPU
+time) once with the other checkout's `companion` on PYTHONPATH and once with this one's, in fresh
+processes, interleaved so that the machine's drift hits both alike; a cell's figure is its
+minimum over the rounds. CPU time, not wall time: other work on the machine slows a run's wall
+time much more than its CPU time (docs/performance.md).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+SCRIPT = Path(__file__).with_name("cpu_per_run.py")
+HERE = Path(__file__).resolve().parents[2]  # this checkout
+CELLS = [f"s{s} {a}" for s in (1, 2, 3) for a in ("proposed", "no-ta", "pheromone")]
+
+
+@dataclass(frozen=True)
+class Against:
+    other: Path
+    rounds: int
+    old: list[float]  # per cell, CPU seconds (minimum over the rounds)
+    new: list[float]
+
+    @property
+    def ratio(self) -> float:
+        """Old total over new total: how many times fewer CPU seconds this checkout takes."""
+        return sum(self.old) / sum(self.new)
+
+
+def checkout(path: Path) -> Path:
+    """`path` resolved, if it holds a `companion` package and its scenario files; else ValueError."""
+    root = path.resolve()
+    if not (root / "companion" / "__init__.py").is_file():
+        raise ValueError(f"--against {path}: not a checkout of this project (no companion/__init__.py)")
+    if not (root / "mission_files" / "scenario1.toml").is_file():
+        raise ValueError(f"--against {path}: no mission_files/scenario1.toml there")
+    return root
+
+
+def _cells(root: Path, steps: int) -> list[float]:
+    proc = subprocess.run(
+        [sys.executable, str(SCRIPT), "--steps", str(steps)],
+        env={**os.environ, "PYTHONPATH": str(root)},
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if proc.returncode != 0:
+        raise RuntimeError(f"timing {root} failed: {proc.stderr.strip().splitlines()[-1:]}")
+    *cells, _, _, _ = proc.stdout.split()
+    return [float(c) for c in cells]
+
+
+def cpu_against(other: Path, rounds: int = 2, steps: int = 1000) -> Against:
+    """Time both checkouts, interleaved, `rounds` times each (`steps` per run)."""
+    if rounds < 1 or steps < 1:
+        raise ValueError(f"--rounds and --steps must be at least 1 (got {rounds} and {steps})")
+    root = checkout(other)
+    olds, news = [], []
+    for _ in range(rounds):
+        olds.append(_cells(root, steps))
+        news.append(_cells(HERE, steps))
+    return Against(
+        root, rounds, [min(c) for c in zip(*olds, strict=True)], [min(c) for c in zip(*news, strict=True)]
+    )
+
+
+def format_against(result: Against) -> str:
+    lines = [
+        f"CPU seconds per run, minimum of {result.rounds} interleaved rounds",
+        "cell               other    this   ratio",
+    ]
+    for cell, old, new in zip(CELLS, result.old, result.new, strict=True):
+        lines.append(f"{cell:<16} {old:7.3f} {new:7.3f} {old / new:6.2f}x")
+    lines.append(
+        f"{'total':<16} {sum(result.old):7.2f} {sum(result.new):7.2f} {result.ratio:6.2f}x"
+        f"  (other: {result.other}; this: {HERE})"
+    )
+    return "\n".join(lines)

@@ -1,0 +1,36 @@
+"""`uavsearch bench --against CHECKOUT`: the CPU seconds of each scenario and algorithm's run in
+another checkout and in this one, interleaved, with their ratio (docs/performance.md). Timing is
+printed, never asserted: the checks are that both checkouts ran every cell and that the figures
+add up."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tests.cli import ROOT, uavsearch
+
+
+def test_bench_against_times_every_cell_of_both_checkouts() -> None:
+    proc = uavsearch("bench", "--against", str(ROOT), "--rounds", "1", "--steps", "30")
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    cells = [line.split() for line in lines[2:11]]
+    assert [c[0] + " " + c[1] for c in cells] == [
+        f"s{s} {a}" for s in (1, 2, 3) for a in ("proposed", "no-ta", "pheromone")
+    ]
+    old = [float(c[2]) for c in cells]
+    new = [float(c[3]) for c in cells]
+    assert all(t > 0 for t in old + new)
+    total = lines[11].split()
+    assert total[0] == "total"
+    assert float(total[1]) == pytest.approx(sum(old), abs=0.02)
+    assert float(total[2]) == pytest.approx(sum(new), abs=0.02)
+    assert float(total[3].rstrip("x")) == pytest.approx(float(total[1]) / float(total[2]), rel=0.02)
+
+
+def test_bench_against_a_directory_that_is_not_a_checkout_says_so(tmp_path: Path) -> None:
+    proc = uavsearch("bench", "--against", str(tmp_path), "--rounds", "1", "--steps", "10")
+    assert proc.returncode == 2
+    assert f"--against {tmp_path}: not a checkout" in proc.stderr
