@@ -445,20 +445,11 @@ def _cross(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> 
 
 
 @njit(cache=True)
-def _segments_distance(
-    ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float
-) -> float:
-    """The distance between the segments AB and CD (0 where they cross)."""
+def _crosses(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float) -> bool:
+    """Whether the segments AB and CD cross (strictly: each one's ends on either side of the other)."""
     d1, d2 = _cross(cx, cy, dx, dy, ax, ay), _cross(cx, cy, dx, dy, bx, by)
     d3, d4 = _cross(ax, ay, bx, by, cx, cy), _cross(ax, ay, bx, by, dx, dy)
-    if d1 * d2 < 0 and d3 * d4 < 0:
-        return 0.0
-    return min(
-        _to_segment(ax, ay, cx, cy, dx, dy),
-        _to_segment(bx, by, cx, cy, dx, dy),
-        _to_segment(cx, cy, ax, ay, bx, by),
-        _to_segment(dx, dy, ax, ay, bx, by),
-    )
+    return d1 * d2 < 0 and d3 * d4 < 0
 
 
 @njit(cache=True)
@@ -494,14 +485,30 @@ def fan_clearance(a: FloatArray, path: FloatArray, count: int, cx: float, cy: fl
         for p in range(count):
             best = min(best, _to_segment(a[0, 0], a[0, 1], path[p, 0], path[p, 1], cx, cy))
         return best
-    for t in range(a.shape[0] - 1):
+    # the distance between two segments is 0 where they cross, else the least of their ends'
+    # distances to the other: a chord crossing a spoke or a path edge touches the fan, and every
+    # end-to-segment distance is taken once (a point ends two chords, a path point two edges)
+    width = a.shape[0]
+    for t in range(width - 1):
+        ax, ay, bx, by = a[t, 0], a[t, 1], a[t + 1, 0], a[t + 1, 1]
+        for p in range(count):
+            qx, qy = path[p, 0], path[p, 1]
+            if _crosses(ax, ay, bx, by, qx, qy, cx, cy):
+                return 0.0
+            if p + 1 < count and _crosses(ax, ay, bx, by, qx, qy, path[p + 1, 0], path[p + 1, 1]):
+                return 0.0
+    for t in range(width):  # each sampling point to each spoke and path edge
+        px, py = a[t, 0], a[t, 1]
+        for p in range(count):
+            qx, qy = path[p, 0], path[p, 1]
+            best = min(best, _to_segment(px, py, qx, qy, cx, cy))
+            if p + 1 < count:
+                best = min(best, _to_segment(px, py, qx, qy, path[p + 1, 0], path[p + 1, 1]))
+    for t in range(width - 1):  # the centre and each path point to each chord
         ax, ay, bx, by = a[t, 0], a[t, 1], a[t + 1, 0], a[t + 1, 1]
         best = min(best, _to_segment(cx, cy, ax, ay, bx, by))
         for p in range(count):
-            best = min(best, _segments_distance(ax, ay, bx, by, path[p, 0], path[p, 1], cx, cy))
-            if p + 1 < count:
-                qx, qy, rx, ry = path[p, 0], path[p, 1], path[p + 1, 0], path[p + 1, 1]
-                best = min(best, _segments_distance(ax, ay, bx, by, qx, qy, rx, ry))
+            best = min(best, _to_segment(path[p, 0], path[p, 1], ax, ay, bx, by))
     return best
 
 
