@@ -186,8 +186,9 @@ def test_live_map_of_a_flying_swarm_and_its_replay(
                 f"uav {i} off its log"
             )
             assert row["silent"] == "0"
-            # the map draws it where its row says (within a cell of its log: under load the view's
-            # frame may still hold its state of the step before, a cell away in grid mode)
+            # on the map, where its row says, even out in the operating margin (the map shows the fence)
+            px, py = screen["left"] + s * float(row["x"]), screen["top"] - s * float(row["y"])
+            assert box["x"] <= px <= box["x"] + box["width"] and box["y"] <= py <= box["y"] + box["height"]
             seen = _colour_at(shot, screen, float(row["x"]), float(row["y"]))
             assert all(abs(a - b) <= 40 for a, b in zip(seen, _hex(COLOURS[i]), strict=True)), (
                 f"uav {i}: {seen} where its row puts it on the map ({row}; logged {x}, {y}), not its "

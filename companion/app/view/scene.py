@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from companion.core.geometry import ConvexPolygon
 from companion.core.world import World
 
 
@@ -26,6 +27,7 @@ def scene_json(world: World, mode: str, **extra: Any) -> dict[str, Any]:
         "algorithm": m.algorithm.name,
         "n_uavs": m.n_uavs,
         "region": [list(map(float, v)) for v in m.region.polygon],
+        "fence": fence_vertices(world.grid.region, m.safety.margin).round(3).tolist(),
         "grid": {
             "x0": grid.x0,
             "y0": grid.y0,
@@ -47,3 +49,11 @@ def scene_json(world: World, mode: str, **extra: Any) -> dict[str, Any]:
     }
     scene.update(extra)
     return scene
+
+
+def fence_vertices(region: ConvexPolygon, margin: float) -> np.ndarray:
+    """The fence's corners: the region with every edge pushed out by the operating `margin`, where
+    the UAVs may turn outside the region to keep separation (docs/algorithm.md, "Safety layer")."""
+    normals, offsets = region.normals, region.offsets + margin
+    corners = [np.linalg.solve(normals[[i - 1, i]], offsets[[i - 1, i]]) for i in range(len(normals))]
+    return np.array(corners)

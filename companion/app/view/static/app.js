@@ -49,7 +49,8 @@
     st.cells = { n, x, y, heat, byLabel, edges };
     st.looks = new Int32Array(n);
     st.looksAt = -1;
-    const xs = scene.region.map((v) => v[0]), ys = scene.region.map((v) => v[1]);
+    const outline = scene.fence || scene.region;  // the map shows the fence: UAVs may turn out there
+    const xs = outline.map((v) => v[0]), ys = outline.map((v) => v[1]);
     st.bounds = [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)];
     $("title").textContent = `${scene.mission} · ${scene.algorithm} · ${scene.n_uavs} UAVs`;
     $("mode").textContent = st.live ? "live" : "replay";
@@ -183,6 +184,16 @@
     ctx.strokeStyle = "#1d2330";
     ctx.lineWidth = 1.5;
     ctx.stroke();
+    if (sc.fence) {  // the fence: the region and its operating margin
+      ctx.beginPath();
+      sc.fence.forEach(([x, y], i) => (i ? ctx.lineTo(X(x), Y(y)) : ctx.moveTo(X(x), Y(y))));
+      ctx.closePath();
+      ctx.setLineDash([4, 4]);
+      ctx.strokeStyle = "#8a94a6";
+      ctx.lineWidth = 1;
+      ctx.stroke();
+      ctx.setLineDash([]);
+    }
 
     const uavs = f.u.map((u, i) => (u ? { i, x: u[0], y: u[1], h: u[2], task: u[3], silent: silent(i, u), adrift: adrift(u) } : null))
       .filter(Boolean);
