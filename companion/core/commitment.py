@@ -46,7 +46,6 @@ from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
-NO_CENTRES = np.zeros((0, 2))  # (never written to)
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
 LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
 
@@ -91,14 +90,16 @@ class Commitments:
         self._contingencies = [
             ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
         ]
-        self._step: tuple[int, list[int], list[bool], FloatArray] = (-1, [], [], np.zeros((0, 0, 2)))
-        self._owners = np.zeros(0, dtype=np.int64)  # `_step`'s owners and proposals, as arrays
+        # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each,
+        # with its owner and whether it is a trajectory in force (else a proposal)
+        self._pts = np.zeros((0, 0, 2))
+        self._owners = np.zeros(0, dtype=np.int64)
         self._in_force = np.zeros(0, dtype=bool)
         self._disk_owners = np.zeros(0, dtype=np.int64)
-        self._centres = np.zeros((0, 2))  # the loiter centres of `_step`'s trajectories
-        self._entries = np.zeros(0, dtype=np.int64)  # their loiters' entry indices in `_step`'s window
+        self._centres = np.zeros((0, 2))  # the loiter centres of the gathered trajectories
+        self._entries = np.zeros(0, dtype=np.int64)  # their loiters' entry indices in the window
         self._lone = np.zeros((0, 2))  # those of live UAVs' trajectories in force before their latest
-        self._lone_rows = np.zeros(0, dtype=np.int64)  # the rows of `_step` of those UAVs' latest
+        self._lone_rows = np.zeros(0, dtype=np.int64)  # the gathered rows of those UAVs' latest
         self._disks = np.zeros((0, 3))  # the disks' (cx, cy, r), their owners in `_disk_owners`
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
@@ -225,11 +226,10 @@ class Commitments:
                 proposals.append(t is not mine[0])
             disks += [(j, *d) for d in dsk]
         kinematics = lim.kinematics_args
-        pts, self._centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
-        self._step = (k, owners, proposals, pts)
+        self._pts, self._centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
         turn = lim.reach.loiter_turn
         self._entries = np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64)
-        self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1] if lone else NO_CENTRES
+        self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1]
         self._lone_rows = np.array(lone_rows, dtype=np.int64)
         self._disks = np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:])
         self._disk_owners = np.array([j for j, *_ in disks], dtype=np.int64)
@@ -258,7 +258,7 @@ class Commitments:
         force only."""
         links = (set(self.parents) | self._children()) - self.dead
         return select_checked(
-            self._step[3],
+            self._pts,
             self._owners,
             self._in_force,
             self._centres,
@@ -390,7 +390,7 @@ class Commitments:
             if compatible(pts, empty_o, empty_d, tethers, empty_d, *lim.clearances):
                 self.parents = (*self.parents, j)
                 self.parent_since = k
-                if j not in self._step[1]:  # left out as too far to matter: not as a tether
+                if j not in self._owners:  # left out as too far to matter: not as a tether
                     self._gather(k, float(position[0]), float(position[1]))
                 return
 
