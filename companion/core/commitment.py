@@ -48,6 +48,8 @@ from companion.core.world import FAILSAFE_WIDE, World
 Disk = tuple[float, float, float]  # centre x, centre y, radius
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
 LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
+FAR = 1e4  # m: a point this far in a direction stands for the direction
+SIDE_RANGE = 600.0  # m: a UAV nearer than this makes a new loiter turn away from it (`_turn_towards`)
 
 
 class Commitments:
@@ -417,7 +419,7 @@ class Commitments:
             c,
             s,
             lim.horizon,
-            self._centre,
+            self._turn_towards(x, y),
             lim.fence_normals,
             lim.fence_offsets,
             others,
@@ -440,6 +442,22 @@ class Commitments:
             self.contingency,
             *lim.clearances,
         )
+
+    def _turn_towards(self, x: float, y: float) -> FloatArray:
+        """The point a new proposal's loiter should turn towards (its side is tried first; both are
+        checked): far away from the nearest other UAV not taken as gone (whose last position may be
+        stale) if one is within `SIDE_RANGE` of (x, y) (the range is the one measured), so that the failsafe regions of the two
+        (each reaching `failsafe_reach` + `failsafe_stray` about its loiter's centre) open apart;
+        else the region's centroid, which keeps loiters inside. Measured on the paper's scenarios:
+        results.md, "The loiter side"."""
+        nearest, at = math.inf, (x, y)
+        for j, s in self.latest.items():
+            d = math.hypot(x - s.x, y - s.y)
+            if j not in self.dead and d < nearest:
+                nearest, at = d, (s.x, s.y)
+        if not 0.0 < nearest <= SIDE_RANGE:  # none near, or no direction to turn from
+            return self._centre
+        return np.array([x + (x - at[0]) / nearest * FAR, y + (y - at[1]) / nearest * FAR])
 
     def propose(self, proposal: Trajectory | None) -> None:
         self.proposal = proposal
