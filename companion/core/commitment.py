@@ -444,12 +444,12 @@ class Commitments:
         )
 
     def _turn_towards(self, x: float, y: float) -> FloatArray:
-        """The point a new proposal's loiter should turn towards (its side is tried first; both are
-        checked): far away from the nearest other UAV not taken as gone (whose last position may be
-        stale) if one is within `SIDE_RANGE` of (x, y) (the range is the one measured), so that the failsafe regions of the two
-        (each reaching `failsafe_reach` + `failsafe_stray` about its loiter's centre) open apart;
-        else the region's centroid, which keeps loiters inside. Measured on the paper's scenarios:
-        results.md, "The loiter side"."""
+        """The point a new proposal's loiter should turn towards (that side is tried first; both are
+        checked): far away from the nearest other UAV within `SIDE_RANGE` of (x, y) that is not
+        taken as gone (its last position may be stale), so that the two UAVs' failsafe regions,
+        each reaching `failsafe_reach` + `failsafe_stray` about its loiter's centre, open apart;
+        else the region's centroid, which keeps loiters inside. `SIDE_RANGE` is the range measured
+        on the paper's scenarios (results.md, "The loiter side")."""
         nearest, at = math.inf, (x, y)
         for j, s in self.latest.items():
             d = math.hypot(x - s.x, y - s.y)

@@ -766,8 +766,9 @@ def first_allowed(
     with and whose failsafe regions to clear.
     `shapes` (n_paths, 2 sides, window + 1, 2) holds the trajectories relative to their anchor
     (`Limits.shapes`) and `centres_rel` (n_paths, 2 sides, 2) their loiter centres, placed at (x, y)
-    and turned by the heading (cos_h, sin_h). The side that turns towards `centre` (the region's
-    centroid) at the plan's end is tried first."""
+    and turned by the heading (cos_h, sin_h). The side that turns towards `centre` at the plan's
+    end is tried first (`Commitments._turn_towards`: away from a near UAV, else the region's
+    centroid)."""
     others, crowded, need = split_crowded(reference, contingent, in_force, separation)
     width = shapes.shape[2]
     pts = np.empty((width, 2))

@@ -1,0 +1,48 @@
+"""The loiter side a new proposal tries first (`Commitments.first_allowed`, `_turn_towards`): away
+from the nearest UAV within `SIDE_RANGE`, so that the two failsafe regions open apart; towards the
+region's centroid when none is near or the near one is taken as gone."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.core.commitment import SIDE_RANGE, Commitments
+from companion.core.messages import UavState
+from companion.core.world import build_world
+from companion.mission import load_mission
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _commitments(peer: tuple[float, float], stamp: int = 4) -> tuple[Commitments, np.ndarray]:
+    world = build_world(load_mission(ROOT / "mission_files" / "scenario1.toml"))
+    c = Commitments(world, 0)
+    c.latest = {1: UavState(1, stamp, peer[0], peer[1], 0.0, ())}
+    c.observe(5, {}, [])
+    return c, np.asarray(world.grid.region.vertices.mean(axis=0))
+
+
+@pytest.mark.parametrize("bearing", [0.0, 1.0, 2.5, 4.0, 5.5])
+def test_a_near_uav_is_turned_away_from(bearing: float) -> None:
+    x, y, d = 100.0, -200.0, 0.5 * SIDE_RANGE
+    peer = (x + d * math.cos(bearing), y + d * math.sin(bearing))
+    c, _ = _commitments(peer)
+    tx, ty = c._turn_towards(x, y)
+    # the point lies on the far side of (x, y) from the peer, on the line through both
+    assert (tx - x) * (peer[0] - x) + (ty - y) * (peer[1] - y) < 0
+    assert abs((tx - x) * (peer[1] - y) - (ty - y) * (peer[0] - x)) < 1e-6 * math.hypot(tx - x, ty - y) * d
+
+
+def test_without_a_near_uav_the_loiter_turns_to_the_centroid() -> None:
+    c, centroid = _commitments((100.0 + 1.5 * SIDE_RANGE, -200.0))
+    assert np.array_equal(c._turn_towards(100.0, -200.0), centroid)
+
+
+def test_a_uav_taken_as_gone_is_not_turned_away_from() -> None:
+    c, centroid = _commitments((150.0, -200.0), stamp=-10)  # silent far longer than the timeout
+    assert 1 in c.dead
+    assert np.array_equal(c._turn_towards(100.0, -200.0), centroid)
