@@ -181,7 +181,9 @@ def test_continuous_mode_trajectories_stay_in_the_fence(scenario1) -> None:
     UAV 0 left the region at step 323, the M = 3 step look-ahead with 45 degree turns unable to see
     that a corner needs a 4-step U-turn): every trajectory in force now ends in a loiter inside the
     fence, so no UAV ever leaves the fence, and it leaves the region only where the safety layer
-    turns it into the operating margin (to keep another UAV's failsafe region clear), seldom."""
+    turns it into the operating margin (to keep another UAV's failsafe region clear), seldom: in
+    1.3 % of UAV-steps here since loiters turn away from a near UAV (0.06 % before; the proposed
+    method 0.4 % either way, runs 0-11)."""
     m = scenario1.with_algorithm("pheromone")
     m = msgspec.structs.replace(m, kinematics=msgspec.structs.replace(m.kinematics, mode="continuous"))
     r = simulate(m, seed=1, run=0, steps=400, record=True)
@@ -190,4 +192,4 @@ def test_continuous_mode_trajectories_stay_in_the_fence(scenario1) -> None:
     assert np.all(np.abs(wrap_angle(np.diff(tr[..., 2], axis=0))) <= math.radians(45.0) + 1e-9)
     depth = tr[..., None, :2] @ region.normals.T - region.offsets  # metres beyond each edge
     assert np.all(depth.max(axis=-1) <= m.safety.margin + 1e-9)
-    assert np.mean(region.contains(tr[..., 0], tr[..., 1])) >= 0.99
+    assert np.mean(region.contains(tr[..., 0], tr[..., 1])) >= 0.98
