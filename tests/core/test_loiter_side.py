@@ -12,6 +12,7 @@ import pytest
 
 from companion.core.commitment import SIDE_RANGE, Commitments
 from companion.core.messages import UavState
+from companion.core.trajectory import Trajectory
 from companion.core.world import build_world
 from companion.mission import load_mission
 
@@ -46,3 +47,19 @@ def test_a_uav_taken_as_gone_is_not_turned_away_from() -> None:
     c, centroid = _commitments((150.0, -200.0), stamp=-10)  # silent far longer than the timeout
     assert 1 in c.dead
     assert np.array_equal(c._turn_towards(100.0, -200.0), centroid)
+
+
+@pytest.mark.parametrize("peer_y", [-550.0, 550.0])
+def test_the_proposal_loiters_on_the_side_away_from_a_near_uav(peer_y: float) -> None:
+    """Through `first_allowed`: with nothing gathered to check against (the UAV abeam is only
+    known, not a constraint), the straightest path is taken with the side tried first, whose loiter
+    centre lies on the far side from the UAV abeam."""
+    c, _ = _commitments((0.0, peer_y))
+    lim, k = c.limits, 5
+    c._pts = np.zeros((0, lim.reach.window + 2, 2))  # an empty gathering
+    order = np.arange(len(c.world.paths.sequences), dtype=np.int64)
+    best, side = c.first_allowed(k, (0.0, 0.0, 0.0), order)
+    assert best >= 0
+    turns = tuple(c.world.paths.sequences[best].tolist())
+    centre_y = {s: lim.loiter_circle(Trajectory(k + 1, 0.0, 0.0, 0.0, turns, s))[1] for s in (1, -1)}
+    assert abs(centre_y[side] - peer_y) > abs(centre_y[-side] - peer_y)
