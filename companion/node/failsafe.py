@@ -26,8 +26,12 @@ again if it moved, and the mode set to AUTO.
 When the companion falls silent the aircraft flies its last guidance for FS_LONG_TIMEOUT, then
 switches to AUTO and circles that loiter, at its layer. The survivors' model of a silent UAV
 (`Commitments.failsafe_loiters`, `safety.failsafe_reach`) is built on this. When its HEARTBEATs
-come back the autopilot clears the failsafe but stays in AUTO (the companion steers only in
-GUIDED). The bundled simulator imitates all of it (docs/simulator.md).
+come back the autopilot clears the failsafe but stays in AUTO. A companion that was only stalled
+(its process not scheduled, a long pause) sees that it was its own failsafe (ArduPlane's
+STATUSTEXT "GCS Failsafe On: AUTO", `fired_by_our_silence`) and takes the aircraft back into
+GUIDED (`Companion._check_mode`); a mode anyone else chose is left alone. While the aircraft is not
+steered the loiter is never moved: it stays the one its peers keep clear of. The bundled
+simulator imitates all of it (docs/simulator.md).
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ FS_LONG_AUTO = 4  # FS_LONG_ACTN: switch to AUTO
 RENAMED_PARAM_WAIT_S = 3.0  # the parameters have answered by then: a missing name is missing
 HAND_OVER_WAIT_S = 5.0  # an autopilot confirms a mode change in its next HEARTBEAT, within 1 s
 SAME_CENTRE_M = 0.5  # a loiter centre that moved less is not uploaded again
+FAILSAFE_TEXT = "GCS Failsafe On"  # ArduPlane's STATUSTEXT as its GCS failsafe fires ("...: AUTO")
 
 Circle = tuple[float, float, float, int]  # local centre x, y (m), radius (m), +1 CCW / -1 CW
 
@@ -98,6 +103,17 @@ class FailsafeLoiter:
             self.current = loiter
             self.uploads += 1
         return error
+
+
+def fired_by_our_silence(link: VehicleLink, texts_before: int) -> bool:
+    """Whether the aircraft is in AUTO because the GCS failsafe fired (ArduPlane said so in a
+    STATUSTEXT after the first `texts_before` it sent): the companion's own HEARTBEATs stopped."""
+    s = link.state
+    return (
+        not s.px4
+        and s.custom_mode == ARDUPILOT_AUTO
+        and any(t.startswith(FAILSAFE_TEXT) for t in s.texts_since(texts_before))
+    )
 
 
 def _same(a: Circle, b: Circle) -> bool:

@@ -45,7 +45,7 @@ from companion.mission import Mission
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.camera_feed import CameraFeed
 from companion.node.detections import camera_key
-from companion.node.failsafe import FailsafeLoiter, arm_failsafe, hand_over
+from companion.node.failsafe import FailsafeLoiter, arm_failsafe, fired_by_our_silence, hand_over
 from companion.node.faults import InjectedFaults
 from companion.node.fence import fence_margin, fence_polygon, upload_fence
 from companion.node.frames import LocalFrame
@@ -54,7 +54,7 @@ from companion.node.journal import Journal, Recovered, header_of
 from companion.node.mesh import Mesh
 from companion.node.takeover import steerable, take_over
 from companion.node.tracking import Guard, PlanError, PlanTracker, RegionGuard
-from companion.node.vehicle_link import VehicleLink
+from companion.node.vehicle_link import ARDUPILOT_AUTO, ARDUPILOT_GUIDED, VehicleLink
 
 log = logging.getLogger("companion")
 
@@ -64,6 +64,7 @@ LOCKSTEP_COMMAND = 31010  # MAV_CMD_USER_1: "lockstep: ready for step param1"
 # start, so that the command is in place when the autopilot begins the step (no one-step lag).
 LEAD = 0.25
 LINK_TIMEOUT_S = 3.0  # wall seconds without HEARTBEAT before the link counts as lost
+RETAKE_PERIOD_S = 1.0  # wall seconds between requests for GUIDED after our own failsafe fired
 PEER_WAIT_S = 30.0  # lockstep: how long to wait for a live peer's messages before going on
 SIMULATOR_PARAM_WAIT_S = 3.0  # the airframe's parameters have answered by then: others need no longer
 LOG_COLUMNS = [
@@ -181,6 +182,8 @@ class Companion:
         self.fence_uploaded = False
         self.failsafe: FailsafeLoiter | None = None  # armed: kept on the trajectory in force's loiter
         self._was_steerable = False
+        self._texts_steering = 0  # the vehicle's STATUSTEXTs counted while we last steered it
+        self._retake_asked: float | None = None  # our failsafe fired: when GUIDED was last asked for
         self._seen_alive: set[int] = set()
         self._departed: set[int] = set()
         self._resync = False  # lockstep: the link was lost, the vehicle may have gone on without us
@@ -330,7 +333,8 @@ class Companion:
         else:
             self.guidance.paused()
             self.tracker.cancel()
-        if self.failsafe is not None:  # once the peers may have heard of this trajectory in force
+        if self.failsafe is not None and steered:  # once the peers may have heard of this trajectory
+            # in force; not steered, the loiter stays the one they keep clear of
             error = self.failsafe.follow(self.agent.commitments.inforce)
             if error:
                 log.warning("uav %d: step %d: failsafe loiter not updated: %s", self.opts.uav, k, error)
@@ -395,17 +399,34 @@ class Companion:
 
     # -- loops -----------------------------------------------------------------------------------
     def _check_mode(self) -> None:
-        """Say when the vehicle leaves the mode the companion steers in (a failsafe, a pilot)."""
-        steerable = self._steerable()
+        """Say when the vehicle leaves the mode the companion steers in (a failsafe, a pilot); take it
+        back into GUIDED if it left for the GCS failsafe this companion armed (it was stalled)."""
+        steerable, s = self._steerable(), self.link.state
         if self._was_steerable and not steerable:
-            texts = self.link.state.texts
             log.warning(
                 "uav %d: the vehicle left its guided mode (now custom mode %d%s): not steering",
                 self.opts.uav,
-                self.link.state.custom_mode,
-                f"; it said '{texts[-1]}'" if texts else "",
+                s.custom_mode,
+                f"; it said '{s.texts[-1]}'" if s.texts else "",
             )
         self._was_steerable = steerable
+        if steerable:
+            if self._retake_asked is not None:
+                log.info("uav %d: back in GUIDED: steering again", self.opts.uav)
+            self._texts_steering, self._retake_asked = s.text_count, None
+            return
+        if self._retake_asked is None:
+            ours = self.failsafe is not None and fired_by_our_silence(self.link, self._texts_steering)
+            if not ours or self.closing:
+                return
+            log.warning("uav %d: our own GCS failsafe fired (we were stalled): taking it back", self.opts.uav)
+            self._retake_asked = -math.inf
+        if s.custom_mode != ARDUPILOT_AUTO:  # someone else chose a mode since: theirs
+            log.warning("uav %d: mode %d chosen since: not taking it back", self.opts.uav, s.custom_mode)
+            self._texts_steering, self._retake_asked = s.text_count, None
+        elif time.monotonic() - self._retake_asked >= RETAKE_PERIOD_S:
+            self.link.set_mode(ARDUPILOT_GUIDED)
+            self._retake_asked = time.monotonic()
 
     def _check_link(self) -> bool:
         """Whether the vehicle link is up. A companion whose link is lost cannot steer: it leaves the

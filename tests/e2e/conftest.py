@@ -364,6 +364,20 @@ class Ground:
                 return
             assert time.monotonic() < deadline, "the vehicle did not take GUIDED + armed"
 
+    def set_mode(self, custom_mode: int, timeout: float = 30.0) -> None:
+        """A pilot's mode change (retried until the vehicle's HEARTBEAT shows it)."""
+        m = mavutil.mavlink
+        deadline = time.monotonic() + timeout
+        while True:
+            self.conn.mav.command_long_send(
+                self.sysid, 1, m.MAV_CMD_DO_SET_MODE, 0, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode,
+                0, 0, 0, 0, 0,
+            )  # fmt: skip
+            beat = self.wait("HEARTBEAT", lambda h: h.get_srcComponent() == 1, timeout=1.5)
+            if beat is not None and beat.custom_mode == custom_mode:
+                return
+            assert time.monotonic() < deadline, f"the vehicle did not take mode {custom_mode}"
+
     def close(self) -> None:
         with contextlib.suppress(OSError):
             self.conn.close()
