@@ -21,13 +21,19 @@ class RealTimeClock:
     seconds behind (the process was not scheduled, the machine is busy), the clock slips, as
     ArduPilot's SITL does under load, so that every vehicle's clients are heard at least every
     `max_lag` seconds of simulated time (an autopilot's GCS failsafe counts simulated time).
-    `slipped` is the simulated time given up so far."""
+    `slipped` is the simulated time given up so far.
+
+    While a vehicle's GCS failsafe waits on a ground station that has fallen silent (`pace`), the
+    clock runs at real time (at most): a client that was not scheduled for d wall seconds then
+    misses at most d simulated seconds beyond the quiet spell, as it would on a real aircraft,
+    instead of S d at speedup S. `paced` is the wall time run so."""
 
     def __init__(self, tick_dt: float, speedup: float, wall_start: float, max_lag: float = 0.5) -> None:
         self.tick_dt, self.speedup, self.wall_start = tick_dt, speedup, wall_start
+        self.rate = speedup  # simulated seconds per wall second now
         self.origin_tick = 0
         self.max_lag_ticks = max(1, math.floor(max_lag / tick_dt))
-        self.slipped = 0.0
+        self.slipped = self.paced = self._paced_from = 0.0
 
     def slip(self, wall: float, tick: int) -> None:
         """Re-anchor so that tick `tick` is at most `max_lag` behind at `wall`."""
@@ -36,13 +42,24 @@ class RealTimeClock:
             self.slipped += (behind - self.max_lag_ticks) * self.tick_dt
             self.origin_tick, self.wall_start = tick + self.max_lag_ticks, wall
 
+    def pace(self, wall: float, tick: int, waiting: bool) -> None:
+        """Run at real time (or slower, if `speedup` < 1) while `waiting`, else at `speedup`;
+        re-anchored at tick `tick` whenever the rate changes."""
+        rate = min(self.speedup, 1.0) if waiting else self.speedup
+        if rate != self.rate:
+            if waiting:
+                self._paced_from = wall
+            else:
+                self.paced += wall - self._paced_from
+            self.origin_tick, self.wall_start, self.rate = tick, wall, rate
+
     def target(self, wall: float) -> int:
-        return self.origin_tick + math.floor((wall - self.wall_start) * self.speedup / self.tick_dt + 1e-9)
+        return self.origin_tick + math.floor((wall - self.wall_start) * self.rate / self.tick_dt + 1e-9)
 
     def sleep(self, wall: float, tick: int) -> float:
         """Wall seconds until tick `tick` + 1 is due."""
         ahead = tick + 1 - self.origin_tick
-        return max(0.0, self.wall_start + ahead * self.tick_dt / self.speedup - wall)
+        return max(0.0, self.wall_start + ahead * self.tick_dt / self.rate - wall)
 
 
 class LockstepClock:

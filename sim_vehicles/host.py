@@ -39,6 +39,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # isort: skip
 
 M = mavlink
 MAX_TICKS_PER_LOOP = 500  # keep serving sockets when far behind
+# A GCS failsafe's ground station silent for longer than this (simulated seconds: twice the
+# companion's HEARTBEAT period in vehicle time) has not been scheduled: real time until it speaks
+GCS_QUIET_S = 1.0
 STATS_TEXT_INTERVAL = 5.0  # wall s between "bad input" STATUSTEXTs of one vehicle
 RELATIVE_FRAMES = (
     M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
@@ -72,6 +75,7 @@ class RunStats:
     cpu_time: float = 0.0
     frames_published: int = 0
     slipped: float = 0.0  # simulated seconds given up to a busy machine (RealTimeClock.slip)
+    paced: float = 0.0  # wall seconds run at real time for a silent ground station (RealTimeClock.pace)
     input: InputStats = field(default_factory=InputStats)
 
 
@@ -377,6 +381,7 @@ class Host:
             now = time.monotonic()
             if isinstance(self.clock, RealTimeClock):
                 self.clock.slip(now, self.tick)
+                self.clock.pace(now, self.tick, self._awaiting_gcs())
             target = self.clock.target(now)
             budget = MAX_TICKS_PER_LOOP
             while self.tick < target and budget:
@@ -398,11 +403,18 @@ class Host:
         self.stats.sim_time = self.t
         if isinstance(self.clock, RealTimeClock):
             self.stats.slipped = self.clock.slipped
+            self.clock.pace(time.monotonic(), self.tick, False)
+            self.stats.paced = self.clock.paced
         self.stats.wall_time = time.monotonic() - wall0
         self.stats.cpu_time = time.process_time() - cpu0
         for hv in self.hosted:
             self.stats.input.add(hv.stats)
         return self.stats
+
+    def _awaiting_gcs(self) -> bool:
+        """Whether a vehicle's GCS failsafe counts a silence longer than `GCS_QUIET_S`."""
+        t = self.t
+        return any(hv.vehicle.awaits_gcs(t, GCS_QUIET_S) for hv in self.hosted)
 
     def _save_state(self) -> None:
         """At each step boundary, the state a restarted simulator resumes from (`--state`)."""

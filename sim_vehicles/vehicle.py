@@ -399,6 +399,20 @@ class Vehicle:
             self._enter(to, x, y)
             self.say(f"Offboard setpoints lost: {to.name}", mavlink.MAV_SEVERITY_WARNING)
 
+    @property
+    def _watching_gcs(self) -> bool:
+        """Whether the GCS failsafe is armed and has not fired: it counts the GCS's silence."""
+        enabled = int(self.params.value("gcs_failsafe", 0.0))
+        watching = enabled in (GCS_HEARTBEAT, GCS_HEARTBEAT_RSSI) or (
+            enabled == GCS_HEARTBEAT_AUTO and self.mode.behaviour is Behaviour.AUTO
+        )
+        return watching and self.armed and not self.gcs_failsafe
+
+    def awaits_gcs(self, t: float, quiet: float) -> bool:
+        """Whether the GCS failsafe, not fired, has heard nothing from its ground station for more
+        than `quiet` seconds at time `t` (the simulator's clock then runs at real time: `pace`)."""
+        return t - self.gcs_heard > quiet and self._watching_gcs
+
     def _gcs_failsafe(self, t: float, x: float, y: float) -> None:
         p = self.params
         silent = t - self.gcs_heard
@@ -408,11 +422,7 @@ class Vehicle:
                 self.gcs_failsafe = False
                 self.say("GCS Failsafe Cleared", mavlink.MAV_SEVERITY_WARNING)
             return
-        enabled = int(p.value("gcs_failsafe", 0.0))
-        watching = enabled in (GCS_HEARTBEAT, GCS_HEARTBEAT_RSSI) or (
-            enabled == GCS_HEARTBEAT_AUTO and self.mode.behaviour is Behaviour.AUTO
-        )
-        if watching and self.armed and silent > p.value("long_timeout"):
+        if self._watching_gcs and silent > p.value("long_timeout"):
             self.gcs_failsafe = True
             target = self._long_failsafe_mode(int(p.value("long_action")))
             if target is not None:

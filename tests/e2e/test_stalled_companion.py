@@ -1,8 +1,9 @@
 """A companion stalled past its failsafe, and a vehicle a pilot takes, in one swarm
 (`uavsearch run`, scenario1's four UAVs, continuous, sped up).
 
-- UAV 2's companion is stopped (SIGSTOP) for longer than FS_LONG_TIMEOUT, then continued: its
-  autopilot's GCS failsafe fires ("GCS Failsafe On: AUTO"), the companion, running again, sees that
+- UAV 2's companion is stopped (SIGSTOP) until its autopilot's GCS failsafe fired and 2.5 s of wall
+  time more (the simulator runs at real time meanwhile: `RealTimeClock.pace`), then continued: the
+  failsafe fired ("GCS Failsafe On: AUTO"), the companion, running again, sees that
   the failsafe was its own and takes the aircraft back into GUIDED, and steers it again
   (docs/companion.md, "A stalled companion").
 - UAV 1 is switched to AUTO by a pilot (a ground station) at the same moment: its companion never
@@ -32,7 +33,7 @@ STALLED, PILOTED = 2, 1
 AUTO = 10
 SPEEDUP = 4
 FAILSAFE_TIMEOUT_S = 2.0  # FS_LONG_TIMEOUT (one step): 0.5 s of wall time at SPEEDUP
-STALL_S = 2.5  # wall seconds: 10 s of simulated time, five times the failsafe timeout
+STALL_S = 2.5  # wall seconds after the failsafe fired (simulated seconds too: the clock is paced)
 
 
 def test_stalled_companion_takes_back_its_aircraft_and_a_piloted_one_stays_put(

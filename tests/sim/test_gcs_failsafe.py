@@ -8,7 +8,8 @@ it) at its altitude layer, as wide as ArduPlane flies it; a ground station's HEA
 system) do not stop that. When the link speaks again the
 failsafe clears and the mode stays AUTO. With FS_LONG_ACTN 0 the vehicle stays in GUIDED.
 A simulator that was not scheduled for a while (a busy machine) slips its clock rather than running
-ahead in a burst, so a companion that kept speaking does not trip the failsafe.
+ahead in a burst, so a companion that kept speaking does not trip the failsafe; and a companion
+that was not scheduled for a while costs real time, not speedup times it (`RealTimeClock.pace`).
 """
 
 from __future__ import annotations
@@ -147,3 +148,27 @@ def test_a_stalled_simulator_slips_instead_of_tripping_the_failsafe(flying) -> N
     assert ground.need("HEARTBEAT").custom_mode == GUIDED
     _, stats = sim.stop()
     assert stats["slipped"] >= 0.5 * stall * 10, stats  # simulated time given up, not run in a burst
+
+
+def test_a_stalled_companion_costs_real_time_not_speedup_times_it(flying) -> None:
+    """A companion not scheduled for 0.3 s of wall time at --speedup 10 would miss 3 s of simulated
+    time, more than FS_LONG_TIMEOUT (2 s); once its silence passes `host.GCS_QUIET_S` the clock
+    runs at real time, so it misses about 1.2 s and the failsafe does not fire."""
+    link, ground, path, sim = flying
+    mission = load_mission(path)
+    link.change_heading(90.0, 5.0)
+    while not link.state.has_pose:
+        link.poll(0.1)
+    s = link.state
+    committed = Trajectory(0, s.x, s.y, s.heading, (0.0,) * mission.algorithm.horizon, -1)
+    assert arm_failsafe(FailsafeLoiter(link, build_world(mission), 0, link.frame), committed) is None
+    _poll_for(link, 3.0)
+    stall = 1.5 * mission.failsafe_seconds / 10  # wall seconds: 1.5 timeouts at 10x
+    before = link.state.time_s
+    time.sleep(stall)  # not a HEARTBEAT sent meanwhile
+    _poll_for(link, 2 * mission.failsafe_seconds)
+    assert not any("Failsafe" in t for t in link.state.texts), link.state.texts
+    assert ground.need("HEARTBEAT").custom_mode == GUIDED
+    _, stats = sim.stop()
+    assert stats["paced"] > 0, stats
+    assert link.state.time_s > before
