@@ -425,6 +425,15 @@ def assert_flown_out(rows: list[dict[str, float]], horizon: int) -> None:
     assert flown == list(range(last + 1, last + horizon + 2)), f"flown out: {flown} after step {last}"
 
 
+def wait_vehicles(run: Proc, out: Path, n: int) -> None:
+    """Wait until a `uavsearch run`'s simulator (sim.log in `out`) has its n vehicles up."""
+    deadline = time.monotonic() + STARTUP_S
+    log = out / "sim.log"
+    while f"vehicle {n - 1} sysid" not in (log.read_text() if log.exists() else ""):
+        assert run.alive() and time.monotonic() < deadline, run.text()
+        time.sleep(0.2)
+
+
 def wait_rows(
     path: Path,
     count: int,

@@ -20,12 +20,11 @@ import json
 import math
 import os
 import signal
-import time
 from pathlib import Path
 
 from companion.core.world import FAILSAFE_WIDE, build_world
 from companion.node.frames import LocalFrame
-from tests.e2e.conftest import PY, STARTUP_S, Procs, companion_pid, read_csv, wait_rows
+from tests.e2e.conftest import PY, Procs, companion_pid, read_csv, wait_rows, wait_vehicles
 from tests.sim.conftest import fit_circle
 
 STEPS = 80
@@ -59,10 +58,7 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
         ],
     )
     victim_pid = companion_pid(run, VICTIM)
-    deadline = time.monotonic() + STARTUP_S
-    while "vehicle 3 sysid" not in ((out / "sim.log").read_text() if (out / "sim.log").exists() else ""):
-        assert run.alive() and time.monotonic() < deadline, run.text()
-        time.sleep(0.2)
+    wait_vehicles(run, out, m.n_uavs)
     gcs = ground(mission.ports[VICTIM], VICTIM + 1)
     wait_rows(out / f"uav{VICTIM}.csv", KILL_AFTER, run)
     assert "failsafe armed" in (out / f"companion{VICTIM}.log").read_text()

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from companion.core.world import FAILSAFE_WIDE, build_world
 from companion.node.frames import LocalFrame
-from tests.e2e.conftest import GUIDED, PY, STARTUP_S, Procs, companion_pid, read_csv, wait_rows
+from tests.e2e.conftest import GUIDED, PY, Procs, companion_pid, read_csv, wait_rows, wait_vehicles
 from tests.sim.conftest import fit_circle
 
 STEPS = 90
@@ -48,10 +48,7 @@ def test_stalled_companion_takes_back_its_aircraft_and_a_piloted_one_stays_put(
          "--steps", str(STEPS), "--out", str(out), "--quiet", "--keep-going"],
     )  # fmt: skip
     stalled_pid = companion_pid(run, STALLED)
-    deadline = time.monotonic() + STARTUP_S
-    while "vehicle 3 sysid" not in ((out / "sim.log").read_text() if (out / "sim.log").exists() else ""):
-        assert run.alive() and time.monotonic() < deadline, run.text()
-        time.sleep(0.2)
+    wait_vehicles(run, out, m.n_uavs)
     stalled_gcs = ground(mission.ports[STALLED], STALLED + 1)
     pilot = ground(mission.ports[PILOTED], PILOTED + 1)
     wait_rows(out / f"uav{STALLED}.csv", EVENT_AFTER, run)

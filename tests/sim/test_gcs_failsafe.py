@@ -24,7 +24,7 @@ import pytest
 
 from companion.core.trajectory import Trajectory
 from companion.core.world import FAILSAFE_WIDE, build_world
-from companion.mission import load_mission
+from companion.mission import Mission, load_mission
 from companion.node.failsafe import FailsafeLoiter, arm_failsafe
 from companion.node.frames import LocalFrame
 from companion.node.vehicle_link import COMPANION_SYSTEM, HEARTBEAT_VEHICLE_S, VehicleLink
@@ -125,8 +125,8 @@ def test_silent_companion_makes_the_vehicle_circle_its_committed_loiter(flying) 
     assert ground.need("HEARTBEAT").custom_mode == GUIDED
 
 
-def test_a_stalled_simulator_slips_instead_of_tripping_the_failsafe(flying) -> None:
-    link, ground, path, sim = flying
+def _armed_on_a_heading(link: VehicleLink, path: Path) -> Mission:
+    """Fly east on a heading, the failsafe armed on a loiter straight ahead, 3 s heard."""
     mission = load_mission(path)
     link.change_heading(90.0, 5.0)
     while not link.state.has_pose:
@@ -135,6 +135,12 @@ def test_a_stalled_simulator_slips_instead_of_tripping_the_failsafe(flying) -> N
     committed = Trajectory(0, s.x, s.y, s.heading, (0.0,) * mission.algorithm.horizon, -1)
     assert arm_failsafe(FailsafeLoiter(link, build_world(mission), 0, link.frame), committed) is None
     _poll_for(link, 3.0)
+    return mission
+
+
+def test_a_stalled_simulator_slips_instead_of_tripping_the_failsafe(flying) -> None:
+    link, ground, path, sim = flying
+    mission = _armed_on_a_heading(link, path)
     stall = 2 * mission.failsafe_seconds / 10  # wall seconds: twice the timeout at 10x
     sim.proc.send_signal(signal.SIGSTOP)
     try:
@@ -155,14 +161,7 @@ def test_a_stalled_companion_costs_real_time_not_speedup_times_it(flying) -> Non
     time, more than FS_LONG_TIMEOUT (2 s); once its silence passes `host.GCS_QUIET_S` the clock
     runs at real time, so it misses about 1.2 s and the failsafe does not fire."""
     link, ground, path, sim = flying
-    mission = load_mission(path)
-    link.change_heading(90.0, 5.0)
-    while not link.state.has_pose:
-        link.poll(0.1)
-    s = link.state
-    committed = Trajectory(0, s.x, s.y, s.heading, (0.0,) * mission.algorithm.horizon, -1)
-    assert arm_failsafe(FailsafeLoiter(link, build_world(mission), 0, link.frame), committed) is None
-    _poll_for(link, 3.0)
+    mission = _armed_on_a_heading(link, path)
     stall = 1.5 * mission.failsafe_seconds / 10  # wall seconds: 1.5 timeouts at 10x
     before = link.state.time_s
     time.sleep(stall)  # not a HEARTBEAT sent meanwhile
