@@ -12,6 +12,7 @@ import argparse
 import json
 import math
 import os
+import re
 import selectors
 import signal
 import socket
@@ -38,16 +39,18 @@ def _free_udp_ports(n: int) -> list[int]:
 
 
 def _mission_text(base: Path, n: int) -> str:
-    """`base` with its vehicles replaced by n vehicles on a grid inside [-900, 900]^2."""
+    """`base` with its vehicles replaced by n vehicles on a grid inside [-900, 900]^2, at most 400 m
+    apart (a start layout must be connected within the radio range)."""
     text = base.read_text(encoding="utf-8").split("[[vehicles]]")[0]
     text = text.replace("[pass_criteria]", "[unused]") if "[pass_criteria]" in text else text
     side = math.ceil(math.sqrt(n))
+    spacing = min(400.0, 1800 / max(1, side - 1))
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         seed_port = s.getsockname()[1]
     for i, port in enumerate(_free_udp_ports(n)):
-        x = -900 + 1800 * (i % side) / max(1, side - 1)
-        y = -900 + 1800 * (i // side) / max(1, side - 1)
+        x = -900 + spacing * (i % side)
+        y = -900 + spacing * (i // side)
         text += f"\n[[vehicles]]\nx = {x:.1f}\ny = {y:.1f}\nmavlink_port = {port}\n"
     text += f'\n[mesh]\nkey_prefix = "bench{os.getpid()}"\nseed_endpoint = "tcp/127.0.0.1:{seed_port}"\n'
     return text
@@ -63,14 +66,15 @@ def measure(mission: Path, n: int, speedup: float, duration: float) -> dict[str,
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         )
         assert proc.stdout is not None
-        ports = []
+        ports, lines = [], []
         for line in proc.stdout:
-            if line.startswith("vehicle "):
-                ports.append(int(line.rsplit(":", 1)[1]))
+            lines.append(line)
+            if found := re.match(r"vehicle \d+ sysid \d+ mavlink udp [^ ]+:(\d+)", line):
+                ports.append(int(found.group(1)))
                 if len(ports) == n:
                     break
         if len(ports) < n:
-            raise RuntimeError("simulator did not start")
+            raise RuntimeError("simulator did not start:\n" + "".join(lines))
         received = _drive(ports, duration)
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=60)
