@@ -74,6 +74,8 @@ def measure(mission: Path, n: int, speedup: float, duration: float) -> dict[str,
                 if len(ports) == n:
                     break
         if len(ports) < n:
+            proc.kill()
+            proc.wait()
             raise RuntimeError("simulator did not start:\n" + "".join(lines))
         received = _drive(ports, duration)
         proc.send_signal(signal.SIGTERM)
