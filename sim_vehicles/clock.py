@@ -53,6 +53,10 @@ class RealTimeClock:
                 self.paced += wall - self._paced_from
             self.origin_tick, self.wall_start, self.rate = tick, wall, rate
 
+    def paced_until(self, wall: float) -> float:
+        """`paced`, counting a paced spell still running at `wall` up to then."""
+        return self.paced + (wall - self._paced_from if self.rate != self.speedup else 0.0)
+
     def target(self, wall: float) -> int:
         return self.origin_tick + math.floor((wall - self.wall_start) * self.rate / self.tick_dt + 1e-9)
 

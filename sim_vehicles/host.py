@@ -403,8 +403,7 @@ class Host:
         self.stats.sim_time = self.t
         if isinstance(self.clock, RealTimeClock):
             self.stats.slipped = self.clock.slipped
-            self.clock.pace(time.monotonic(), self.tick, False)
-            self.stats.paced = self.clock.paced
+            self.stats.paced = self.clock.paced_until(time.monotonic())
         self.stats.wall_time = time.monotonic() - wall0
         self.stats.cpu_time = time.process_time() - cpu0
         for hv in self.hosted:

@@ -36,11 +36,13 @@ def test_the_clock_runs_at_real_time_while_waiting_and_at_speedup_otherwise(
     assert math.isclose(tick * TICK, fast * speedup, abs_tol=TICK)
     clock.pace(wall, tick, waiting=True)
     end_slow = wall + slow
+    assert math.isclose(clock.paced_until(end_slow), slow, abs_tol=1e-9)  # a spell still running
     slow_ticks = clock.target(end_slow) - tick
     assert math.isclose(slow_ticks * TICK, slow, abs_tol=TICK)  # 1 simulated s per wall s
     tick += slow_ticks
     clock.pace(end_slow, tick, waiting=False)
     assert math.isclose(clock.paced, slow, abs_tol=1e-9)
+    assert clock.paced_until(end_slow + again) == clock.paced  # no spell running
     fast_ticks = clock.target(end_slow + again) - tick
     assert math.isclose(fast_ticks * TICK, again * speedup, abs_tol=TICK)
 
