@@ -21,6 +21,10 @@ from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, read_csv
 
 STEPS = 40
 LAGGING = 0.85
+# 5x, not 10x: a companion slow to start on a loaded machine (2 s of wall time from its take-over to
+# its first step was seen) leaves its vehicle circling where it entered GUIDED for 5 steps, not 10,
+# and every wall-clock delay of the steering costs half as much flight
+SPEEDUP = 5
 
 
 @pytest.mark.parametrize(
@@ -45,7 +49,7 @@ def test_command_mode_flies_the_vehicle(
             "--flavour",
             flavour,
             "--speedup",
-            "10",
+            str(SPEEDUP),
             "--steps",
             str(STEPS),
             "--out",
@@ -62,4 +66,4 @@ def test_command_mode_flies_the_vehicle(
         rows = read_csv(out / f"uav{i}.csv")
         assert len(rows) >= STEPS - 2, f"uav{i}: {len(rows)} steps logged\n{run.text()}"
         assert_follows(rows, k.speed, k.step, f"{mode} ({flavour}) uav{i}", ratio=LAGGING)
-    assert f"{flavour}, speedup 10" in (out / "sim.log").read_text()
+    assert f"{flavour}, speedup {SPEEDUP}" in (out / "sim.log").read_text()
