@@ -867,7 +867,7 @@ def initial_trajectories(
     poses: FloatArray, parents: tuple[int, ...], ranks: tuple[int, ...], limits: Limits
 ) -> list[Trajectory]:
     """A contingency per UAV from its start pose, pairwise compatible and keeping every tether to a
-    parent: straight for s steps (M >= s >= 0, longer first), then loiter on one side. Searched in
+    parent: straight for s steps (0 <= s <= M, shorter first), then loiter on one side. Searched in
     rank order with backtracking; raises ValueError when the start layout admits none."""
     n, m = len(poses), limits.horizon
     turn = limits.reach.loiter_turn
