@@ -86,6 +86,7 @@ def measure(mission: Path, n: int, speedup: float, duration: float) -> dict[str,
     return {
         "vehicles": n, "speedup": speedup, "cpu_share": stats["cpu_time"] / wall,
         "achieved_speedup": stats["sim_time"] / wall, "messages_per_s": received / duration,
+        "slipped_s": stats["slipped"],
     }
 
 
@@ -146,7 +147,8 @@ def bench_main(argv: list[str] | None = None) -> int:
         r = measure(args.mission, 4, speedup, args.duration)
         ok = r["achieved_speedup"] >= REAL_TIME * speedup
         print(f"4 vehicles at speedup {speedup:g}: achieved {r['achieved_speedup']:.1f}, "
-              f"{100 * r['cpu_share']:.0f} % of one core {'ok' if ok else 'FALLS BEHIND'}", flush=True)
+              f"{100 * r['cpu_share']:.0f} % of one core, {r['slipped_s']:.0f} simulated s slipped "
+              f"{'ok' if ok else 'FALLS BEHIND'}", flush=True)
         if not ok:
             break
         best = speedup

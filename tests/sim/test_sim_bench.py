@@ -22,3 +22,4 @@ def test_a_short_run_returns_figures() -> None:
     assert r["vehicles"] == 4 and r["speedup"] == 5.0
     assert r["achieved_speedup"] > 0 and r["cpu_share"] > 0
     assert r["messages_per_s"] > 0  # the vehicles answered their clients with telemetry
+    assert r["slipped_s"] >= 0
