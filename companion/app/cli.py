@@ -6,8 +6,7 @@ import argparse
 import dataclasses
 import json
 import sys
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -279,17 +278,6 @@ def _soak(args: argparse.Namespace) -> int:
     return 1 if events else 0
 
 
-@contextmanager
-def _bar(total: int, label: str, quiet: bool) -> Iterator[Callable[[], None]]:
-    """A progress bar over `total` runs; yields the function that advances it by one run."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    with Progress(*columns, disable=quiet) as bar:
-        task = bar.add_task(label, total=total)
-        yield lambda: bar.advance(task)
-
-
 def _output_folder(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -336,6 +324,7 @@ def _missions(
 def _evaluate(args: argparse.Namespace) -> int:
     from companion.batch.executors import open_executor
     from companion.batch.heldout import MIN_RUNS, evaluate
+    from companion.batch.progress import run_progress
     from companion.batch.starts import parse_layouts
 
     def check(_: int) -> None:
@@ -349,7 +338,10 @@ def _evaluate(args: argparse.Namespace) -> int:
     missions, origin = _missions(args, out, check)
     total = 3 * args.runs * len(missions)
     label = f"{len(missions)} missions x 3 algorithms x {args.runs} runs"
-    with open_executor(args.scheduler, args.workers) as executor, _bar(total, label, args.quiet) as advance:
+    with (
+        open_executor(args.scheduler, args.workers) as executor,
+        run_progress(total, label, not args.quiet) as advance,
+    ):
         result = evaluate(missions, args.runs, args.steps, out, executor, layouts, origin, advance)
     _print_evaluation(result)
     print(f"wrote {out}/evaluate.json, missions.csv, overall.csv, runs.csv, evaluate(_density).png")
@@ -358,6 +350,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 def _tune(args: argparse.Namespace) -> int:
     from companion.batch.executors import open_executor
+    from companion.batch.progress import run_progress
     from companion.batch.starts import parse_layouts
     from companion.batch.tune import SPACE, Setup, load_space, plan, select, tune
 
@@ -384,7 +377,7 @@ def _tune(args: argparse.Namespace) -> int:
     label = f"tune {args.algorithm}: {trials} trials x {len(missions)} missions x {args.runs} runs"
     with (
         open_executor(args.scheduler, args.workers, keep=True) as executor,
-        _bar(total, label, args.quiet) as advance,
+        run_progress(total, label, not args.quiet) as advance,
     ):
         tune(missions, chosen, setup, out, executor, origin, advance)
     print((out / "weights.toml").read_text(), end="")

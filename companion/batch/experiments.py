@@ -9,41 +9,21 @@ from pathlib import Path
 
 import msgspec
 import numpy as np
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
 
 from companion.batch import plots, report
 from companion.batch.engine import RunResult, simulate
 from companion.batch.executors import LocalPool, RunExecutor
 from companion.batch.montecarlo import RunSpec, execute, run_specs, specs_for, summarize
+from companion.batch.progress import run_progress
 from companion.batch.starts import random_start
 from companion.core.world import build_world
 from companion.mission import ALGORITHMS, Mission
 
 
-def _progress(enabled: bool) -> Progress:
-    return Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        disable=not enabled,
-        transient=False,
-    )
-
-
 def run_all(specs: list[RunSpec], executor: RunExecutor, progress: bool, label: str) -> list[RunResult]:
-    """Run the specs on the executor with a progress bar fed as runs come back; results in spec order."""
-    with _progress(progress) as bar:
-        task = bar.add_task(f"{label} on {executor.description}", total=len(specs))
-        return list(run_specs(specs, executor=executor, on_result=lambda: bar.advance(task)))
+    """Run the specs on the executor with progress fed as runs come back; results in spec order."""
+    with run_progress(len(specs), f"{label} on {executor.description}", progress) as advance:
+        return list(run_specs(specs, executor=executor, on_result=advance))
 
 
 def compare(

@@ -51,9 +51,9 @@ def test_mc_cli_writes_summary_runs_curves_trajectories_and_plots(tmp_path: Path
         "--workers",
         "2",
         "--save-trajectories",
-        "--quiet",
     )
     assert proc.returncode == 0, proc.stderr
+    assert "scenario1: 6 runs on 2 local processes: 6/6 runs" in proc.stderr  # progress off a terminal
     summary = json.loads((out / "summary.json").read_text())
     for name in ("proposed", "no-ta", "pheromone"):
         assert set(summary[name]) >= SUMMARY_KEYS
@@ -101,6 +101,7 @@ def test_a_run_is_the_same_whatever_else_is_in_the_batch(tmp_path: Path) -> None
             "2",
         )
         assert proc.returncode == 0, proc.stderr
+        assert "runs," not in proc.stderr  # --quiet: no progress
     with (a / "runs.csv").open() as f:
         first = next(csv.DictReader(f))
     with (b / "runs.csv").open() as f:
