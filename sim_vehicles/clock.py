@@ -50,7 +50,7 @@ class RealTimeClock:
             if waiting:
                 self._paced_from = wall
             else:
-                self.paced += wall - self._paced_from
+                self.paced = self.paced_until(wall)
             self.origin_tick, self.wall_start, self.rate = tick, wall, rate
 
     def paced_until(self, wall: float) -> float:
