@@ -80,7 +80,7 @@ def format_against(result: Against) -> str:
     for cell, old, new in zip(CELLS, result.old, result.new, strict=True):
         lines.append(f"{cell:<16} {old:7.3f} {new:7.3f} {old / new:6.2f}x")
     lines.append(
-        f"{'total':<16} {sum(result.old):7.2f} {sum(result.new):7.2f} {result.ratio:6.2f}x"
+        f"{'total':<16} {sum(result.old):7.3f} {sum(result.new):7.3f} {result.ratio:6.2f}x"
         f"  (other: {result.other}; this: {HERE})"
     )
     return "\n".join(lines)
