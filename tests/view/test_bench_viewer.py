@@ -1,7 +1,8 @@
 """`uavsearch companion-bench --viewer`: the latency run again with a viewer on the mesh.
 
 No timing assertion (the machine may be loaded): the viewer attaches, sees every bundle and the
-last step, and is stopped with everything else."""
+last step, and is stopped with everything else. (It asserted no late report until a clean-clone CI
+on a busy machine saw 3 of them, each a report after its step closed: load, not a fault.)"""
 
 from __future__ import annotations
 
@@ -34,7 +35,10 @@ def test_latency_with_a_viewer_attached(tmp_path: Path, capsys: pytest.CaptureFi
     assert plain["viewer"] is None
     viewer = watched["viewer"]
     assert viewer["received"] == 4 * steps and viewer["step"] == steps - 1
-    assert viewer["malformed"] == 0 and viewer["late"] == 0
+    # a report that comes after its step closed (the view's 2 s hold, or a bundle three steps newer,
+    # on a loaded machine) is counted `late`, not lost: it is already in `received`; how many there
+    # are depends on the load, so it is not asserted
+    assert viewer["malformed"] == 0
     assert viewer["browser"] is CHROMIUM.exists() and viewer["pages"] == (1 if viewer["browser"] else 0)
     assert watched["missing"] == 0  # lockstep: every peer's bundle still arrived
     assert _own_children() <= before  # workers, view server and browser all stopped
