@@ -40,7 +40,7 @@ from companion.core.messages import (
     UavState,
 )
 from companion.core.rhc import rank_candidates, rank_grid_candidates
-from companion.core.tasks import keep_task, rewards, task_completion, task_costs
+from companion.core.tasks import bid_rewards, keep_task, task_completion, task_costs
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
@@ -307,15 +307,12 @@ class Agent:
         w, tess = self.world, self.world.tessellation
         assert tess is not None
         a = w.mission.algorithm
-        done = self.covered > a.v_max * tess.cell_counts
-        if done.all():
-            return ()
-        auction, holding = task_costs(position, mst_nbrs, tess.generators, tess.areas, w.costs)
-        reward = rewards(self.eta * w.prior, auction, tess)
-        worthless = done | (holding > a.c_max)
-        if self.task >= 0:
-            worthless |= reward <= reward[self.task]
-        return tuple(np.where(worthless, 0.0, reward).tolist())
+        held = self.task
+        out = bid_rewards(
+            self.eta, w.prior, tess.labels, self.covered, tess.cell_counts, a.v_max, a.c_max, position,
+            mst_nbrs, tess.generators, tess.areas, w.costs, held,
+        )  # fmt: skip
+        return tuple(out.tolist())
 
     def _plan_task(self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict) -> bool:
         """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step.

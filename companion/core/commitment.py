@@ -46,6 +46,11 @@ from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
+# what the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
+# (n, window + 2, 2), owners, whether a trajectory in force (else a proposal), loiter centres, loiter
+# entry indices, the rows of the UAVs whose trajectories in force before their latest are `_lone`,
+# the disks (cx, cy, r) of UAVs not heard, and the disks' owners
+Gathered = tuple[FloatArray, IntArray, BoolArray, FloatArray, IntArray, IntArray, FloatArray, IntArray]
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
 LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
 FAR = 1e4  # m: a point this far in a direction stands for the direction
@@ -92,17 +97,19 @@ class Commitments:
         self._contingencies = [
             ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
         ]
-        # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each,
-        # with its owner and whether it is a trajectory in force (else a proposal)
-        self._pts = np.zeros((0, 0, 2))
-        self._owners = np.zeros(0, dtype=np.int64)
-        self._in_force = np.zeros(0, dtype=bool)
-        self._disk_owners = np.zeros(0, dtype=np.int64)
-        self._centres = np.zeros((0, 2))  # the loiter centres of the gathered trajectories
-        self._entries = np.zeros(0, dtype=np.int64)  # their loiters' entry indices in the window
-        self._lone = np.zeros((0, 2))  # those of live UAVs' trajectories in force before their latest
-        self._lone_rows = np.zeros(0, dtype=np.int64)  # the gathered rows of those UAVs' latest
-        self._disks = np.zeros((0, 3))  # the disks' (cx, cy, r), their owners in `_disk_owners`
+        # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
+        # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
+        self._gathered: Gathered = (
+            np.zeros((0, plan.limits.reach.window + 2, 2)),
+            np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=bool),
+            np.zeros((0, 2)),
+            np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=np.int64),
+            np.zeros((0, 3)),
+            np.zeros(0, dtype=np.int64),
+        )
+        self._lone = self._no_lone = np.zeros((0, 2))  # (never written to)
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
         self._no_regions = np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64)
@@ -228,15 +235,21 @@ class Commitments:
                 proposals.append(t is not mine[0])
             disks += [(j, *d) for d in dsk]
         kinematics = lim.kinematics_args
-        self._pts, self._centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
+        pts, centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
         turn = lim.reach.loiter_turn
-        self._entries = np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64)
-        self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1]
-        self._lone_rows = np.array(lone_rows, dtype=np.int64)
-        self._disks = np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:])
-        self._disk_owners = np.array([j for j, *_ in disks], dtype=np.int64)
-        self._owners = np.array(owners, dtype=np.int64)
-        self._in_force = ~np.array(proposals, dtype=bool)
+        self._gathered = (
+            pts,
+            np.array(owners, dtype=np.int64),
+            ~np.array(proposals, dtype=bool),
+            centres,
+            np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64),
+            np.array(lone_rows, dtype=np.int64),
+            np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:]),
+            np.array([j for j, *_ in disks], dtype=np.int64),
+        )
+        self._lone = self._no_lone
+        if lone:
+            self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1]
         if not regions:  # (empty arrays are never written to)
             self._loiters, self._fans, self._fan_counts = self._no_regions
             return
@@ -246,33 +259,9 @@ class Commitments:
         for i, (_, path) in enumerate(regions):
             self._fans[i, : len(path)] = path
 
-    def _arrays(
-        self, resolving: bool, proposals: bool = True
-    ) -> tuple[
-        FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, np.ndarray, np.ndarray, np.ndarray
-    ]:
-        """From this step's gathering: what a trajectory of this UAV must keep clear of, and keep
-        within range of (tethers: parents and children), over the check's window from t_k (the
-        resolution of the pending proposal: the others' proposals only for lower ids) or from
-        t_k+1 (a new proposal: everything), the loiter centres of the trajectories to keep clear
-        of, which of them are trajectories in force, their loiters' entry indices in the window,
-        and which of them flies to each `_lone` centre. Without `proposals`: the trajectories in
-        force only."""
-        links = (set(self.parents) | self._children()) - self.dead
-        return select_checked(
-            self._pts,
-            self._owners,
-            self._in_force,
-            self._centres,
-            self._entries,
-            self._lone_rows,
-            self._disks,
-            self._disk_owners,
-            np.array(sorted(links), dtype=np.int64),
-            self.uav,
-            resolving,
-            proposals,
-        )
+    def _links(self) -> IntArray:
+        """The tethered UAVs (parents and children) not taken as gone, ascending."""
+        return np.array(sorted((set(self.parents) | self._children()) - self.dead), dtype=np.int64)
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
@@ -282,31 +271,24 @@ class Commitments:
         turn = lim.reach.loiter_turn
         chosen = self.inforce
         self._gather(k, x, y)
+        links = self._links()
         if self.proposal is not None and self.proposal.start == k:
-            others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = self._arrays(
-                resolving=True
-            )
             both = lim.rows([self.proposal, self.inforce])
             pe, ie = (t.loiter_entry(turn) - k for t in (self.proposal, self.inforce))
             fans = self._loiters, self._fans, self._fan_counts
-            if may_switch(
+            if may_switch_from(
+                self._gathered,
+                links,
+                self.uav,
                 both,
                 k,
                 lim.reach.window,
                 lim.kinematics_args,
                 pe,
                 ie,
-                others,
-                in_force,
-                disks,
-                tethers,
-                tether_disks,
                 fans,
                 self.progress,
-                entries,
-                centres,
                 self._lone,
-                lone_owners,
                 self.contingency,
                 lim.clearances,
             ):
@@ -314,7 +296,7 @@ class Commitments:
                 self.accepted += 1
             else:
                 self.rejected += 1
-        self.inforce = self._flyable(k, chosen.reanchored(k, x, y, heading, turn))
+        self.inforce = self._flyable(k, chosen.reanchored(k, x, y, heading, turn), links)
         self.proposal = None
         return self.inforce
 
@@ -323,7 +305,7 @@ class Commitments:
         turn = self.inforce.loiter * self.limits.reach.loiter_turn
         return all(abs(t - turn) < 1e-9 for t in self.inforce.turns)
 
-    def _flyable(self, k: int, trajectory: Trajectory) -> Trajectory:
+    def _flyable(self, k: int, trajectory: Trajectory, links: IntArray) -> Trajectory:
         """`trajectory` if it is inside the fence and compatible with the others' trajectories in force
         and its tethers, else a start contingency from its anchor that is (straight for M >= s >= 0
         steps, then loiter).
@@ -335,7 +317,6 @@ class Commitments:
         lim = self.limits
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
-        others, _, tethers, *_ = self._arrays(resolving=True, proposals=False)
         contingencies = (
             Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
             for turns, side in self._contingencies
@@ -343,7 +324,8 @@ class Commitments:
         window, fence = lim.reach.window, (lim.fence_normals, lim.fence_offsets)
         for option in itertools.chain((trajectory,), contingencies):
             row = lim.rows([option])[0]
-            if flyable(row, k, window, lim.kinematics_args, *fence, others, tethers, lim.clearances):
+            gathered = self._gathered, links, self.uav
+            if flyable_from(*gathered, row, k, window, lim.kinematics_args, *fence, lim.clearances):
                 if option is not trajectory:
                     self.recovered += 1
                 return option
@@ -392,7 +374,7 @@ class Commitments:
             if compatible(pts, empty_o, empty_d, tethers, empty_d, *lim.clearances):
                 self.parents = (*self.parents, j)
                 self.parent_since = k
-                if j not in self._owners:  # left out as too far to matter: not as a tether
+                if j not in self._gathered[1]:  # left out as too far to matter: not as a tether
                     self._gather(k, float(position[0]), float(position[1]))
                 return
 
@@ -402,18 +384,18 @@ class Commitments:
         others may fly then), and its loiter side; (-1, 0) if none."""
         lim = self.limits
         x, y, heading = pose
-        others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = self._arrays(
-            resolving=False
-        )
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
-        shapes, centres_rel = self._shapes[h], self._shape_centres[h]
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
-        reference, reference_centre = expand_with_centres(
-            lim.rows([self.inforce]), k + 1, lim.reach.window, lim.kinematics_args
-        )
-        return first_allowed(
+        return first_allowed_from(
+            self._gathered,
+            self._links(),
+            self.uav,
+            lim.rows([self.inforce]),  # a proposal not clearing the regions keeps as far from them as this
+            k + 1,
+            lim.reach.window,
+            lim.kinematics_args,
             order,
-            shapes,
+            self._shapes[h],
             x,
             y,
             c,
@@ -422,25 +404,13 @@ class Commitments:
             self._turn_towards(x, y),
             lim.fence_normals,
             lim.fence_offsets,
-            others,
-            in_force,
-            disks,
-            tethers,
-            tether_disks,
-            self._loiters,
-            self._fans,
-            self._fan_counts,
+            (self._loiters, self._fans, self._fan_counts),
             self.progress,
-            reference[0],  # a proposal that does not clear the regions must keep as far from them as this
             self.inforce.loiter_entry(lim.reach.loiter_turn) - (k + 1),
-            centres_rel,
-            entries,
-            centres,
+            self._shape_centres[h],
             self._lone,
-            lone_owners,
-            reference_centre[0],
             self.contingency,
-            *lim.clearances,
+            lim.clearances,
         )
 
     def _turn_towards(self, x: float, y: float) -> FloatArray:
@@ -526,3 +496,143 @@ def select_checked(
 def _member(value: int, sorted_values: IntArray) -> bool:
     i = np.searchsorted(sorted_values, value)
     return i < sorted_values.shape[0] and sorted_values[i] == value
+
+
+@njit(cache=True)
+def may_switch_from(
+    gathered: Gathered,
+    links: IntArray,
+    uav: int,
+    rows: FloatArray,
+    first: int,
+    window: int,
+    kinematics: tuple[float, bool, float, float, float],
+    entry: int,
+    reference_entry: int,
+    fans: tuple[FloatArray, FloatArray, IntArray],
+    progress: float,
+    lone: FloatArray,
+    reach: float,
+    clearances: tuple[float, float, float],
+) -> bool:
+    """`safety.may_switch` of the proposal rows[0] against what this step's gathering holds
+    (`select_checked` for the resolution: the others' proposals only of lower ids, from t_k)."""
+    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners = gathered
+    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = select_checked(
+        pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, links, uav, True, True
+    )
+    return may_switch(
+        rows,
+        first,
+        window,
+        kinematics,
+        entry,
+        reference_entry,
+        others,
+        in_force,
+        disks,
+        tethers,
+        tether_disks,
+        fans,
+        progress,
+        entries,
+        centres,
+        lone,
+        lone_owners,
+        reach,
+        clearances,
+    )
+
+
+@njit(cache=True)
+def flyable_from(
+    gathered: Gathered,
+    links: IntArray,
+    uav: int,
+    row: FloatArray,
+    first: int,
+    window: int,
+    kinematics: tuple[float, bool, float, float, float],
+    normals: FloatArray,
+    offsets: FloatArray,
+    clearances: tuple[float, float, float],
+) -> bool:
+    """`safety.flyable` against the others' trajectories in force of this step's gathering and the
+    tethers among them, from t_k (`Commitments._flyable`)."""
+    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners = gathered
+    others, _, tethers, _, _, _, _, _ = select_checked(
+        pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, links, uav, True, False
+    )
+    return flyable(row, first, window, kinematics, normals, offsets, others, tethers, clearances)
+
+
+@njit(cache=True)
+def first_allowed_from(
+    gathered: Gathered,
+    links: IntArray,
+    uav: int,
+    reference_row: FloatArray,
+    first: int,
+    window: int,
+    kinematics: tuple[float, bool, float, float, float],
+    order: IntArray,
+    shapes: FloatArray,
+    x: float,
+    y: float,
+    cos_h: float,
+    sin_h: float,
+    horizon: int,
+    centre: FloatArray,
+    normals: FloatArray,
+    offsets: FloatArray,
+    fans: tuple[FloatArray, FloatArray, IntArray],
+    progress: float,
+    reference_entry: int,
+    centres_rel: FloatArray,
+    lone: FloatArray,
+    reach: float,
+    clearances: tuple[float, float, float],
+) -> tuple[int, int]:
+    """`safety.first_allowed` against everything this step's gathering holds, from t_k+1 = `first`
+    (`select_checked` for a new proposal), with the trajectory in force `reference_row` expanded
+    from there as the reference."""
+    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners = gathered
+    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = select_checked(
+        pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, links, uav, False, True
+    )
+    reference, reference_centre = expand_with_centres(reference_row, first, window, kinematics)
+    loiters, loiter_paths, loiter_counts = fans
+    separation, disk_separation, link = clearances
+    return first_allowed(
+        order,
+        shapes,
+        x,
+        y,
+        cos_h,
+        sin_h,
+        horizon,
+        centre,
+        normals,
+        offsets,
+        others,
+        in_force,
+        disks,
+        tethers,
+        tether_disks,
+        loiters,
+        loiter_paths,
+        loiter_counts,
+        progress,
+        reference[0],
+        reference_entry,
+        centres_rel,
+        entries,
+        centres,
+        lone,
+        lone_owners,
+        reference_centre[0],
+        reach,
+        separation,
+        disk_separation,
+        link,
+    )

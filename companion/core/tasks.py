@@ -8,8 +8,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from companion.core.cvt import Tessellation
-from companion.core.geometry import FloatArray
+from companion.core.geometry import FloatArray, IntArray
 from companion.core.potential import link_cost
 
 
@@ -25,11 +24,6 @@ class CostWeights(NamedTuple):
     r_c: float
     r_c_attr: float
     comm_cap: float
-
-
-def task_income(importance: FloatArray, tess: Tessellation) -> FloatArray:
-    """r_ij = sum over the cells of V_j of s_{i,p,k} (income of eq. 15)."""
-    return np.bincount(tess.labels, weights=importance, minlength=tess.n_tasks)
 
 
 @njit(cache=True)
@@ -75,9 +69,42 @@ def task_costs(
     return time + w.beta2 * capped, time + w.beta2 * uncapped
 
 
-def rewards(importance: FloatArray, cost: FloatArray, tess: Tessellation) -> FloatArray:
-    """Eq. 15: R_ij = r_ij / C_ij for every task j, given the costs C_ij of eq. 18."""
-    return task_income(importance, tess) / cost
+@njit(cache=True)
+def bid_rewards(
+    eta: FloatArray,
+    prior: FloatArray,
+    labels: IntArray,
+    covered: IntArray,
+    cell_counts: IntArray,
+    v_max: float,
+    c_max: float,
+    position: FloatArray,
+    neighbours: FloatArray,
+    generators: FloatArray,
+    areas: FloatArray,
+    w: CostWeights,
+    held: int,
+) -> FloatArray:
+    """A bidder's rewards (eq. 15, importance eta * Pr summed over each task's cells in cell
+    order), zero for tasks it could not keep (eq. 21: complete, covered beyond v_max, or
+    costing more than C_max) and, when it holds task `held` (>= 0), for tasks not worth more than
+    that one; empty when every task is complete."""
+    n = generators.shape[0]
+    done = np.empty(n, dtype=np.bool_)
+    for j in range(n):
+        done[j] = covered[j] > v_max * cell_counts[j]
+    if done.all():
+        return np.empty(0)
+    auction, holding = task_costs(position, neighbours, generators, areas, w)
+    income = np.zeros(n)
+    for c in range(labels.shape[0]):
+        income[labels[c]] += eta[c] * prior[c]
+    reward = income / auction
+    out = np.empty(n)
+    for j in range(n):
+        worthless = done[j] or holding[j] > c_max or (held >= 0 and reward[j] <= reward[held])
+        out[j] = 0.0 if worthless else reward[j]
+    return out
 
 
 def task_completion(covered_cells: int, task_cells: int) -> float:

@@ -56,7 +56,6 @@ def test_the_proposal_loiters_on_the_side_away_from_a_near_uav(peer_y: float) ->
     centre lies on the far side from the UAV abeam."""
     c, _ = _commitments((0.0, peer_y))
     lim, k = c.limits, 5
-    c._pts = np.zeros((0, lim.reach.window + 2, 2))  # an empty gathering
     order = np.arange(len(c.world.paths.sequences), dtype=np.int64)
     best, side = c.first_allowed(k, (0.0, 0.0, 0.0), order)
     assert best >= 0

@@ -10,12 +10,11 @@ import pytest
 from companion.core.cvt import describe
 from companion.core.tasks import (
     CostWeights,
+    bid_rewards,
     communication_costs,
     keep_task,
-    rewards,
     task_completion,
     task_costs,
-    task_income,
     time_cost,
 )
 
@@ -87,17 +86,31 @@ def test_eq_21_cost_is_eq_18_without_the_cap() -> None:
 
 
 def test_income_and_reward_on_a_tiny_tessellation() -> None:
-    # four 40 m cells, tasks {0, 1} and {2, 3}; importance 0.1, 0.2, 0.3, 0.4
+    # four 40 m cells, tasks {0, 1} and {2, 3}; importance eta * Pr = 0.1, 0.2, 0.3, 0.4
     centres = np.array([[20.0, 20.0], [60.0, 20.0], [100.0, 20.0], [140.0, 20.0]])
     tess = describe(centres, np.array([[40.0, 20.0], [120.0, 20.0]]), np.array([0, 0, 1, 1]), 1600.0)
-    s = np.array([0.1, 0.2, 0.3, 0.4])
-    # r_j = sum of s over V_j: 0.3 and 0.7
-    assert task_income(s, tess) == pytest.approx([0.3, 0.7])
-    # from (40, 20), no neighbours: C^t = d / 50 + 3 * 3200 / 1000 = [0 + 9.6, 80/50 + 9.6] = [9.6, 11.2]
+    eta, prior = np.array([0.2, 0.4, 0.6, 0.8]), np.full(4, 0.5)
+    here, none = np.array([40.0, 20.0]), np.zeros((0, 2))
+
+    def bids(covered: tuple[int, int] = (0, 0), c_max: float = 1e9, held: int = -1) -> np.ndarray:
+        counts = np.array(covered, dtype=np.int64)
+        return bid_rewards(
+            eta, prior, tess.labels, counts, tess.cell_counts, 0.85, c_max, here, none, tess.generators,
+            tess.areas, W, held,
+        )  # fmt: skip
+
+    # r_j = sum of eta Pr over V_j: 0.3 and 0.7; from (40, 20), no neighbours:
+    # C^t = d / 50 + 3 * 3200 / 1000 = [0 + 9.6, 80/50 + 9.6] = [9.6, 11.2]
     # R = r / C = [0.3 / 9.6, 0.7 / 11.2] = [0.03125, 0.0625]
-    cost = task_costs(np.array([40.0, 20.0]), np.zeros((0, 2)), tess.generators, tess.areas, W)[0]
-    r = rewards(s, cost, tess)
-    assert r == pytest.approx([0.03125, 0.0625])
+    assert bids() == pytest.approx([0.03125, 0.0625])
+    # eq. 21's bidder bids nothing for a task covered beyond v_max, or costing more than C_max
+    assert bids(covered=(2, 0)) == pytest.approx([0.0, 0.0625])
+    assert bids(c_max=10.0) == pytest.approx([0.03125, 0.0])
+    # holding a task, it bids only for tasks worth more (Algorithm 2's greedy bidder)
+    assert bids(held=0) == pytest.approx([0.0, 0.0625])
+    assert bids(held=1) == pytest.approx([0.0, 0.0])
+    # every task complete: no bids at all
+    assert bids(covered=(2, 2)).shape == (0,)
 
 
 def test_task_completion() -> None:
