@@ -448,12 +448,16 @@ def select_checked(
     resolving: bool,
     proposals: bool,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, IntArray]:
-    """`Commitments._arrays` from the gathered rows: `pts` (n, window + 2, 2) from t_k, their
-    `owners`, which are trajectories `in_force`, their loiter `centres` and `entries`, the rows of
-    the `lone` centres' owners, the `disks` (cx, cy, r) and their owners, and the tethered UAVs
-    `links` (sorted). Rows checked: trajectories in force, and the others' proposals unless not
-    `proposals`, or when `resolving` only those of lower ids than `uav`; their window from t_k when
-    `resolving`, else from t_k+1. Contiguous copies: the kernels are compiled for C-ordered arrays."""
+    """What a check reads from this step's gathering (`Gathered`: `pts` (n, window + 2, 2) from t_k,
+    their `owners`, which are trajectories `in_force`, their loiter `centres` and `entries`, the
+    rows of the `lone` centres' owners, the `disks` (cx, cy, r) and their owners) and the tethered
+    UAVs `links` (sorted): what to keep clear of, the disks, the tethers and their disks, and the
+    checked rows' centres, in-force flags, entries and the rows of the `lone` centres' owners.
+    Rows checked: trajectories in force, and the others' proposals unless not `proposals`, or when
+    `resolving` only those of lower ids than `uav`; their window from t_k when `resolving`, else
+    from t_k+1. Contiguous copies: the kernels are compiled for C-ordered arrays. Called inside the
+    compiled checks (`may_switch_from`, `flyable_from`, `first_allowed_from`), so its arrays never
+    cross back into Python."""
     n, width = pts.shape[0], pts.shape[1] - 1
     lo = 0 if resolving else 1
     keep = np.empty(n, dtype=np.bool_)

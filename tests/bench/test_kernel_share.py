@@ -26,6 +26,6 @@ def test_kernel_share_counts_each_uavs_calls_and_splits_the_wall_time() -> None:
     assert 0 < kernels < wall and abs(kernels + glue - wall) <= 0.002
     table = {name: (int(calls), float(seconds)) for name, calls, seconds, _ in map(str.split, rows)}
     assert table["rank_grid_candidates"][0] == 2 * 4 * steps  # 2 runs x 4 UAVs x steps, grid mode
-    assert table["first_allowed"][0] == 2 * 4 * steps
+    assert table["first_allowed_from"][0] == 2 * 4 * steps
     assert table["_ground_truth"][0] == 2 * steps  # the engine's scoring, once a step
     assert sum(seconds for _, seconds in table.values()) <= kernels + 0.002
