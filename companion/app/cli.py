@@ -193,7 +193,7 @@ def _bench(args: argparse.Namespace) -> int:
     if args.against is not None:
         from companion.bench.against import cpu_against, format_against
 
-        print(format_against(cpu_against(Path(args.against), args.rounds, args.steps)))
+        print(format_against(cpu_against(Path(args.against), args.rounds, args.steps, args.concurrent)))
         return 0
     missions = [load_mission(m) for m in args.missions]
     with open_executor(args.scheduler, args.workers) as executor:
@@ -649,6 +649,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     be.add_argument(
         "--rounds", type=int, default=2, help="with --against: interleaved rounds (the minimum is taken)"
+    )
+    be.add_argument(
+        "--concurrent",
+        action="store_true",
+        help="with --against: time both checkouts at the same time, one per core, in each round (on a "
+        "machine whose speed drifts, both then see the same drift)",
     )
     be.set_defaults(func=_bench)
 

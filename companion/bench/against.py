@@ -2,8 +2,9 @@
 
 Each round runs `cpu_per_run.py` (one 1,000-step run of each scenario file and algorithm, CPU
 time) once with the other checkout's `companion` on PYTHONPATH and once with this one's, in fresh
-processes, interleaved so that the machine's drift hits both alike; a cell's figure is its
-minimum over the rounds. CPU time, not wall time: other work on the machine slows a run's wall
+processes, interleaved so that the machine's drift hits both alike, or with `concurrent` both at
+the same time, one per core (the drift then hits both within the same seconds); a cell's figure
+is its minimum over the rounds. CPU time, not wall time: other work on the machine slows a run's wall
 time much more than its CPU time (docs/performance.md).
 """
 
@@ -26,6 +27,7 @@ class Against:
     rounds: int
     old: list[float]  # per cell, CPU seconds (minimum over the rounds)
     new: list[float]
+    concurrent: bool = False  # both checkouts timed at the same time, else one after the other
 
     @property
     def ratio(self) -> float:
@@ -43,38 +45,58 @@ def checkout(path: Path) -> Path:
     return root
 
 
-def _cells(root: Path, steps: int) -> list[float]:
-    proc = subprocess.run(
+def _start(root: Path, steps: int) -> subprocess.Popen[str]:
+    return subprocess.Popen(
         [sys.executable, str(SCRIPT), "--steps", str(steps)],
         env={**os.environ, "PYTHONPATH": str(root)},
         cwd=root,
-        capture_output=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
-        check=False,
     )
+
+
+def _cells(proc: subprocess.Popen[str], root: Path) -> list[float]:
+    out, err = proc.communicate()
     if proc.returncode != 0:
-        raise RuntimeError(f"timing {root} failed: {proc.stderr.strip().splitlines()[-1:]}")
-    *cells, _, _, _ = proc.stdout.split()
+        raise RuntimeError(f"timing {root} failed: {err.strip().splitlines()[-1:]}")
+    *cells, _, _, _ = out.split()
     return [float(c) for c in cells]
 
 
-def cpu_against(other: Path, rounds: int = 2, steps: int = 1000) -> Against:
-    """Time both checkouts, interleaved, `rounds` times each (`steps` per run)."""
+def cpu_against(other: Path, rounds: int = 2, steps: int = 1000, concurrent: bool = False) -> Against:
+    """Time both checkouts `rounds` times each (`steps` per run): interleaved, or side by side."""
     if rounds < 1 or steps < 1:
         raise ValueError(f"--rounds and --steps must be at least 1 (got {rounds} and {steps})")
     root = checkout(other)
     olds, news = [], []
     for _ in range(rounds):
-        olds.append(_cells(root, steps))
-        news.append(_cells(HERE, steps))
+        if concurrent:
+            both = _start(root, steps), _start(HERE, steps)
+            try:
+                olds.append(_cells(both[0], root))
+                news.append(_cells(both[1], HERE))
+            finally:  # one failed: the other is not left running
+                for proc in both:
+                    if proc.poll() is None:
+                        proc.kill()
+                        proc.wait()
+        else:
+            olds.append(_cells(_start(root, steps), root))
+            news.append(_cells(_start(HERE, steps), HERE))
     return Against(
-        root, rounds, [min(c) for c in zip(*olds, strict=True)], [min(c) for c in zip(*news, strict=True)]
+        root,
+        rounds,
+        [min(c) for c in zip(*olds, strict=True)],
+        [min(c) for c in zip(*news, strict=True)],
+        concurrent,
     )
 
 
 def format_against(result: Against) -> str:
+    kind = "concurrent" if result.concurrent else "interleaved"
     lines = [
-        f"CPU seconds per run, minimum of {result.rounds} interleaved rounds",
+        f"CPU seconds per run, minimum of {result.rounds} {kind} rounds",
         "cell               other    this   ratio",
     ]
     for cell, old, new in zip(CELLS, result.old, result.new, strict=True):

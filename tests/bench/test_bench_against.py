@@ -12,10 +12,13 @@ import pytest
 from tests.cli import ROOT, uavsearch
 
 
-def test_bench_against_times_every_cell_of_both_checkouts() -> None:
-    proc = uavsearch("bench", "--against", str(ROOT), "--rounds", "1", "--steps", "30")
+@pytest.mark.parametrize("how", ["interleaved", "concurrent"])
+def test_bench_against_times_every_cell_of_both_checkouts(how: str) -> None:
+    concurrent = ("--concurrent",) if how == "concurrent" else ()
+    proc = uavsearch("bench", "--against", str(ROOT), "--rounds", "1", "--steps", "30", *concurrent)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
+    assert lines[0] == f"CPU seconds per run, minimum of 1 {how} rounds"
     cells = [line.split() for line in lines[2:11]]
     assert [c[0] + " " + c[1] for c in cells] == [
         f"s{s} {a}" for s in (1, 2, 3) for a in ("proposed", "no-ta", "pheromone")
