@@ -109,7 +109,7 @@ class Commitments:
             np.zeros((0, 3)),
             np.zeros(0, dtype=np.int64),
         )
-        self._lone = self._no_lone = np.zeros((0, 2))  # (never written to)
+        self._lone = np.zeros((0, 2))
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
         self._no_regions = np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64)
@@ -247,9 +247,7 @@ class Commitments:
             np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:]),
             np.array([j for j, *_ in disks], dtype=np.int64),
         )
-        self._lone = self._no_lone
-        if lone:
-            self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1]
+        self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1]
         if not regions:  # (empty arrays are never written to)
             self._loiters, self._fans, self._fan_counts = self._no_regions
             return
