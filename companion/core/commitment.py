@@ -320,9 +320,9 @@ class Commitments:
             for turns, side in self._contingencies
         )
         window, fence = lim.reach.window, (lim.fence_normals, lim.fence_offsets)
+        gathered = self._gathered, links, self.uav
         for option in itertools.chain((trajectory,), contingencies):
             row = lim.rows([option])[0]
-            gathered = self._gathered, links, self.uav
             if flyable_from(*gathered, row, k, window, lim.kinematics_args, *fence, lim.clearances):
                 if option is not trajectory:
                     self.recovered += 1
@@ -433,14 +433,7 @@ class Commitments:
 
 @njit(cache=True)
 def select_checked(
-    pts: FloatArray,
-    owners: IntArray,
-    in_force: BoolArray,
-    centres: FloatArray,
-    entries: IntArray,
-    lone_rows: IntArray,
-    disks: FloatArray,
-    disk_owners: IntArray,
+    gathered: Gathered,
     links: IntArray,
     uav: int,
     resolving: bool,
@@ -456,6 +449,7 @@ def select_checked(
     from t_k+1. Contiguous copies: the kernels are compiled for C-ordered arrays. Called inside the
     compiled checks (`may_switch_from`, `flyable_from`, `first_allowed_from`), so its arrays never
     cross back into Python."""
+    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners = gathered
     n, width = pts.shape[0], pts.shape[1] - 1
     lo = 0 if resolving else 1
     keep = np.empty(n, dtype=np.bool_)
@@ -519,9 +513,8 @@ def may_switch_from(
 ) -> bool:
     """`safety.may_switch` of the proposal rows[0] against what this step's gathering holds
     (`select_checked` for the resolution: the others' proposals only of lower ids, from t_k)."""
-    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners = gathered
     others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = select_checked(
-        pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, links, uav, True, True
+        gathered, links, uav, True, True
     )
     return may_switch(
         rows,
@@ -561,10 +554,7 @@ def flyable_from(
 ) -> bool:
     """`safety.flyable` against the others' trajectories in force of this step's gathering and the
     tethers among them, from t_k (`Commitments._flyable`)."""
-    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners = gathered
-    others, _, tethers, _, _, _, _, _ = select_checked(
-        pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, links, uav, True, False
-    )
+    others, _, tethers, _, _, _, _, _ = select_checked(gathered, links, uav, True, False)
     return flyable(row, first, window, kinematics, normals, offsets, others, tethers, clearances)
 
 
@@ -598,13 +588,10 @@ def first_allowed_from(
     """`safety.first_allowed` against everything this step's gathering holds, from t_k+1 = `first`
     (`select_checked` for a new proposal), with the trajectory in force `reference_row` expanded
     from there as the reference."""
-    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners = gathered
     others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = select_checked(
-        pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, links, uav, False, True
+        gathered, links, uav, False, True
     )
     reference, reference_centre = expand_with_centres(reference_row, first, window, kinematics)
-    loiters, loiter_paths, loiter_counts = fans
-    separation, disk_separation, link = clearances
     return first_allowed(
         order,
         shapes,
@@ -621,9 +608,7 @@ def first_allowed_from(
         disks,
         tethers,
         tether_disks,
-        loiters,
-        loiter_paths,
-        loiter_counts,
+        fans,
         progress,
         reference[0],
         reference_entry,
@@ -634,7 +619,5 @@ def first_allowed_from(
         lone_owners,
         reference_centre[0],
         reach,
-        separation,
-        disk_separation,
-        link,
+        clearances,
     )

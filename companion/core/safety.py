@@ -736,9 +736,7 @@ def first_allowed(
     disks: FloatArray,
     tethers: FloatArray,
     tether_disks: FloatArray,
-    loiters: FloatArray,
-    loiter_paths: FloatArray,
-    loiter_counts: IntArray,
+    fans: tuple[FloatArray, FloatArray, IntArray],
     progress: float,
     reference: FloatArray,
     reference_entry: int,
@@ -749,15 +747,13 @@ def first_allowed(
     lone_owners: IntArray,
     reference_centre: FloatArray,
     reach: float,
-    separation: float,
-    disk_separation: float,
-    link: float,
+    clearances: tuple[float, float, float],
 ) -> tuple[int, int]:
     """The first candidate path in `order` whose trajectory, with one of the loiter sides, stays in the
     fence, is compatible with everything given, clears the others' contingency regions
     (`keeps_contingencies` with the others' loiter `entries` and `centres`, the `lone` centres of
-    `lone_owners`, and `reach`) and clears the `loiters` (`clears_loiters` with their
-    `loiter_paths` and `loiter_counts`, and `progress`): (path, side +1 or -1); if none does, of
+    `lone_owners`, and `reach`) and clears the regions `fans` (`clears_loiters`: their
+    loiters, paths and path lengths, and `progress`): (path, side +1 or -1); if none does, of
     those in the fence and compatible that may replace the trajectory in force at `reference`
     (loiter entry `reference_entry`, centre `reference_centre`; `keeps_contingencies`,
     `leaves_loiters`, and `keeps_apart` from the trajectories in force it is already too close to,
@@ -769,10 +765,10 @@ def first_allowed(
     and turned by the heading (cos_h, sin_h). The side that turns towards `centre` at the plan's
     end is tried first (`Commitments._turn_towards`: away from a near UAV, else the region's
     centroid)."""
+    separation, disk_separation, link = clearances
     others, crowded, need = split_crowded(reference, contingent, in_force, separation)
     width = shapes.shape[2]
     pts = np.empty((width, 2))
-    fans = (loiters, loiter_paths, loiter_counts)
     known = np.full(contingent.shape[0] + lone.shape[0], np.nan)  # the reference's clearances
     hint = np.full(1, -1)  # the contingency region that failed the latest candidate
     best, best_side, farthest = -1, 0, -math.inf
