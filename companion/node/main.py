@@ -9,6 +9,8 @@ import sys
 import threading
 from pathlib import Path
 
+import zenoh
+
 from companion.core.world import Stream, build_world, instance_rng
 from companion.mission import load_mission
 from companion.node.camera_feed import CameraFeed
@@ -23,6 +25,7 @@ from companion.node.vehicle_link import COMPANION_SYSTEM, LinkError, VehicleLink
 def run_companion(args: argparse.Namespace) -> int:
     """Run one companion until its step budget is spent or SIGINT/SIGTERM; 0 on a clean stop."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    zenoh.try_init_log_from_env()  # Zenoh's own log on stderr when RUST_LOG is set (docs/mesh.md)
     mission = load_mission(args.mission)
     if not 0 <= args.uav < mission.n_uavs:
         print(f"error: --uav {args.uav}: the mission has UAVs 0..{mission.n_uavs - 1}", file=sys.stderr)

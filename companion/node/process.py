@@ -44,6 +44,7 @@ from companion.core.world import Stream, build_world, instance_rng
 from companion.mission import Mission
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.camera_feed import CameraFeed
+from companion.node.departures import Departures
 from companion.node.detections import camera_key
 from companion.node.failsafe import FailsafeLoiter, arm_failsafe, fired_by_our_silence, hand_over
 from companion.node.faults import InjectedFaults
@@ -184,8 +185,7 @@ class Companion:
         self._was_steerable = False
         self._texts_steering = 0  # the vehicle's STATUSTEXTs counted while we last steered it
         self._retake_asked: float | None = None  # our failsafe fired: when GUIDED was last asked for
-        self._seen_alive: set[int] = set()
-        self._departed: set[int] = set()
+        self.departures = Departures()
         self._resync = False  # lockstep: the link was lost, the vehicle may have gone on without us
         self._k: int | None = None  # the next step to fly (None: not started)
         self._joined = 0  # lockstep: the step this companion joined the mesh at
@@ -297,20 +297,20 @@ class Companion:
         x, y, h = arc_advance(s.x, s.y, s.heading, rate, kin.speed, ahead)
         return float(x), float(y), float(h)
 
-    def _forget_departed(self) -> None:
-        """A peer whose liveliness token vanished is forgotten at once, so its task goes back to the
-        auction without waiting for the agent's peer timeout."""
-        alive = self.mesh.alive_peers()
-        for uav in self._seen_alive - alive:
-            if uav not in self._departed:
-                log.warning("uav %d: uav %d left the mesh; its task is free", self.opts.uav, uav)
+    def _forget_departed(self, k: int) -> None:
+        """Forget the peers whose liveliness token vanished (`departures.Departures`), so that their
+        tasks go back to the auction without waiting for the agent's peer timeout."""
+        me, change = self.opts.uav, self.departures.update(k, self.mesh.alive_peers(), self.agent.peers)
+        for uav in change.left:
+            log.warning("uav %d: uav %d left the mesh; its task is free", me, uav)
+        for uav in change.back:
+            log.warning("uav %d: uav %d is flying again (heard through the others; no link to it)", me, uav)
+        for uav in change.forget:
             self.agent.forget(uav)  # every step: relayed states of it may still arrive
-        self._departed = self._seen_alive - alive
-        self._seen_alive |= alive
 
     def step(self, k: int, ahead: float = 0.0) -> Command:
         """Step k from the pose predicted `ahead` seconds on (the start of step k)."""
-        self._forget_departed()
+        self._forget_departed(k)
         x, y, heading = self._pose(ahead)
         seen = self.camera.take(round(k * self.dt * 1e6))
         own = self.last_position if self.last_position is not None else np.array([x, y])
