@@ -22,6 +22,7 @@ import signal
 import threading
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import CancelledError
 from contextlib import contextmanager
 from functools import cache, partial
 from importlib.metadata import version
@@ -270,7 +271,9 @@ class DaskCluster:
         try:
             with _sigterm_interrupts():
                 for future, pairs in done:
-                    if future.status != "finished":  # cancelled: the connection to the scheduler is lost
+                    # decided on what came back, not on the future's status now: a worker that dies
+                    # after its result was gathered turns a finished future "lost" (Dask recomputes it)
+                    if isinstance(pairs, CancelledError):  # the connection to the scheduler is lost
                         raise ClusterError(f"lost the Dask scheduler at {self.address} mid-study")
                     in_flight.pop(future.key).release()  # its result leaves the cluster's memory
                     following = next(numbered, None)

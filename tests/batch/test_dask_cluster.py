@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from companion.batch.engine import RunResult
-from companion.batch.executors import DaskCluster
+from companion.batch.executors import ClusterError, DaskCluster
 from companion.batch.montecarlo import execute, run_specs, specs_for, summarize
 from companion.bench.loopback_cluster import LoopbackCluster, stop
 from companion.mission import load_mission
@@ -137,6 +137,28 @@ def test_a_worker_killed_mid_study_loses_no_run_and_counts_none_twice(cluster: L
     remote = [result for _, result in sorted(arrived, key=lambda pair: pair[0])]
     assert _summaries(remote, runs) == _summaries(local, runs)
     assert all(_summaries(remote, runs)[a]["runs"] == runs for a in ALGORITHMS)
+
+
+@pytest.mark.slow
+def test_a_scheduler_lost_mid_study_is_a_clear_error(cluster: LoopbackCluster) -> None:
+    """Runs that came back are kept (a worker that dies after its result was gathered does not
+    count); a scheduler that dies ends the study with the error, not a hang or a traceback."""
+    specs = specs_for(
+        load_mission(ROOT / "mission_files/scenario1.toml"), ["proposed"], 24, 60, 11, lambda r: False
+    )
+    arrived = 0
+    executor = DaskCluster(cluster.address)
+    try:
+        with pytest.raises(ClusterError, match=f"lost the Dask scheduler at {cluster.address} mid-study"):
+            for _ in executor.imap_unordered(execute, specs):
+                arrived += 1
+                if arrived == 1:
+                    scheduler = cluster.procs[0]
+                    scheduler.send_signal(signal.SIGKILL)
+                    scheduler.wait(timeout=30)
+    finally:
+        executor.close()
+    assert 1 <= arrived < len(specs)
 
 
 def test_a_worker_with_other_code_is_refused(cluster: LoopbackCluster, tmp_path: Path) -> None:
