@@ -18,7 +18,7 @@ import statistics
 import time
 from pathlib import Path
 
-from companion.app.evaluation import evaluate, read_approach, truth_cells
+from companion.app.evaluation import CompanionLogs, evaluate, read_approach, truth_cells
 from companion.app.px4_sitl import Px4Build
 from companion.core.world import World, build_world
 from tests.e2e.conftest import PY, Proc, Procs, read_csv, wait_rows
@@ -28,14 +28,14 @@ UAVS, STEPS, MAX_STEPS = 3, 40, 400
 
 
 def wait_scored_target(world: World, out: Path, run: Proc, timeout: float) -> None:
-    """Wait until the logs so far score a target found (`evaluation.evaluate`, as the run's report
-    does at the end: a target once found stays found as more steps are logged)."""
+    """Wait until the logs so far score a target found (`evaluation.evaluate` on `CompanionLogs`, as
+    the run's report does at the end: a target once found stays found as more steps are logged)."""
+    logs, truth = CompanionLogs(out, UAVS), out / "truth.json"
     deadline = time.monotonic() + timeout
     while True:
-        logs = {i: {int(r["step"]): r for r in read_csv(out / f"uav{i}.csv")} for i in range(UAVS)}
-        truth = out / "truth.json"
-        if all(logs.values()) and truth.exists():
-            scored = evaluate(world, logs, truth_cells(truth), 0.0, world.mission.seed)
+        logs.poll()
+        if all(logs.logs.values()) and truth.exists():
+            scored = evaluate(world, logs.logs, truth_cells(truth), 0.0, world.mission.seed)
             if (scored.target_steps >= 0).any():
                 return
         assert run.alive(), run.text()
