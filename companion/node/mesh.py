@@ -44,6 +44,9 @@ from companion.node.zenoh_config import (
 MAX_BUNDLE_MESSAGES = 32
 HELD_STAMPS = 8  # bundles kept per sender (bounds memory whatever peers send)
 DEFAULT_ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
+# The router's main thread wakes this often: a SIGTERM that the kernel hands to one of Zenoh's
+# threads only flags Python's handler, which runs when the main thread next runs Python code.
+SIGNAL_POLL_S = 0.2
 
 
 class Bundle(msgspec.Struct, frozen=True, kw_only=True):
@@ -410,7 +413,8 @@ def run_router(
         with zenoh.open(router_config(endpoint, security)):
             shown = f"{secured_endpoint(endpoint)} (mutual TLS, access control)" if security else endpoint
             print(f"router listening on {shown}", flush=True)
-            stop.wait()
+            while not stop.wait(SIGNAL_POLL_S):
+                pass
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -17,6 +17,7 @@ from mesh_helpers import ROOT, make_mission, outbox, until
 
 from companion.mission import Mission, load_mission
 from companion.node.mesh import Mesh, router_main, run_router
+from tests.thread_signal import other_threads, signal_thread
 
 pytestmark = pytest.mark.timeout(60)
 Spawn = Callable[..., subprocess.Popen[str]]
@@ -86,6 +87,21 @@ def test_clients_talk_through_a_router_process_that_exits_0_on_sigterm(
     a.close()
     assert until(lambda: b.alive_peers() == set())
     router.send_signal(signal.SIGTERM)
+    assert router.wait(timeout=15) == 0
+
+
+def test_router_exits_0_when_sigterm_reaches_one_of_zenohs_threads(spawn: Spawn) -> None:
+    """The kernel hands a process's SIGTERM to any thread that does not block it; Python runs the
+    handler only when its main thread runs Python code, so a main thread asleep with no timeout
+    never sees it (the router's 15 s hang in CI)."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{probe.getsockname()[1]}"
+    router = spawn("-m", "companion.node.mesh", "router", "--endpoint", endpoint)
+    assert _readline(router) == f"router listening on {endpoint}"
+    threads = other_threads(router.pid)
+    assert threads, "the router runs Zenoh's threads beside its main thread"
+    signal_thread(router.pid, threads[-1], signal.SIGTERM)
     assert router.wait(timeout=15) == 0
 
 
