@@ -38,6 +38,9 @@ log = logging.getLogger("camera")
 
 CONNECT_TIMEOUT_S = 120.0
 POSITION_HZ = 10.0
+# The main thread wakes this often while it waits: a SIGTERM that the kernel hands to another thread
+# (Zenoh's or a vehicle's) only flags Python's handler, which runs when the main thread runs Python.
+SIGNAL_POLL_S = 0.2
 
 
 class LatestPositions:
@@ -109,7 +112,8 @@ class CameraNode:
         for t in threads:
             t.start()
         for t in threads:
-            t.join()
+            while t.is_alive():
+                t.join(SIGNAL_POLL_S)
 
     def _vehicle(self, uav: int, url: str, stop: threading.Event) -> None:
         try:

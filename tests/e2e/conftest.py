@@ -35,6 +35,7 @@ from pymavlink import mavutil
 
 from companion.app.loopback import free_ports
 from companion.mission import Mission, load_mission
+from tests.thread_signal import other_threads, signal_thread
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO1 = ROOT / "mission_files" / "scenario1.toml"
@@ -199,13 +200,17 @@ class Proc:
     def wait(self, timeout: float) -> int:
         return self.popen.wait(timeout)
 
-    def stop(self, timeout: float = STOP_S) -> int:
+    def stop(self, timeout: float = STOP_S, through_a_thread: bool = False) -> int:
         """`stop_signal` (SIGINT unless told), wait, SIGKILL if still running; then SIGINT and the same
-        for any descendant left behind."""
+        for any descendant left behind. `through_a_thread`: the signal goes to one of the process's
+        threads other than the main one, as the kernel may deliver it."""
         if self.alive():
             self.refresh()
             with contextlib.suppress(ProcessLookupError):
-                os.kill(self.pid, self.stop_signal)
+                if through_a_thread:
+                    signal_thread(self.pid, other_threads(self.pid)[-1], self.stop_signal)
+                else:
+                    os.kill(self.pid, self.stop_signal)
             try:
                 self.popen.wait(timeout)
             except subprocess.TimeoutExpired:
