@@ -120,7 +120,8 @@ class CameraNode:
             link = _connect(url, self.frame, stop)
             if link is None:
                 return
-            link.wait_heartbeat(CONNECT_TIMEOUT_S, stop.is_set)
+            if not link.wait_heartbeat(CONNECT_TIMEOUT_S, stop.is_set):
+                return
         except (OSError, LinkError) as exc:
             self.errors.append(f"vehicle {uav} at {url}: {exc}")
             stop.set()

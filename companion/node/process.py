@@ -455,7 +455,8 @@ class Companion:
         seconds = warm_up(self.opts.mission)  # no compiling inside the first real steps
         log.info("uav %d: algorithm ready in %.1f s", self.opts.uav, seconds)
         log.info("uav %d: waiting for the vehicle at %s", self.opts.uav, self.opts.vehicle_url)
-        self.link.wait_heartbeat(120.0, stop.is_set)
+        if not self.link.wait_heartbeat(120.0, stop.is_set):
+            return 0  # stopped before the vehicle answered: nothing flown, nothing to close
         log.info("uav %d: vehicle system %d is up", self.opts.uav, self.link.state.system)
         self.link.request_streams()
         self.link.on_poll = self._keep_streaming  # from the take-over on, whatever waits

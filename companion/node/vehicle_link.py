@@ -189,16 +189,19 @@ class VehicleLink:
         return self._conn.mav.signing.secret_key is not None
 
     # -- connection --------------------------------------------------------------------------------
-    def wait_heartbeat(self, timeout: float, should_stop: Callable[[], bool] = lambda: False) -> None:
-        """Block until the autopilot's HEARTBEAT arrives (sending ours so udpout links open)."""
+    def wait_heartbeat(self, timeout: float, should_stop: Callable[[], bool] = lambda: False) -> bool:
+        """Block until the autopilot's HEARTBEAT arrives (sending ours so udpout links open): True;
+        False if `should_stop` says so first; LinkError if `timeout` seconds pass first."""
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and not should_stop():
+        while time.monotonic() < deadline:
+            if should_stop():
+                return False
             self.send_heartbeat()
             self.poll(0.5)
             if self.state.system:
                 if self._own_system is None:
                     self._conn.mav.srcSystem = self.state.system
-                return
+                return True
         raise LinkError(f"no HEARTBEAT from {self.url} within {timeout:.0f} s")
 
     def request_streams(self, extra: dict[int, float] | None = None) -> None:

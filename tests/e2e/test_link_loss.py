@@ -50,3 +50,18 @@ def test_companion_survives_link_loss_and_resumes(make_mission, procs: Procs, gr
     assert comp.stop(through_a_thread=True) == 0, comp.text()
     assert "Traceback" not in comp.text(), comp.text()
     assert (out / "uav0.json").exists()
+
+
+def test_companion_stopped_before_its_vehicle_answers_exits_0(
+    make_mission, procs: Procs, tmp_path: Path
+) -> None:
+    """No vehicle on the endpoint: a signal while it waits is a clean stop, not "no HEARTBEAT within
+    120 s" and exit 1 (as it was); the signal goes to a thread other than the main one."""
+    mission = make_mission(n=1)
+    out = tmp_path / "out"
+    comp = procs.companion(mission, 0, out)
+    comp.wait_for_text("waiting for the vehicle")
+    assert comp.stop(through_a_thread=True) == 0, comp.text()
+    assert "stopped by a signal" in comp.text()
+    assert "error:" not in comp.text(), comp.text()
+    assert "0 steps flown" in comp.text()
