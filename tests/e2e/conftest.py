@@ -35,7 +35,7 @@ from pymavlink import mavutil
 
 from companion.app.loopback import free_ports
 from companion.mission import Mission, load_mission
-from tests.thread_signal import other_threads, signal_thread
+from tests.thread_signal import signal_another_thread
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO1 = ROOT / "mission_files" / "scenario1.toml"
@@ -208,7 +208,7 @@ class Proc:
             self.refresh()
             with contextlib.suppress(ProcessLookupError):
                 if through_a_thread:
-                    signal_thread(self.pid, other_threads(self.pid)[-1], self.stop_signal)
+                    signal_another_thread(self.pid, self.stop_signal)
                 else:
                     os.kill(self.pid, self.stop_signal)
             try:

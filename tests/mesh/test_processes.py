@@ -17,7 +17,7 @@ from mesh_helpers import ROOT, make_mission, outbox, until
 
 from companion.mission import Mission, load_mission
 from companion.node.mesh import Mesh, router_main, run_router
-from tests.thread_signal import other_threads, signal_thread
+from tests.thread_signal import signal_another_thread
 
 pytestmark = pytest.mark.timeout(60)
 Spawn = Callable[..., subprocess.Popen[str]]
@@ -99,9 +99,7 @@ def test_router_exits_0_when_sigterm_reaches_one_of_zenohs_threads(spawn: Spawn)
         endpoint = f"tcp/127.0.0.1:{probe.getsockname()[1]}"
     router = spawn("-m", "companion.node.mesh", "router", "--endpoint", endpoint)
     assert _readline(router) == f"router listening on {endpoint}"
-    threads = other_threads(router.pid)
-    assert threads, "the router runs Zenoh's threads beside its main thread"
-    signal_thread(router.pid, threads[-1], signal.SIGTERM)
+    signal_another_thread(router.pid, signal.SIGTERM)
     assert router.wait(timeout=15) == 0
 
 

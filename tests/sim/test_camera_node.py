@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from tests.sim.conftest import ROOT, SimProcess, write_mission
-from tests.thread_signal import other_threads, signal_thread
+from tests.thread_signal import signal_another_thread
 
 pytestmark = pytest.mark.timeout(120)
 STARTUP_S = 60.0
@@ -50,9 +50,7 @@ def test_camera_exits_0_when_sigterm_reaches_one_of_its_other_threads(
     )
     try:
         _until_line(camera, "camera: vehicle 1 up")
-        threads = other_threads(camera.pid)
-        assert len(threads) >= 2, "a thread per vehicle beside the main thread"
-        signal_thread(camera.pid, threads[0], signal.SIGTERM)
+        signal_another_thread(camera.pid, signal.SIGTERM)
         assert camera.wait(timeout=15) == 0
     finally:
         if camera.poll() is None:
