@@ -118,14 +118,28 @@ class CameraNode:
     def _vehicle(self, uav: int, url: str, stop: threading.Event) -> None:
         try:
             link = _connect(url, self.frame, stop)
-            if link is None:
-                return
-            if not link.wait_heartbeat(CONNECT_TIMEOUT_S, stop.is_set):
-                return
-        except (OSError, LinkError) as exc:
-            self.errors.append(f"vehicle {uav} at {url}: {exc}")
-            stop.set()
+        except OSError as exc:
+            self._failed(uav, url, exc, stop)
             return
+        if link is None:
+            return
+        try:
+            try:
+                heard = link.wait_heartbeat(CONNECT_TIMEOUT_S, stop.is_set)
+            except (OSError, LinkError) as exc:
+                self._failed(uav, url, exc, stop)
+                return
+            if heard:
+                self._frames(uav, url, link, stop)
+        finally:
+            link.close()
+
+    def _failed(self, uav: int, url: str, exc: Exception, stop: threading.Event) -> None:
+        self.errors.append(f"vehicle {uav} at {url}: {exc}")
+        stop.set()
+
+    def _frames(self, uav: int, url: str, link: VehicleLink, stop: threading.Event) -> None:
+        """Publish the camera's frames of vehicle `uav` until `stop`."""
         if self.signing_secrets is not None:
             link.provision_signing(self.signing_secrets[uav])
         link.request_streams({mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: POSITION_HZ})
@@ -134,25 +148,22 @@ class CameraNode:
         period = 1.0 / self.mission.sim.camera_hz
         s, alt0 = link.state, self.mission.region.origin.alt
         next_t, beat, sampled = -1.0, 0.0, -1.0
-        try:
-            while not stop.is_set():
-                link.poll(0.1)
-                if time.monotonic() - beat >= 1.0:
-                    link.send_heartbeat()
-                    beat = time.monotonic()
-                if self.positions is not None and s.has_pose and s.gps_fix >= 3 and s.time_s != sampled:
-                    self.positions.sample(uav, s.time_s, s.x, s.y)
-                    sampled = s.time_s
-                if not s.has_pose or s.time_s < next_t:
-                    continue
-                lat, lon, _ = self.frame.to_geodetic(s.x, s.y)
-                usec, geo = round(s.time_s * 1e6), (lat, lon, alt0 + s.up)
-                with self._lock:
-                    self.bus.publish(self.camera.frame(uav, usec, (s.x, s.y), geo, s.heading))
-                    self.published += 1
-                next_t = (int(s.time_s / period) + 1) * period
-        finally:
-            link.close()
+        while not stop.is_set():
+            link.poll(0.1)
+            if time.monotonic() - beat >= 1.0:
+                link.send_heartbeat()
+                beat = time.monotonic()
+            if self.positions is not None and s.has_pose and s.gps_fix >= 3 and s.time_s != sampled:
+                self.positions.sample(uav, s.time_s, s.x, s.y)
+                sampled = s.time_s
+            if not s.has_pose or s.time_s < next_t:
+                continue
+            lat, lon, _ = self.frame.to_geodetic(s.x, s.y)
+            usec, geo = round(s.time_s * 1e6), (lat, lon, alt0 + s.up)
+            with self._lock:
+                self.bus.publish(self.camera.frame(uav, usec, (s.x, s.y), geo, s.heading))
+                self.published += 1
+            next_t = (int(s.time_s / period) + 1) * period
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
