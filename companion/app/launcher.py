@@ -86,13 +86,19 @@ class RunOptions:
         return "heading" if self.external else "turn-rate"
 
 
-class Children:
-    """The subprocesses this launcher started, stopped by PID and never left behind."""
+class Interrupted(RuntimeError):
+    """A signal stopped the launcher while it waited for a child to start."""
 
-    def __init__(self) -> None:
+
+class Children:
+    """The subprocesses this launcher started, stopped by PID and never left behind; `stop` (set by
+    SIGINT/SIGTERM) cuts any wait for one of them short."""
+
+    def __init__(self, stop: threading.Event | None = None) -> None:
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs: dict[str, Path] = {}
         self.signals: dict[str, int] = {}
+        self._stop = stop if stop is not None else threading.Event()
 
     def start(
         self,
@@ -113,6 +119,24 @@ class Children:
         self.procs[name], self.logs[name], self.signals[name] = proc, log, stop_signal
         return proc
 
+    def wait_for_line(self, name: str, text: str, timeout: float = START_TIMEOUT_S) -> str:
+        """The first line of child `name`'s log holding `text`, once it is there; RuntimeError if
+        the child exits first or `timeout` seconds pass, Interrupted if a signal comes first."""
+        log, proc = self.logs[name], self.procs[name]
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if log.exists():
+                for line in log.read_text(errors="replace").splitlines():
+                    if text in line:
+                        return line
+            if proc.poll() is not None:
+                raise RuntimeError(
+                    f"{log.name}: exited with {proc.returncode}:\n{log.read_text(errors='replace')}"
+                )
+            if self._stop.wait(0.1):
+                raise Interrupted(f"stopped by a signal while waiting for '{text}' from {name}")
+        raise RuntimeError(f"{log.name}: '{text}' not seen within {timeout:.0f} s")
+
     def stop(self) -> None:
         """Each child's stop signal (SIGINT unless started otherwise), the companions first: a
         companion ends its step and writes its report while its vehicle, camera and router still
@@ -129,22 +153,6 @@ class Children:
                 except subprocess.TimeoutExpired:
                     self.procs[name].kill()
                     self.procs[name].wait()
-
-
-def _wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float) -> str:
-    """The first line of `log` holding `text`, once it is there; raises if `proc` exits first."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if log.exists():
-            for line in log.read_text(errors="replace").splitlines():
-                if text in line:
-                    return line
-        if proc.poll() is not None:
-            raise RuntimeError(
-                f"{log.name}: exited with {proc.returncode}:\n{log.read_text(errors='replace')}"
-            )
-        time.sleep(0.1)
-    raise RuntimeError(f"{log.name}: '{text}' not seen within {timeout:.0f} s")
 
 
 def _live_line(
@@ -253,7 +261,7 @@ def _start_camera(
         out / "camera.log",
     )
     for i in range(n):
-        _wait_for_line(out / "camera.log", f"camera: vehicle {i} up", camera, START_TIMEOUT_S)
+        children.wait_for_line("camera", f"camera: vehicle {i} up")
     return camera
 
 
@@ -287,8 +295,7 @@ def _start_px4(children: Children, opts: RunOptions, mission: Mission, seed: int
         argv = px4_sitl.px4_argv(px4, build, instance, workdir)
         children.start(f"px4_{i}", argv, opts.out / f"px4_{i}.log", cwd=workdir, extra=env)
     for i in range(mission.n_uavs):
-        name = f"px4_{i}"
-        _wait_for_line(opts.out / f"{name}.log", px4_sitl.STARTED, children.procs[name], START_TIMEOUT_S)
+        children.wait_for_line(f"px4_{i}", px4_sitl.STARTED)
     ports = [px4_sitl.px4_ports(mission, i) for i in range(mission.n_uavs)]
     _start_camera(children, opts, [p.url(p.camera) for p in ports], seed, mission.n_uavs)
     return [p.url(p.companion) for p in ports]
@@ -314,8 +321,8 @@ def _start_bundled(children: Children, opts: RunOptions, mission: Mission, seed:
         sim_argv.append("--lockstep")
     if opts.flavour:
         sim_argv += ["--flavour", opts.flavour]
-    sim = children.start("sim", sim_argv, opts.out / "sim.log")
-    _wait_for_line(opts.out / "sim.log", f"vehicle {mission.n_uavs - 1} ", sim, START_TIMEOUT_S)
+    children.start("sim", sim_argv, opts.out / "sim.log")
+    children.wait_for_line("sim", f"vehicle {mission.n_uavs - 1} ")
 
 
 def _stopped_early(children: Children) -> str | None:
@@ -365,19 +372,19 @@ def run_mission(opts: RunOptions) -> int:
     if opts.progress:
         print("loading the algorithm's compiled kernels (compiling them on a first run)", flush=True)
     warm_up(mission)  # once here, so that the companions load the kernels from numba's cache
-    children = Children()
     stop = threading.Event()
+    children = Children(stop)
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     started = time.monotonic()
     failure = None
     try:
         if mission.mesh.mode == "client":
-            router = children.start(
+            children.start(
                 "router",
                 [sys.executable, "-m", "companion.app.cli", "router", "--mission", str(opts.mission_file)],
                 out / "router.log",
             )
-            _wait_for_line(out / "router.log", "router listening", router, START_TIMEOUT_S)
+            children.wait_for_line("router", "router listening")
         urls: list[str | None] = [None] * mission.n_uavs
         if opts.autopilot == "ardupilot-sitl":
             urls = list(_start_sitl(children, opts, mission, seed))
@@ -394,16 +401,15 @@ def run_mission(opts: RunOptions) -> int:
         if opts.view:
             argv = [sys.executable, "-m", "companion.app.cli", "view", "--mission", str(opts.mission_file)]
             argv += ["--seed", str(seed), "--port", str(opts.view_port)]
-            view = children.start("view", argv, out / "view.log")
-            line = _wait_for_line(out / "view.log", "view at ", view, START_TIMEOUT_S)
+            children.start("view", argv, out / "view.log")
+            line = children.wait_for_line("view", "view at ")
             print(f"live map of the swarm: {line.split('view at ', 1)[1]}", flush=True)
         for i in range(mission.n_uavs):
             argv = _companion_argv(opts, i, steps, seed, urls[i])
             children.start(f"companion{i}", argv, out / f"companion{i}.log")
         if not opts.external:
             for i in range(mission.n_uavs):  # companions first: each waits for its vehicle's heartbeat
-                proc = children.procs[f"companion{i}"]
-                _wait_for_line(out / f"companion{i}.log", "waiting for the vehicle", proc, START_TIMEOUT_S)
+                children.wait_for_line(f"companion{i}", "waiting for the vehicle")
             _start_bundled(children, opts, mission, seed)
         targets = truth_cells(out / "truth.json")
         seen = np.zeros(len(targets), dtype=bool)
@@ -428,7 +434,7 @@ def run_mission(opts: RunOptions) -> int:
         for s, h in previous.items():
             signal.signal(s, h)
     if failure:
-        print(f"error: {failure}", file=sys.stderr)
+        print(failure if stop.is_set() else f"error: {failure}", file=sys.stderr)
         if not (out / "truth.json").exists():
             return 1
     logs.poll()
@@ -436,10 +442,13 @@ def run_mission(opts: RunOptions) -> int:
     targets = truth_cells(out / "truth.json")
     result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed, approach)
     if result.steps == 0:
-        print(
-            "error: no step was flown (see the companion and vehicle logs in the output directory)",
-            file=sys.stderr,
-        )
+        if stop.is_set():
+            print("stopped by a signal before any step was flown", file=sys.stderr)
+        else:
+            print(
+                "error: no step was flown (see the companion and vehicle logs in the output directory)",
+                file=sys.stderr,
+            )
         return 1
     name = mission.algorithm.name
     summary = report.write_summary(

@@ -1,0 +1,32 @@
+"""`uavsearch run` stopped by a signal while it starts its children: it stops waiting for them at
+once, stops every child by PID and says it was stopped (not "error: no step was flown")."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from tests.e2e.conftest import PY, STARTUP_S, Procs, _same_process_alive
+
+
+def test_run_stopped_while_starting_stops_its_children_and_says_so(
+    make_mission, procs: Procs, tmp_path: Path
+) -> None:
+    mission = make_mission(n=2)
+    out = tmp_path / "out"
+    argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--steps", "40", "--out", str(out)]
+    run = procs.start("run", argv)
+    deadline = time.monotonic() + STARTUP_S
+    # the companions are started (after the kernels are loaded and the handlers set), and the
+    # launcher waits for their "waiting for the vehicle", which takes them a Python start-up
+    while not (out / "companion0.log").exists():
+        assert run.alive() and time.monotonic() < deadline, run.text()
+        time.sleep(0.02)
+    run.refresh()
+    children = dict(run.descendants)
+    assert children, "the launcher has started its companions"
+    assert run.stop() == 1, run.text()  # SIGINT
+    text = run.text()
+    assert "stopped by a signal while waiting for" in text, text
+    assert "error:" not in text, text
+    assert not [pid for pid, start in children.items() if _same_process_alive(pid, start)]
