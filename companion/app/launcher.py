@@ -365,8 +365,8 @@ def run_mission(opts: RunOptions) -> int:
     steps = opts.steps or mission.steps
     out = opts.out
     out.mkdir(parents=True, exist_ok=True)
-    for stale in out.glob("uav*.*"):
-        stale.unlink()
+    for stale in [*out.glob("uav*.*"), out / "truth.json", out / "approach.csv"]:  # an earlier run's
+        stale.unlink(missing_ok=True)
     world = build_world(mission, seed, 0)
     logs = CompanionLogs(out, mission.n_uavs)
     if opts.progress:

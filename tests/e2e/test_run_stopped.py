@@ -14,6 +14,8 @@ def test_run_stopped_while_starting_stops_its_children_and_says_so(
 ) -> None:
     mission = make_mission(n=2)
     out = tmp_path / "out"
+    out.mkdir()
+    (out / "truth.json").write_text('{"an earlier run": true}')  # not this run's: never scored
     argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--steps", "40", "--out", str(out)]
     run = procs.start("run", argv)
     deadline = time.monotonic() + STARTUP_S
@@ -29,4 +31,5 @@ def test_run_stopped_while_starting_stops_its_children_and_says_so(
     text = run.text()
     assert "stopped by a signal while waiting for" in text, text
     assert "error:" not in text, text
+    assert "before any step was flown" not in text, text  # nothing scored: there is no truth yet
     assert not [pid for pid, start in children.items() if _same_process_alive(pid, start)]
