@@ -9,11 +9,10 @@ SWEEP_RUNS ?= 50
 
 .PHONY: install browser run run-sitl run-px4 mc study test bench clean
 
-# uv resolves and installs the same packages as pip from the same index, in a third of the time.
 $(BIN)/uavsearch: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet uv
-	$(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[test,cluster]'
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test,cluster]'
 	touch $@
 
 install: $(BIN)/uavsearch
