@@ -14,6 +14,7 @@ from pathlib import Path
 from types import FrameType
 
 from companion.mission import MissionError, load_mission
+from companion.node.lifeline import end_with_launcher
 from sim_vehicles.host import Host, HostOptions
 
 
@@ -91,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    end_with_launcher()
     parser = argparse.ArgumentParser(prog="sim_vehicles", description=__doc__.splitlines()[0])
     add_arguments(parser)
     return run(parser.parse_args(argv))

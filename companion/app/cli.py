@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 from companion.batch.executors import ClusterError
 from companion.mission import Mission, MissionError, load_mission
+from companion.node.lifeline import end_with_launcher
 
 if TYPE_CHECKING:
     from companion.batch.generate import Family
@@ -903,6 +904,7 @@ PASSTHROUGH = {"sim-bench": _sim_bench, "companion-bench": _companion_bench}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    end_with_launcher()
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in PASSTHROUGH:  # the benchmarks parse their own options
         return PASSTHROUGH[argv[0]](argparse.Namespace(args=argv[1:]))

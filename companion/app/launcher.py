@@ -45,6 +45,7 @@ from companion.mission import Mission, load_mission
 from companion.node.airframe import Airframe, refusal
 from companion.node.frames import LocalFrame
 from companion.node.keys import ROLES, for_mission, insecure_warning, mavlink_secrets, uav_identity
+from companion.node.lifeline import launcher_env
 from sim_vehicles import camera as cam
 
 START_TIMEOUT_S = 120.0
@@ -110,8 +111,8 @@ class Children:
         stop_signal: int = signal.SIGINT,
     ) -> subprocess.Popen:
         """Start `argv` in its own session, output to `log`, with `extra` added to the environment;
-        `stop` sends it `stop_signal`."""
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", **(extra or {})}
+        `stop` sends it `stop_signal`. Our own processes end with this one (`lifeline`)."""
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", **launcher_env(), **(extra or {})}
         with log.open("w") as f:
             proc = subprocess.Popen(
                 argv, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True, cwd=cwd

@@ -1,12 +1,16 @@
 """`uavsearch run` stopped by a signal while it starts its children: it stops waiting for them at
-once, stops every child by PID and says it was stopped (not "error: no step was flown")."""
+once, stops every child by PID and says it was stopped (not "error: no step was flown"). Killed
+outright (SIGKILL, which it cannot handle), it still leaves no process behind: each child asks the
+kernel for SIGTERM when its launcher dies (`companion.node.lifeline`)."""
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 from pathlib import Path
 
-from tests.e2e.conftest import PY, STARTUP_S, Procs, _same_process_alive
+from tests.e2e.conftest import PY, STARTUP_S, STOP_S, Procs, _same_process_alive
 
 
 def test_run_stopped_while_starting_stops_its_children_and_says_so(
@@ -33,3 +37,28 @@ def test_run_stopped_while_starting_stops_its_children_and_says_so(
     assert "error:" not in text, text
     assert "before any step was flown" not in text, text  # nothing scored: there is no truth yet
     assert not [pid for pid, start in children.items() if _same_process_alive(pid, start)]
+
+
+def test_run_killed_leaves_no_process_behind(make_mission, procs: Procs, tmp_path: Path) -> None:
+    mission = make_mission(n=2)
+    out = tmp_path / "out"
+    argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--steps", "1000", "--out", str(out)]
+    run = procs.start("run", argv)
+    deadline = time.monotonic() + STARTUP_S
+    while not all(_steps_logged(out / f"uav{i}.csv") for i in range(mission.n)):  # flying
+        assert run.alive() and time.monotonic() < deadline, run.text()
+        time.sleep(0.1)
+    run.refresh()
+    children = dict(run.descendants)
+    assert len(children) >= mission.n + 1, "the companions and the simulator"
+    os.kill(run.pid, signal.SIGKILL)
+    assert run.wait(timeout=STOP_S) == -signal.SIGKILL
+    deadline = time.monotonic() + 2 * STOP_S
+    while left := [pid for pid, start in children.items() if _same_process_alive(pid, start)]:
+        assert time.monotonic() < deadline, f"left behind by the killed launcher: {left}"
+        time.sleep(0.2)
+
+
+def _steps_logged(csv_path: Path) -> bool:
+    """Whether the companion's log holds a step (a row below its header)."""
+    return csv_path.exists() and len(csv_path.read_text().splitlines()) > 1
