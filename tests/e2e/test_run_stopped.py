@@ -10,7 +10,7 @@ import signal
 import time
 from pathlib import Path
 
-from tests.e2e.conftest import PY, STARTUP_S, STOP_S, Procs, _same_process_alive
+from tests.e2e.conftest import PY, STARTUP_S, STOP_S, Procs, _same_process_alive, wait_rows
 
 
 def test_run_stopped_while_starting_stops_its_children_and_says_so(
@@ -44,10 +44,8 @@ def test_run_killed_leaves_no_process_behind(make_mission, procs: Procs, tmp_pat
     out = tmp_path / "out"
     argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--steps", "1000", "--out", str(out)]
     run = procs.start("run", argv)
-    deadline = time.monotonic() + STARTUP_S
-    while not all(_steps_logged(out / f"uav{i}.csv") for i in range(mission.n)):  # flying
-        assert run.alive() and time.monotonic() < deadline, run.text()
-        time.sleep(0.1)
+    for i in range(mission.n):  # flying
+        wait_rows(out / f"uav{i}.csv", 1, run)
     run.refresh()
     children = dict(run.descendants)
     assert len(children) >= mission.n + 1, "the companions and the simulator"
@@ -57,8 +55,3 @@ def test_run_killed_leaves_no_process_behind(make_mission, procs: Procs, tmp_pat
     while left := [pid for pid, start in children.items() if _same_process_alive(pid, start)]:
         assert time.monotonic() < deadline, f"left behind by the killed launcher: {left}"
         time.sleep(0.2)
-
-
-def _steps_logged(csv_path: Path) -> bool:
-    """Whether the companion's log holds a step (a row below its header)."""
-    return csv_path.exists() and len(csv_path.read_text().splitlines()) > 1

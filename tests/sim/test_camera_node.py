@@ -3,34 +3,16 @@
 from __future__ import annotations
 
 import signal
-import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-from tests.sim.conftest import ROOT, SimProcess, write_mission
-from tests.thread_signal import signal_another_thread
+from tests.e2e.conftest import Proc
+from tests.sim.conftest import SimProcess, write_mission
 
 pytestmark = pytest.mark.timeout(120)
-STARTUP_S = 60.0
-
-
-def _until_line(proc: subprocess.Popen[str], text: str) -> list[str]:
-    """Lines of `proc`'s output up to the first that contains `text`."""
-    assert proc.stdout is not None
-    lines: list[str] = []
-    deadline = time.monotonic() + STARTUP_S
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if not line:
-            break
-        lines.append(line.rstrip())
-        if text in line:
-            return lines
-    raise AssertionError(f"no {text!r} from the camera: {lines}")
 
 
 def test_camera_exits_0_when_sigterm_reaches_one_of_its_other_threads(
@@ -41,18 +23,10 @@ def test_camera_exits_0_when_sigterm_reaches_one_of_its_other_threads(
     path, ports, _ = write_mission(tmp_path, n=2)
     start_sim(path, "--no-camera", n=2)
     links = ",".join(f"udpout:127.0.0.1:{p}" for p in ports)
-    camera = subprocess.Popen(
-        [sys.executable, "-m", "companion.app.cli", "camera", "--mission", str(path), "--vehicles", links],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    argv = [sys.executable, "-m", "companion.app.cli", "camera", "--mission", str(path), "--vehicles", links]
+    camera = Proc("camera", argv, tmp_path / "camera.log", stop_signal=signal.SIGTERM)
     try:
-        _until_line(camera, "camera: vehicle 1 up")
-        signal_another_thread(camera.pid, signal.SIGTERM)
-        assert camera.wait(timeout=15) == 0
+        camera.wait_for_text("camera: vehicle 1 up")
+        assert camera.stop(timeout=15, through_a_thread=True) == 0, camera.text()
     finally:
-        if camera.poll() is None:
-            camera.kill()
-            camera.wait()
+        camera.stop()
