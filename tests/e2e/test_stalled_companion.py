@@ -62,9 +62,10 @@ def test_stalled_companion_takes_back_its_aircraft_and_a_piloted_one_stays_put(
         fired = stalled_gcs.wait("STATUSTEXT", lambda s: s.text.startswith("GCS Failsafe On"), timeout=60.0)
         assert fired is not None, "the stalled companion's failsafe did not fire"
         time.sleep(STALL_S)
+        # read while it is stopped: once continued, it logs its first (unsteered) step at once
+        stopped_at = int(read_csv(out / f"uav{STALLED}.csv")[-1]["step"])
     finally:
         os.kill(stalled_pid, signal.SIGCONT)
-    stopped_at = int(read_csv(out / f"uav{STALLED}.csv")[-1]["step"])
     back = stalled_gcs.wait("HEARTBEAT", lambda h: h.get_srcComponent() == 1 and h.custom_mode == GUIDED, 60)
     assert back is not None, "the stalled companion did not take its aircraft back into GUIDED"
 
