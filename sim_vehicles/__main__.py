@@ -1,5 +1,8 @@
 """`python -m sim_vehicles --mission FILE ...`"""
 
-from sim_vehicles.cli import main
+try:
+    from sim_vehicles.cli import main
+except KeyboardInterrupt:  # stopped while its modules load: quietly, as once they are loaded
+    raise SystemExit(130) from None
 
 raise SystemExit(main())

@@ -95,4 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     end_with_launcher()
     parser = argparse.ArgumentParser(prog="sim_vehicles", description=__doc__.splitlines()[0])
     add_arguments(parser)
-    return run(parser.parse_args(argv))
+    try:
+        return run(parser.parse_args(argv))
+    except KeyboardInterrupt:  # before `run` took SIGINT over
+        return 130

@@ -906,10 +906,10 @@ PASSTHROUGH = {"sim-bench": _sim_bench, "companion-bench": _companion_bench}
 def main(argv: Sequence[str] | None = None) -> int:
     end_with_launcher()
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in PASSTHROUGH:  # the benchmarks parse their own options
-        return PASSTHROUGH[argv[0]](argparse.Namespace(args=argv[1:]))
-    args = build_parser().parse_args(argv)
     try:
+        if argv and argv[0] in PASSTHROUGH:  # the benchmarks parse their own options
+            return PASSTHROUGH[argv[0]](argparse.Namespace(args=argv[1:]))
+        args = build_parser().parse_args(argv)
         return int(args.func(args))
     except MissionError as exc:
         print(f"error: mission file {exc}", file=sys.stderr)

@@ -246,7 +246,7 @@ class Swarm:
 
     def companion(self, i: int) -> subprocess.Popen:
         argv = [
-            PY, "-m", "companion.app.cli", "companion", "--mission", str(self.path), "--uav", str(i),
+            PY, "-m", "companion.app", "companion", "--mission", str(self.path), "--uav", str(i),
             "--takeover", "--lockstep", "--out", str(self.out),
             "--journal", str(self.out / f"uav{i}.journal"),
         ]  # fmt: skip

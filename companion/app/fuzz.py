@@ -527,7 +527,7 @@ ERROR_LINE = re.compile(r"^error: mission file (?P<file>\S+): (?P<field>[^:]+): 
 
 def _check_cli(path: Path, c: Campaign) -> None:
     """`uavsearch mc` on a bad file: exit 2, one error line naming the file, no traceback."""
-    argv = [sys.executable, "-m", "companion.app.cli", "mc", "--mission", str(path), "--runs", "1"]
+    argv = [sys.executable, "-m", "companion.app", "mc", "--mission", str(path), "--runs", "1"]
     try:
         r = subprocess.run(argv, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
     except subprocess.TimeoutExpired:

@@ -209,7 +209,7 @@ def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | 
     argv = [
         sys.executable,
         "-m",
-        "companion.app.cli",
+        "companion.app",
         "companion",
         "--mission",
         str(opts.mission_file),
@@ -245,7 +245,7 @@ def _start_camera(
         [
             sys.executable,
             "-m",
-            "companion.app.cli",
+            "companion.app",
             "camera",
             "--mission",
             str(opts.mission_file),
@@ -382,7 +382,7 @@ def run_mission(opts: RunOptions) -> int:
         if mission.mesh.mode == "client":
             children.start(
                 "router",
-                [sys.executable, "-m", "companion.app.cli", "router", "--mission", str(opts.mission_file)],
+                [sys.executable, "-m", "companion.app", "router", "--mission", str(opts.mission_file)],
                 out / "router.log",
             )
             children.wait_for_line("router", "router listening")
@@ -400,7 +400,7 @@ def run_mission(opts: RunOptions) -> int:
                 frame = LocalFrame(mission.region.origin)
                 cam.write_truth(out / "truth.json", cam.truth_record(mission, seed, grid, targets, frame))
         if opts.view:
-            argv = [sys.executable, "-m", "companion.app.cli", "view", "--mission", str(opts.mission_file)]
+            argv = [sys.executable, "-m", "companion.app", "view", "--mission", str(opts.mission_file)]
             argv += ["--seed", str(seed), "--port", str(opts.view_port)]
             children.start("view", argv, out / "view.log")
             line = children.wait_for_line("view", "view at ")

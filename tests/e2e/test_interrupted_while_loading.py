@@ -1,0 +1,63 @@
+"""A SIGINT while a process's modules load (a Ctrl-C in its first second, or the launcher stopping
+a child it has just started) ends it with exit code 130 and no traceback, as it does once they are
+loaded (`companion.app.entry`, `sim_vehicles.__main__`).
+
+The process sends the signal to itself from an import hook as numpy starts loading (a
+`sitecustomize` on its PYTHONPATH): a real SIGINT at a known point of the start-up, not at a
+wall-clock guess."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests.cli import ROOT
+from tests.e2e.conftest import PY, STARTUP_S
+
+MARK = "sitecustomize: SIGINT as numpy loads"
+HOOK = f'''
+import importlib.abc, os, signal, sys
+
+
+class InterruptOnNumpy(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == "numpy":
+            sys.meta_path.remove(self)
+            print("{MARK}", file=sys.stderr, flush=True)
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+
+
+sys.meta_path.insert(0, InterruptOnNumpy())
+'''
+COMMANDS = {
+    "uavsearch": [str(Path(PY).with_name("uavsearch")), "run", "{mission}", "--out", "{out}"],
+    "python -m companion.app": [
+        PY,
+        "-m",
+        "companion.app",
+        "companion",
+        "--mission",
+        "{mission}",
+        "--uav",
+        "0",
+    ],
+    "python -m sim_vehicles": [PY, "-m", "sim_vehicles", "--mission", "{mission}"],
+}
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_sigint_while_the_modules_load_ends_quietly(command: str, make_mission, tmp_path: Path) -> None:
+    mission = make_mission(n=2)
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(HOOK)
+    argv = [a.format(mission=mission.path, out=tmp_path / "out") for a in COMMANDS[command]]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(ROOT)])}
+    done = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=STARTUP_S)
+    assert MARK in done.stderr, "the hook did not fire: " + done.stderr
+    assert done.returncode == 130, done.stderr
+    assert "Traceback" not in done.stderr + done.stdout, done.stderr
