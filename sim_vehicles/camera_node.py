@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.app.arguments import natural
 from companion.mission import Mission, load_mission
 from companion.node.frames import LocalFrame
 from companion.node.keys import for_mission, mavlink_secrets
@@ -169,7 +170,7 @@ class CameraNode:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mission", required=True, type=Path, help="mission file (TOML)")
     parser.add_argument("--vehicles", required=True, help="pymavlink URLs of the vehicles, comma-separated")
-    parser.add_argument("--seed", type=int, default=None, help="target seed (default: the mission's)")
+    parser.add_argument("--seed", type=natural, default=None, help="target seed (default: the mission's)")
     parser.add_argument("--truth", type=Path, default=None, help="write the ground truth (JSON) here")
     parser.add_argument(
         "--approach",

@@ -13,27 +13,21 @@ from dataclasses import asdict
 from pathlib import Path
 from types import FrameType
 
+from companion.app.arguments import natural, positive
 from companion.mission import MissionError, load_mission
 from companion.node.lifeline import end_with_launcher
 from sim_vehicles.host import Host, HostOptions
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mission", required=True, type=Path, help="mission file (TOML)")
-    parser.add_argument("--speedup", type=_positive, default=1.0,
+    parser.add_argument("--speedup", type=positive, default=1.0,
                         help="simulated seconds per wall second (default 1)")
     parser.add_argument("--lockstep", action="store_true",
                         help="advance simulated time only when every vehicle's driver allows it")
     parser.add_argument("--flavour", choices=("ardupilot", "px4"), default=None,
                         help="autopilot to imitate (default: the mission's sim.flavour)")
-    parser.add_argument("--seed", type=int, default=None, help="target seed (default: the mission's)")
+    parser.add_argument("--seed", type=natural, default=None, help="target seed (default: the mission's)")
     parser.add_argument("--host", default=None, help="address to bind (default: the mission's sim.host)")
     parser.add_argument("--no-camera", action="store_true", help="no camera, no Zenoh session")
     parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT",

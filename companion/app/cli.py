@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from companion.app.arguments import count, fraction, natural, port, positive, step_count, weight
 from companion.batch.executors import ClusterError
 from companion.mission import Mission, MissionError, load_mission
 from companion.node.lifeline import end_with_launcher
@@ -428,7 +429,9 @@ def _faults(args: argparse.Namespace) -> int:
     if not 0 < args.at < args.at + args.outage < args.steps:
         raise ValueError(f"--at {args.at} --outage {args.outage} must fit within --steps {args.steps}")
     mission = load_mission(args.mission)
-    plan = Plan(args.steps, args.at, args.outage, args.victim % mission.n_uavs)
+    if args.victim >= mission.n_uavs:
+        raise ValueError(f"--victim {args.victim}: the mission has UAVs 0..{mission.n_uavs - 1}")
+    plan = Plan(args.steps, args.at, args.outage, args.victim)
     failed = 0
     for row in rows:
         o = run_row(row, mission, Path(args.out) / row, plan)
@@ -578,7 +581,7 @@ def _random_starts_option(p: argparse.ArgumentParser) -> None:
 
 def _add_executor_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    where.add_argument("--workers", type=count, default=None, help="local processes (default: all cores)")
     where.add_argument(
         "--scheduler",
         default=None,
@@ -594,9 +597,11 @@ def build_parser() -> argparse.ArgumentParser:
     mc = sub.add_parser("mc", help="Monte Carlo comparison of algorithms (the paper's Figures 8-10)")
     mc.add_argument("--mission", required=True)
     mc.add_argument("--algorithms", default="proposed,no-ta,pheromone")
-    mc.add_argument("--runs", type=int, default=20)
-    mc.add_argument("--steps", type=int, default=None, help="sampling moments per run (default: mission)")
-    mc.add_argument("--seed", type=int, default=None, help="default: the mission's seed")
+    mc.add_argument("--runs", type=count, default=20)
+    mc.add_argument(
+        "--steps", type=step_count, default=None, help="sampling moments per run (default: mission)"
+    )
+    mc.add_argument("--seed", type=natural, default=None, help="default: the mission's seed")
     mc.add_argument("--out", default="out/mc")
     _add_executor_arguments(mc)
     mc.add_argument("--save-trajectories", action="store_true")
@@ -624,9 +629,9 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--mission", required=True)
     sw.add_argument("--param", default="n_g")
     sw.add_argument("--values", default="10,20,30,40,50,60,70,80,90")
-    sw.add_argument("--runs", type=int, default=20)
-    sw.add_argument("--steps", type=int, default=None)
-    sw.add_argument("--seed", type=int, default=None)
+    sw.add_argument("--runs", type=count, default=20)
+    sw.add_argument("--steps", type=step_count, default=None)
+    sw.add_argument("--seed", type=natural, default=None)
     sw.add_argument("--out", default="out/sweep")
     _add_executor_arguments(sw)
     sw.add_argument("--quiet", action="store_true")
@@ -634,12 +639,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     be = sub.add_parser("bench", help="time per 1,000 sampling moments and Monte Carlo throughput")
     be.add_argument("--missions", nargs="+", default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)])
-    be.add_argument("--runs", type=int, default=3)
-    be.add_argument("--steps", type=int, default=1000)
-    be.add_argument("--seed", type=int, default=1)
+    be.add_argument("--runs", type=count, default=3)
+    be.add_argument("--steps", type=step_count, default=1000)
+    be.add_argument("--seed", type=natural, default=1)
     _add_executor_arguments(be)
     be.add_argument(
-        "--study-runs", type=int, default=8, help="runs per mission and algorithm in the throughput"
+        "--study-runs", type=count, default=8, help="runs per mission and algorithm in the throughput"
     )
     be.add_argument("--json", default=None, help="also write the figures to this JSON file")
     be.add_argument(
@@ -649,7 +654,7 @@ def build_parser() -> argparse.ArgumentParser:
         "older commit), interleaved, with their ratio",
     )
     be.add_argument(
-        "--rounds", type=int, default=2, help="with --against: interleaved rounds (the minimum is taken)"
+        "--rounds", type=count, default=2, help="with --against: interleaved rounds (the minimum is taken)"
     )
     be.add_argument(
         "--concurrent",
@@ -664,9 +669,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cl.add_argument("--missions", nargs="+", default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)])
     cl.add_argument("--workers", default="1,2", help="worker counts, e.g. 1,2")
-    cl.add_argument("--study-runs", type=int, default=20, help="runs per mission and algorithm")
-    cl.add_argument("--steps", type=int, default=1000)
-    cl.add_argument("--seed", type=int, default=1)
+    cl.add_argument("--study-runs", type=count, default=20, help="runs per mission and algorithm")
+    cl.add_argument("--steps", type=step_count, default=1000)
+    cl.add_argument("--seed", type=natural, default=1)
     cl.add_argument("--json", default=None, help="also write the rows to this JSON file")
     cl.set_defaults(func=_cluster_bench)
 
@@ -677,20 +682,20 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--targets", default="5-20", help="targets (range)")
         p.add_argument("--layouts", default="edge,clustered", help="start layouts")
         p.add_argument("--modes", default="grid,continuous", help="kinematics modes")
-        p.add_argument("--steps", type=int, default=1000, help="sampling moments per run")
+        p.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
 
     ge = sub.add_parser("generate", help="write generated missions (a family beyond the scenario files)")
-    ge.add_argument("--count", type=int, required=True)
-    ge.add_argument("--seed", type=int, required=True)
+    ge.add_argument("--count", type=count, required=True)
+    ge.add_argument("--seed", type=natural, required=True)
     ge.add_argument("--out", required=True)
     family_options(ge)
     ge.set_defaults(func=_generate)
 
     so = sub.add_parser("soak", help="safety soak: separation and link events on generated missions")
-    so.add_argument("--missions", type=int, default=20)
-    so.add_argument("--seed", type=int, default=1)
+    so.add_argument("--missions", type=count, default=20)
+    so.add_argument("--seed", type=natural, default=1)
     so.add_argument("--algorithms", default="proposed,no-ta,pheromone")
-    so.add_argument("--loss", type=float, default=0.0, help="message loss probability on the radio")
+    so.add_argument("--loss", type=fraction, default=0.0, help="message loss probability on the radio")
     so.add_argument("--kill", action="store_true", help="one companion per mission dies mid-run")
     _add_executor_arguments(so)
     so.add_argument("--verbose", action="store_true", help="print every run, not only those with events")
@@ -698,8 +703,8 @@ def build_parser() -> argparse.ArgumentParser:
     so.set_defaults(func=_soak)
 
     def mission_set_options(p: argparse.ArgumentParser, out: str) -> None:
-        p.add_argument("--missions", type=int, default=None, help="generate this many missions")
-        p.add_argument("--seed", type=int, default=None, help="the generator's seed")
+        p.add_argument("--missions", type=count, default=None, help="generate this many missions")
+        p.add_argument("--seed", type=natural, default=None, help="the generator's seed")
         p.add_argument("--mission-dir", default=None, help="use the mission files of a folder instead")
         p.add_argument(
             "--weights",
@@ -717,7 +722,7 @@ def build_parser() -> argparse.ArgumentParser:
         "evaluate", help="the proposed method against each baseline on held-out missions (paired, with CIs)"
     )
     mission_set_options(ev, "out/evaluate")
-    ev.add_argument("--runs", type=int, default=10, help="paired runs per mission and algorithm")
+    ev.add_argument("--runs", type=count, default=10, help="paired runs per mission and algorithm")
     _random_starts_option(ev)
     ev.set_defaults(func=_evaluate)
 
@@ -725,17 +730,17 @@ def build_parser() -> argparse.ArgumentParser:
         "tune", help="choose the weights the paper does not give, on training missions (Optuna)"
     )
     mission_set_options(tu, "out/tune")
-    tu.add_argument("--budget", type=int, required=True, help="runs in all, the current weights' included")
-    tu.add_argument("--runs", type=int, default=1, help="runs per mission and candidate")
+    tu.add_argument("--budget", type=count, required=True, help="runs in all, the current weights' included")
+    tu.add_argument("--runs", type=count, default=1, help="runs per mission and candidate")
     tu.add_argument("--algorithm", choices=("proposed", "no-ta", "pheromone"), default="proposed")
     tu.add_argument("--params", default=None, help="fields to tune (default: every row the algorithm reads)")
     tu.add_argument("--space", default=None, help="a TOML search space (default: companion.batch.tune.SPACE)")
     tu.add_argument(
-        "--uncertainty-weight", type=float, default=0.5, help="lambda: weight of the uncertainty term"
+        "--uncertainty-weight", type=weight, default=0.5, help="lambda: weight of the uncertainty term"
     )
     tu.add_argument(
         "--confirm",
-        type=int,
+        type=natural,
         default=5,
         help="best candidates flown again on fresh runs before one is chosen",
     )
@@ -746,11 +751,11 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--campaign", default="all", choices=("all", "mesh", "mavlink", "camera", "mission"))
     fz.add_argument(
         "--count",
-        type=int,
+        type=count,
         default=None,
         help="inputs per campaign (default: 100,000 mesh, 10,000 others, 1,000 mission files)",
     )
-    fz.add_argument("--seed", type=int, default=0)
+    fz.add_argument("--seed", type=natural, default=0)
     fz.set_defaults(func=_fuzz)
 
     fa = sub.add_parser("faults", help="the fault matrix on real processes (docs/reliability.md)")
@@ -758,10 +763,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--row", default="all", choices=("all", "restart", "sim-restart", "link-loss", "partition", "loss")
     )
     fa.add_argument("--mission", default="mission_files/scenario1.toml")
-    fa.add_argument("--steps", type=int, default=300, help="steps of each row's mission")
-    fa.add_argument("--at", type=int, default=60, help="the step the fault strikes at")
-    fa.add_argument("--outage", type=int, default=8, help="steps the fault lasts (link-loss: 10 s)")
-    fa.add_argument("--victim", type=int, default=1, help="the UAV a companion or link fault hits")
+    fa.add_argument("--steps", type=step_count, default=300, help="steps of each row's mission")
+    fa.add_argument("--at", type=natural, default=60, help="the step the fault strikes at")
+    fa.add_argument("--outage", type=count, default=8, help="steps the fault lasts (link-loss: 10 s)")
+    fa.add_argument("--victim", type=natural, default=1, help="the UAV a companion or link fault hits")
     fa.add_argument("--out", default="out/faults")
     fa.set_defaults(func=_faults)
 
@@ -769,7 +774,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
     co.add_argument("--mission", required=True)
-    co.add_argument("--uav", type=int, required=True, help="UAV index (0-based; MAVLink system id - 1)")
+    co.add_argument("--uav", type=natural, required=True, help="UAV index (0-based; MAVLink system id - 1)")
     co.add_argument(
         "--vehicle",
         default=None,
@@ -795,8 +800,8 @@ def build_parser() -> argparse.ArgumentParser:
         "silent (ArduPilot's GCS failsafe; default: with --takeover)",
     )
     co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
-    co.add_argument("--steps", type=int, default=None)
-    co.add_argument("--seed", type=int, default=None)
+    co.add_argument("--steps", type=step_count, default=None)
+    co.add_argument("--seed", type=natural, default=None)
     co.add_argument("--out", default=None, help="directory for the step log, the report and the .tlog")
     co.add_argument(
         "--journal",
@@ -814,17 +819,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     ke = sub.add_parser("keys", help="generate a swarm's keys and certificates (docs/reliability.md)")
     ke.add_argument("--mission", default=None, help="the mission: its UAV count, and its key directory")
-    ke.add_argument("--uavs", type=int, default=None, help="the UAV count (without --mission)")
+    ke.add_argument("--uavs", type=count, default=None, help="the UAV count (without --mission)")
     ke.add_argument("--out", default=None, help="the key directory (default: the mission's security.keys)")
-    ke.add_argument("--days", type=int, default=365, help="how long the certificates are valid")
+    ke.add_argument("--days", type=count, default=365, help="how long the certificates are valid")
     ke.set_defaults(func=_keys)
 
     ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")
     ru.add_argument("mission")
-    ru.add_argument("--speedup", type=float, default=10.0)
+    ru.add_argument("--speedup", type=positive, default=10.0)
     ru.add_argument("--lockstep", action="store_true")
-    ru.add_argument("--steps", type=int, default=None)
-    ru.add_argument("--seed", type=int, default=None)
+    ru.add_argument("--steps", type=step_count, default=None)
+    ru.add_argument("--seed", type=natural, default=None)
     ru.add_argument("--out", default="out/run")
     ru.add_argument(
         "--command-mode",
@@ -851,7 +856,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="ArduPlane SITL binary (default: $ARDUPLANE_SITL), PX4 bin/px4 (default: $PX4_SITL_DIR/bin/px4)",
     )
     ru.add_argument(
-        "--sitl-instance", type=int, default=0, help="PX4: the first instance number tried (MAV_SYS_ID - 1)"
+        "--sitl-instance",
+        type=natural,
+        default=0,
+        help="PX4: the first instance number tried (MAV_SYS_ID - 1)",
     )
     ru.add_argument(
         "--sitl-defaults", default=None, help="SITL parameter defaults (default: plane.parm by it)"
@@ -861,7 +869,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--keep-going", action="store_true", help="fly all the steps even when every target is found"
     )
     ru.add_argument("--view", action="store_true", help="serve the live map of the swarm (uavsearch view)")
-    ru.add_argument("--view-port", type=int, default=0, help="the live map's port (0: any free port)")
+    ru.add_argument("--view-port", type=port, default=0, help="the live map's port (0: any free port)")
     ru.set_defaults(func=_run)
 
     from companion.app.view.main import add_arguments as add_view_arguments

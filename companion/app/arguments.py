@@ -1,0 +1,74 @@
+"""The command line's number types: argparse refuses a bad number before anything starts, naming the
+option and the reason (`uavsearch mc: error: argument --runs: must be >= 1, got 0`, exit 2)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from companion.mission import MAX_STEPS
+
+
+def _integer(text: str, least: int, most: int | None = None) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < least or (most is not None and value > most):
+        bound = f">= {least}" if most is None else f"in {least}..{most}"
+        raise argparse.ArgumentTypeError(f"must be {bound}, got {value}")
+    return value
+
+
+def _real(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+    return value
+
+
+def count(text: str) -> int:
+    """A whole number >= 1: runs, missions, workers, days."""
+    return _integer(text, 1)
+
+
+def step_count(text: str) -> int:
+    """A run's length in steps: 1 to the mission files' own bound."""
+    return _integer(text, 1, MAX_STEPS)
+
+
+def natural(text: str) -> int:
+    """A whole number >= 0: seeds, step and instance indices."""
+    return _integer(text, 0)
+
+
+def port(text: str) -> int:
+    """A TCP port, 0 for any free one."""
+    return _integer(text, 0, 65535)
+
+
+def positive(text: str) -> float:
+    """A finite real number > 0: a speed-up."""
+    value = _real(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def weight(text: str) -> float:
+    """A finite real number >= 0: a term's weight."""
+    value = _real(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """A real number in [0, 1]: a probability."""
+    value = _real(text)
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
+    return value

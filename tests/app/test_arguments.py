@@ -1,0 +1,82 @@
+"""The command line refuses a bad number before anything starts: argparse's exit 2 naming the option
+and the reason (`companion.app.arguments`), never a traceback or a run of nothing."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from companion.app import arguments
+from companion.app.cli import build_parser
+from companion.mission import MAX_STEPS
+
+MC = ["mc", "--mission", "m.toml"]
+NUMBER_TYPES = {
+    arguments.count,
+    arguments.step_count,
+    arguments.natural,
+    arguments.port,
+    arguments.positive,
+    arguments.weight,
+    arguments.fraction,
+}
+
+
+def _options(parser: argparse.ArgumentParser):
+    """(command, option) for every option of every subcommand, with its argparse action."""
+    for action in parser._actions:  # argparse has no public walk of its tree
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                for command, option in _options(sub):
+                    yield (f"{name} {command}".strip(), option)
+        else:
+            yield ("", action)
+
+
+def test_every_numeric_option_has_a_bounded_type() -> None:
+    bare = [(c, o.option_strings) for c, o in _options(build_parser()) if o.type in (int, float)]
+    assert not bare, f"options typed int or float, which take any value: {bare}"
+    typed = {o.type for _, o in _options(build_parser()) if o.type in NUMBER_TYPES}
+    assert typed == NUMBER_TYPES
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([*MC, "--runs", "0"], "argument --runs: must be >= 1, got 0"),
+        ([*MC, "--steps", "0"], f"argument --steps: must be in 1..{MAX_STEPS}, got 0"),
+        ([*MC, "--seed", "-1"], "argument --seed: must be >= 0, got -1"),
+        ([*MC, "--workers", "0"], "argument --workers: must be >= 1, got 0"),
+        ([*MC, "--runs", "2.5"], "argument --runs: not a whole number: '2.5'"),
+        (["soak", "--loss", "2"], "argument --loss: must be in [0, 1], got 2"),
+        (["run", "m.toml", "--speedup", "-1"], "argument --speedup: must be > 0, got -1"),
+        (["run", "m.toml", "--speedup", "nan"], "argument --speedup: must be finite, got nan"),
+        (["run", "m.toml", "--view-port", "70000"], "argument --view-port: must be in 0..65535, got 70000"),
+        (["tune", "--budget", "5", "--uncertainty-weight", "-0.1"], "must be >= 0, got -0.1"),
+        (["view", "--port", "-5"], "argument --port: must be in 0..65535, got -5"),
+    ],
+)
+def test_a_bad_number_is_refused_naming_the_option(argv: list[str], message: str, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        build_parser().parse_args(argv)
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+@given(st.integers(min_value=-(10**6), max_value=10**7))
+def test_whole_number_types_accept_exactly_their_range(value: int) -> None:
+    for kind, low, high in (
+        (arguments.count, 1, None),
+        (arguments.natural, 0, None),
+        (arguments.step_count, 1, MAX_STEPS),
+        (arguments.port, 0, 65535),
+    ):
+        inside = value >= low and (high is None or value <= high)
+        if inside:
+            assert kind(str(value)) == value
+        else:
+            with pytest.raises(argparse.ArgumentTypeError):
+                kind(str(value))
