@@ -12,7 +12,7 @@ import re
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal, get_args
 
 import msgspec
 import numpy as np
@@ -34,6 +34,8 @@ MAX_VEHICLES = 64
 MAX_VERTICES = 256
 MAX_CENTRES = 1_000
 MAX_STEPS = 1_000_000
+Mode = Literal["grid", "continuous"]  # the kinematics: the paper's 8-neighbour grid, or turn-rate limited
+MODES: tuple[str, ...] = get_args(Mode)
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
@@ -100,7 +102,7 @@ class Kinematics(_Base, kw_only=True):
     real flight; the algorithm and its separation figures stay horizontal).
     """
 
-    mode: Literal["grid", "continuous"] = "grid"
+    mode: Mode = "grid"
     speed: Positive
     step: Positive
     turn_limit_deg: Annotated[float, msgspec.Meta(gt=0, le=180)]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable, Sequence
 
 from companion.mission import MAX_STEPS
 
@@ -72,3 +73,44 @@ def fraction(text: str) -> float:
     if not 0 <= value <= 1:
         raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
     return value
+
+
+def _span(text: str, parse: Callable[[str], float], least: float, most: float) -> tuple[float, float]:
+    low, _, high = text.partition("-")
+    try:
+        lo, hi = parse(low), parse(high or low)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a range LOW-HIGH or a single value: {text!r}") from None
+    if not least <= lo <= hi <= most:
+        raise argparse.ArgumentTypeError(
+            f"must be LOW-HIGH with {least:g} <= LOW <= HIGH <= {most:g}, got {text}"
+        )
+    return lo, hi
+
+
+def whole_span(least: int, most: int) -> Callable[[str], tuple[int, int]]:
+    """'LOW-HIGH' or 'N' (LOW = HIGH = N): an inclusive range of whole numbers within [least, most]."""
+
+    def parse(text: str) -> tuple[int, int]:
+        lo, hi = _span(text, int, least, most)
+        return int(lo), int(hi)
+
+    return parse
+
+
+def real_span(least: float, most: float) -> Callable[[str], tuple[float, float]]:
+    """'LOW-HIGH' or 'X': an inclusive range of real numbers within [least, most]."""
+    return lambda text: _span(text, float, least, most)
+
+
+def names(allowed: Sequence[str]) -> Callable[[str], tuple[str, ...]]:
+    """'A,B,...': one or more of `allowed`, in the order given."""
+
+    def parse(text: str) -> tuple[str, ...]:
+        chosen = tuple(v.strip() for v in text.split(",") if v.strip())
+        for v in chosen or ("",):
+            if v not in allowed:
+                raise argparse.ArgumentTypeError(f"unknown {v!r}; choose from {', '.join(allowed)}")
+        return chosen
+
+    return parse

@@ -10,10 +10,32 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from companion.app.arguments import count, fraction, natural, port, positive, step_count, weight
+from companion.app.arguments import (
+    count,
+    fraction,
+    names,
+    natural,
+    port,
+    positive,
+    real_span,
+    step_count,
+    weight,
+    whole_span,
+)
 from companion.batch.executors import ClusterError
-from companion.mission import Mission, MissionError, load_mission
+from companion.batch.starts import LAYOUTS
+from companion.mission import (
+    MAX_CENTRES,
+    MAX_GRID_CELLS,
+    MAX_VEHICLES,
+    MODES,
+    Mission,
+    MissionError,
+    load_mission,
+)
 from companion.node.lifeline import end_with_launcher
+
+ACROSS_MAX = 20_000.0  # m: a generated region's grid (40 m cells) within the mission files' MAX_GRID_CELLS
 
 if TYPE_CHECKING:
     from companion.batch.generate import Family
@@ -229,17 +251,13 @@ def _family(args: argparse.Namespace) -> Family:
     """The mission family of `generate`/`soak` from the command line's ranges."""
     from companion.batch.generate import Family
 
-    def span(text: str, kind: type) -> tuple:
-        lo, _, hi = text.partition("-")
-        return kind(lo), kind(hi or lo)
-
     return Family(
-        uavs=span(args.uavs, int),
-        across=span(args.across, float),
-        centres=span(args.centres, int),
-        targets=span(args.targets, int),
-        layouts=tuple(args.layouts.split(",")),
-        modes=tuple(args.modes.split(",")),
+        uavs=args.uavs,
+        across=args.across,
+        centres=args.centres,
+        targets=args.targets,
+        layouts=args.layouts,
+        modes=args.modes,
         steps=args.steps,
     )
 
@@ -676,12 +694,20 @@ def build_parser() -> argparse.ArgumentParser:
     cl.set_defaults(func=_cluster_bench)
 
     def family_options(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--uavs", default="2-12", help="UAVs per mission (range)")
-        p.add_argument("--across", default="800-4000", help="region size in metres (range)")
-        p.add_argument("--centres", default="1-6", help="distribution centres of eq. 1 (range)")
-        p.add_argument("--targets", default="5-20", help="targets (range)")
-        p.add_argument("--layouts", default="edge,clustered", help="start layouts")
-        p.add_argument("--modes", default="grid,continuous", help="kinematics modes")
+        p.add_argument(
+            "--uavs", type=whole_span(1, MAX_VEHICLES), default="2-12", help="UAVs per mission (range)"
+        )
+        p.add_argument(
+            "--across", type=real_span(1.0, ACROSS_MAX), default="800-4000", help="region size, m (range)"
+        )
+        p.add_argument(
+            "--centres", type=whole_span(1, MAX_CENTRES), default="1-6", help="centres of eq. 1 (range)"
+        )
+        p.add_argument(
+            "--targets", type=whole_span(1, MAX_GRID_CELLS), default="5-20", help="targets (range)"
+        )
+        p.add_argument("--layouts", type=names(LAYOUTS), default="edge,clustered", help="start layouts")
+        p.add_argument("--modes", type=names(MODES), default="grid,continuous", help="kinematics modes")
         p.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
 
     ge = sub.add_parser("generate", help="write generated missions (a family beyond the scenario files)")

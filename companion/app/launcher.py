@@ -108,10 +108,12 @@ class Children:
         log: Path,
         cwd: Path | None = None,
         extra: dict[str, str] | None = None,
-        stop_signal: int = signal.SIGINT,
+        stop_signal: int = signal.SIGTERM,
     ) -> subprocess.Popen:
         """Start `argv` in its own session, output to `log`, with `extra` added to the environment;
-        `stop` sends it `stop_signal`. Our own processes end with this one (`lifeline`)."""
+        `stop` sends it `stop_signal`: SIGTERM, which our processes handle as they do SIGINT but
+        which, unlike SIGINT, ends one still loading its modules with no traceback. Our own
+        processes end with this one (`lifeline`)."""
         env = {**os.environ, "PYTHONUNBUFFERED": "1", **launcher_env(), **(extra or {})}
         with log.open("w") as f:
             proc = subprocess.Popen(
@@ -139,7 +141,7 @@ class Children:
         raise RuntimeError(f"{log.name}: '{text}' not seen within {timeout:.0f} s")
 
     def stop(self) -> None:
-        """Each child's stop signal (SIGINT unless started otherwise), the companions first: a
+        """Each child's stop signal (SIGTERM unless started otherwise), the companions first: a
         companion ends its step and writes its report while its vehicle, camera and router still
         answer. Whatever has not exited `STOP_TIMEOUT_S` after its signal is killed."""
         companions = [n for n in self.procs if n.startswith("companion")]
@@ -294,7 +296,8 @@ def _start_px4(children: Children, opts: RunOptions, mission: Mission, seed: int
         workdir.mkdir()
         env = px4_sitl.px4_env(mission, i, opts.speedup)
         argv = px4_sitl.px4_argv(px4, build, instance, workdir)
-        children.start(f"px4_{i}", argv, opts.out / f"px4_{i}.log", cwd=workdir, extra=env)
+        log = opts.out / f"px4_{i}.log"
+        children.start(f"px4_{i}", argv, log, cwd=workdir, extra=env, stop_signal=px4_sitl.STOP_SIGNAL)
     for i in range(mission.n_uavs):
         children.wait_for_line(f"px4_{i}", px4_sitl.STARTED)
     ports = [px4_sitl.px4_ports(mission, i) for i in range(mission.n_uavs)]

@@ -84,8 +84,11 @@ def _set_param(mission: Mission, param: str, value: str) -> Mission:
     raw = msgspec.to_builtins(mission)
     if param not in raw["algorithm"]:
         raise ValueError(f"unknown algorithm parameter {param!r}")
-    raw["algorithm"][param] = json.loads(value)
-    return msgspec.convert(raw, Mission)
+    try:
+        raw["algorithm"][param] = json.loads(value)
+        return msgspec.convert(raw, Mission)
+    except ValueError as exc:  # JSONDecodeError, msgspec.ValidationError
+        raise ValueError(f"--values: {param} = {value}: {exc}") from None
 
 
 def sweep(

@@ -14,6 +14,7 @@ from companion.app.cli import build_parser
 from companion.mission import MAX_STEPS
 
 MC = ["mc", "--mission", "m.toml"]
+GEN = ["generate", "--count", "1", "--seed", "1", "--out", "o"]
 NUMBER_TYPES = {
     arguments.count,
     arguments.step_count,
@@ -57,6 +58,10 @@ def test_every_numeric_option_has_a_bounded_type() -> None:
         (["run", "m.toml", "--view-port", "70000"], "argument --view-port: must be in 0..65535, got 70000"),
         (["tune", "--budget", "5", "--uncertainty-weight", "-0.1"], "must be >= 0, got -0.1"),
         (["view", "--port", "-5"], "argument --port: must be in 0..65535, got -5"),
+        ([*GEN, "--uavs", "0-3"], "argument --uavs: must be LOW-HIGH with 1 <= LOW <= HIGH <= 64, got 0-3"),
+        ([*GEN, "--across", "900-800"], "argument --across: must be LOW-HIGH with 1 <= LOW <= HIGH"),
+        ([*GEN, "--targets", "abc"], "argument --targets: not a range LOW-HIGH or a single value: 'abc'"),
+        ([*GEN, "--modes", "grid,x"], "argument --modes: unknown 'x'; choose from grid, continuous"),
     ],
 )
 def test_a_bad_number_is_refused_naming_the_option(argv: list[str], message: str, capsys) -> None:
@@ -80,3 +85,20 @@ def test_whole_number_types_accept_exactly_their_range(value: int) -> None:
         else:
             with pytest.raises(argparse.ArgumentTypeError):
                 kind(str(value))
+
+
+@given(st.integers(min_value=-5, max_value=70), st.integers(min_value=-5, max_value=70))
+def test_a_whole_span_is_low_high_within_its_bounds(low: int, high: int) -> None:
+    span = arguments.whole_span(1, 64)
+    if 1 <= low <= high <= 64:
+        assert span(f"{low}-{high}") == (low, high)
+        assert span(str(low)) == (low, low)
+    elif low >= 0 and high >= 0:  # a minus sign would read as the separator
+        with pytest.raises(argparse.ArgumentTypeError):
+            span(f"{low}-{high}")
+
+
+def test_the_family_options_reach_the_generator_as_ranges() -> None:
+    args = build_parser().parse_args([*GEN, "--uavs", "3-5", "--across", "900", "--modes", "continuous"])
+    assert (args.uavs, args.across, args.modes) == ((3, 5), (900.0, 900.0), ("continuous",))
+    assert (args.targets, args.layouts) == ((5, 20), ("edge", "clustered"))  # the defaults, parsed

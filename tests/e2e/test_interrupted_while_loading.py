@@ -9,6 +9,7 @@ wall-clock guess."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 from pathlib import Path
 
@@ -49,6 +50,12 @@ COMMANDS = {
 }
 
 
+def _as_in_a_terminal() -> None:
+    """SIGINT at its default, as a shell's foreground job has it: a job started in the background
+    (`cmd &` in a script, as CI may run) inherits it ignored, and Python then leaves it ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("command", COMMANDS)
 def test_a_sigint_while_the_modules_load_ends_quietly(command: str, make_mission, tmp_path: Path) -> None:
     mission = make_mission(n=2)
@@ -57,7 +64,15 @@ def test_a_sigint_while_the_modules_load_ends_quietly(command: str, make_mission
     (hook / "sitecustomize.py").write_text(HOOK)
     argv = [a.format(mission=mission.path, out=tmp_path / "out") for a in COMMANDS[command]]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(ROOT)])}
-    done = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=STARTUP_S)
+    done = subprocess.run(
+        argv,
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=STARTUP_S,
+        preexec_fn=_as_in_a_terminal,
+    )
     assert MARK in done.stderr, "the hook did not fire: " + done.stderr
     assert done.returncode == 130, done.stderr
     assert "Traceback" not in done.stderr + done.stdout, done.stderr

@@ -37,6 +37,8 @@ def test_run_stopped_while_starting_stops_its_children_and_says_so(
     assert "error:" not in text, text
     assert "before any step was flown" not in text, text  # nothing scored: there is no truth yet
     assert not [pid for pid, start in children.items() if _same_process_alive(pid, start)]
+    for log in out.glob("*.log"):  # stopped while loading their modules: quietly (SIGTERM)
+        assert "Traceback" not in log.read_text(), log.read_text()
 
 
 def test_run_killed_leaves_no_process_behind(make_mission, procs: Procs, tmp_path: Path) -> None:
