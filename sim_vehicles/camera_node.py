@@ -31,7 +31,7 @@ from companion.app.arguments import natural
 from companion.mission import Mission, load_mission
 from companion.node.frames import LocalFrame
 from companion.node.keys import for_mission, mavlink_secrets
-from companion.node.vehicle_link import LinkError, VehicleLink
+from companion.node.vehicle_link import LinkError, VehicleLink, open_link
 from sim_vehicles import camera as cam
 from sim_vehicles.approach import ApproachRecorder
 
@@ -63,19 +63,6 @@ class LatestPositions:
             self.x[uav], self.y[uav], self.t = x, y, max(self.t, t)
             if np.isfinite(self.x).all():
                 self.recorder.update(self.t, self.x, self.y)
-
-
-def _connect(url: str, frame: LocalFrame, stop: threading.Event) -> VehicleLink | None:
-    """A link to `url`, retried while the vehicle is not listening yet (SITL starting up)."""
-    deadline = time.monotonic() + CONNECT_TIMEOUT_S
-    while not stop.is_set():
-        try:
-            return VehicleLink(url, frame, component=mavlink.MAV_COMP_ID_CAMERA)
-        except OSError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.5)
-    return None
 
 
 class CameraNode:
@@ -117,9 +104,11 @@ class CameraNode:
                 t.join(SIGNAL_POLL_S)
 
     def _vehicle(self, uav: int, url: str, stop: threading.Event) -> None:
-        try:
-            link = _connect(url, self.frame, stop)
-        except OSError as exc:
+        try:  # retried while the vehicle is not listening yet (SITL starting up)
+            link = open_link(
+                url, self.frame, CONNECT_TIMEOUT_S, stop.is_set, component=mavlink.MAV_COMP_ID_CAMERA
+            )
+        except LinkError as exc:
             self._failed(uav, url, exc, stop)
             return
         if link is None:

@@ -19,7 +19,9 @@ from companion.node.journal import JournalError
 from companion.node.keys import KeyDirectoryError, for_mission, mavlink_secret, uav_identity, warn_if_insecure
 from companion.node.mesh import Mesh
 from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
-from companion.node.vehicle_link import COMPANION_SYSTEM, LinkError, VehicleLink
+from companion.node.vehicle_link import COMPANION_SYSTEM, VEHICLE_WAIT_S, LinkError, open_link
+
+log = logging.getLogger("companion")
 
 
 def run_companion(args: argparse.Namespace) -> int:
@@ -67,9 +69,23 @@ def run_companion(args: argparse.Namespace) -> int:
     frame = LocalFrame(mission.region.origin)
     loss_rng = instance_rng(seed, 1000 + args.uav, Stream.RADIO)
     tlog = out / f"uav{args.uav}.tlog" if out else None
-    link = VehicleLink(
-        opts.vehicle_url, frame, tlog, signing_secret=secret, system=COMPANION_SYSTEM, heartbeat=True
-    )
+    url = opts.vehicle_url
+
+    def retrying(exc: OSError) -> None:
+        log.warning(
+            "uav %d: cannot open %s yet (%s): trying again for %.0f s", args.uav, url, exc, VEHICLE_WAIT_S
+        )
+
+    try:
+        link = open_link(
+            url, frame, VEHICLE_WAIT_S, stop.is_set, retrying,
+            tlog=tlog, signing_secret=secret, system=COMPANION_SYSTEM, heartbeat=True,
+        )  # fmt: skip
+    except LinkError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    if link is None:
+        return 0  # stopped before the link could be opened: nothing flown
     restarting = opts.journal is not None and opts.journal.exists() and opts.journal.stat().st_size > 0
     try:
         with Mesh(
@@ -94,7 +110,7 @@ def run_companion(args: argparse.Namespace) -> int:
                 return 2
             finally:
                 if stop.is_set():
-                    logging.getLogger("companion").info("uav %d: stopped by a signal", args.uav)
+                    log.info("uav %d: stopped by a signal", args.uav)
                 companion.close()
                 camera.close()
     finally:

@@ -55,7 +55,7 @@ from companion.node.journal import Journal, Recovered, header_of
 from companion.node.mesh import Mesh
 from companion.node.takeover import steerable, take_over
 from companion.node.tracking import Guard, PlanError, PlanTracker, RegionGuard
-from companion.node.vehicle_link import ARDUPILOT_AUTO, ARDUPILOT_GUIDED, VehicleLink
+from companion.node.vehicle_link import ARDUPILOT_AUTO, ARDUPILOT_GUIDED, VEHICLE_WAIT_S, VehicleLink
 
 log = logging.getLogger("companion")
 
@@ -455,7 +455,7 @@ class Companion:
         seconds = warm_up(self.opts.mission)  # no compiling inside the first real steps
         log.info("uav %d: algorithm ready in %.1f s", self.opts.uav, seconds)
         log.info("uav %d: waiting for the vehicle at %s", self.opts.uav, self.opts.vehicle_url)
-        if not self.link.wait_heartbeat(120.0, stop.is_set):
+        if not self.link.wait_heartbeat(VEHICLE_WAIT_S, stop.is_set):
             return 0  # stopped before the vehicle answered: nothing flown, nothing to close
         log.info("uav %d: vehicle system %d is up", self.opts.uav, self.link.state.system)
         self.link.request_streams()

@@ -35,7 +35,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
@@ -50,6 +50,8 @@ COMPANION_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
 COMPANION_SYSTEM = 200
 HEARTBEAT_VEHICLE_S = 0.5  # our HEARTBEAT at least this often in vehicle time (a sped-up simulator)...
 HEARTBEAT_WALL_S = 1.0  # ...and in wall time (a vehicle whose clock stands still, a lost link)
+RETRY_OPEN_S = 0.5  # a link that cannot be opened yet is tried again this often
+VEHICLE_WAIT_S = 120.0  # how long a companion waits for its vehicle: the link opened and its HEARTBEAT heard
 ARDUPILOT_GUIDED = 15
 ARDUPILOT_AUTO = 10
 ARDUPILOT_TAKEOFF = 13
@@ -164,14 +166,14 @@ class VehicleLink:
         # Called after every poll, also while a request waits for its reply: what must go on
         # meanwhile (a setpoint stream that PX4 OFFBOARD must not lose).
         self.on_poll: Callable[[], None] | None = None
-        self._tlog = TlogWriter(tlog) if tlog else None
-        self._conn = mavutil.mavlink_connection(
+        self._conn = mavutil.mavlink_connection(  # OSError: a TCP port refused, no such serial device
             url,
             source_system=255 if system is None else system,
             source_component=component,
             autoreconnect=True,
             dialect="ardupilotmega",
         )
+        self._tlog = TlogWriter(tlog) if tlog else None
         if self._tlog:
             tlog_writer = self._tlog
             self._conn.mav.set_send_callback(lambda m: tlog_writer.write(m.get_msgbuf()))
@@ -553,3 +555,30 @@ class VehicleLink:
             self._conn.close()
         if self._tlog:
             self._tlog.close()
+
+
+def open_link(
+    url: str,
+    frame: LocalFrame,
+    timeout: float,
+    should_stop: Callable[[], bool] = lambda: False,
+    on_retry: Callable[[OSError], None] | None = None,
+    **options: Any,
+) -> VehicleLink | None:
+    """A `VehicleLink(url, frame, **options)`, tried again every `RETRY_OPEN_S` while the link
+    cannot be opened (an autopilot's TCP port not listening yet, a serial device not there yet;
+    `on_retry` hears the first failure): None if `should_stop` says so first; LinkError naming the
+    link and the reason once `timeout` seconds have passed."""
+    deadline = time.monotonic() + timeout
+    failed = False
+    while not should_stop():
+        try:
+            return VehicleLink(url, frame, **options)
+        except OSError as exc:
+            if time.monotonic() >= deadline:
+                raise LinkError(f"cannot open {url} (tried for {timeout:.0f} s): {exc}") from None
+            if not failed and on_retry is not None:
+                on_retry(exc)
+            failed = True
+            time.sleep(RETRY_OPEN_S)
+    return None

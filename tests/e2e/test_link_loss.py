@@ -8,6 +8,7 @@ endpoint (the pilot puts it back in GUIDED) it says the link is restored and ste
 
 from __future__ import annotations
 
+import socket
 from pathlib import Path
 
 from tests.e2e.conftest import Procs, read_csv, wait_rows
@@ -65,3 +66,18 @@ def test_companion_stopped_before_its_vehicle_answers_exits_0(
     assert "stopped by a signal" in comp.text()
     assert "error:" not in comp.text(), comp.text()
     assert "0 steps flown" in comp.text()
+
+
+def test_companion_waits_for_a_tcp_vehicle_not_listening_yet(
+    make_mission, procs: Procs, tmp_path: Path
+) -> None:
+    """An autopilot's TCP port that refuses the connection (SITL still booting) is tried again, not a
+    traceback (as it was); a signal meanwhile is a clean stop."""
+    mission = make_mission(n=1)
+    with socket.socket() as s:  # a loopback port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        url = f"tcp:127.0.0.1:{s.getsockname()[1]}"
+    comp = procs.companion(mission, 0, tmp_path / "out", "--vehicle", url)
+    comp.wait_for_text(f"cannot open {url} yet")
+    assert comp.stop() == 0, comp.text()
+    assert "Traceback" not in comp.text() and "error:" not in comp.text(), comp.text()
