@@ -951,7 +951,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except ClusterError as exc:
+    except (ClusterError, OSError) as exc:  # OSError: a path given that cannot be read or written
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

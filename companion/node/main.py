@@ -19,7 +19,7 @@ from companion.node.journal import JournalError
 from companion.node.keys import KeyDirectoryError, for_mission, mavlink_secret, uav_identity, warn_if_insecure
 from companion.node.mesh import Mesh
 from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
-from companion.node.vehicle_link import COMPANION_SYSTEM, VEHICLE_WAIT_S, LinkError, open_link
+from companion.node.vehicle_link import COMPANION_SYSTEM, VEHICLE_WAIT_S, LinkError, LinkNotOpen, open_link
 
 log = logging.getLogger("companion")
 
@@ -71,7 +71,7 @@ def run_companion(args: argparse.Namespace) -> int:
     tlog = out / f"uav{args.uav}.tlog" if out else None
     url = opts.vehicle_url
 
-    def retrying(exc: OSError) -> None:
+    def retrying(exc: LinkNotOpen) -> None:
         log.warning(
             "uav %d: cannot open %s yet (%s): trying again for %.0f s", args.uav, url, exc, VEHICLE_WAIT_S
         )

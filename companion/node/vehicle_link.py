@@ -90,6 +90,10 @@ class LinkError(RuntimeError):
     """The vehicle could not be reached."""
 
 
+class LinkNotOpen(LinkError):
+    """The link could not be opened (yet): the reason."""
+
+
 @dataclass
 class VehicleState:
     """The latest telemetry, in the mission's local frame (x east, y north, heading CCW from east)."""
@@ -166,14 +170,21 @@ class VehicleLink:
         # Called after every poll, also while a request waits for its reply: what must go on
         # meanwhile (a setpoint stream that PX4 OFFBOARD must not lose).
         self.on_poll: Callable[[], None] | None = None
-        self._conn = mavutil.mavlink_connection(  # OSError: a TCP port refused, no such serial device
-            url,
-            source_system=255 if system is None else system,
-            source_component=component,
-            autoreconnect=True,
-            dialect="ardupilotmega",
-        )
-        self._tlog = TlogWriter(tlog) if tlog else None
+        try:
+            self._conn = mavutil.mavlink_connection(
+                url,
+                source_system=255 if system is None else system,
+                source_component=component,
+                autoreconnect=True,
+                dialect="ardupilotmega",
+            )
+        except OSError as exc:  # a TCP port that refuses, no such serial device
+            raise LinkNotOpen(str(exc)) from None
+        try:
+            self._tlog = TlogWriter(tlog) if tlog else None
+        except OSError:
+            self._conn.close()
+            raise
         if self._tlog:
             tlog_writer = self._tlog
             self._conn.mav.set_send_callback(lambda m: tlog_writer.write(m.get_msgbuf()))
@@ -562,7 +573,7 @@ def open_link(
     frame: LocalFrame,
     timeout: float,
     should_stop: Callable[[], bool] = lambda: False,
-    on_retry: Callable[[OSError], None] | None = None,
+    on_retry: Callable[[LinkNotOpen], None] | None = None,
     **options: Any,
 ) -> VehicleLink | None:
     """A `VehicleLink(url, frame, **options)`, tried again every `RETRY_OPEN_S` while the link
@@ -574,7 +585,7 @@ def open_link(
     while not should_stop():
         try:
             return VehicleLink(url, frame, **options)
-        except OSError as exc:
+        except LinkNotOpen as exc:
             if time.monotonic() >= deadline:
                 raise LinkError(f"cannot open {url} (tried for {timeout:.0f} s): {exc}") from None
             if not failed and on_retry is not None:

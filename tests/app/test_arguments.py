@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from companion.app import arguments
-from companion.app.cli import build_parser
+from companion.app.cli import build_parser, main
 from companion.mission import MAX_STEPS
 
 MC = ["mc", "--mission", "m.toml"]
@@ -102,3 +102,11 @@ def test_the_family_options_reach_the_generator_as_ranges() -> None:
     args = build_parser().parse_args([*GEN, "--uavs", "3-5", "--across", "900", "--modes", "continuous"])
     assert (args.uavs, args.across, args.modes) == ((3, 5), (900.0, 900.0), ("continuous",))
     assert (args.targets, args.layouts) == ((5, 20), ("edge", "clustered"))  # the defaults, parsed
+
+
+def test_an_output_folder_that_cannot_be_made_is_an_error_not_a_traceback(tmp_path, capsys) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    assert main([*GEN[:-1], str(blocker / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "Not a directory" in err and str(blocker) in err, err

@@ -25,7 +25,7 @@ from companion.app import sitl
 from companion.mission import Mission, load_mission
 from companion.node.frames import LocalFrame
 from companion.node.takeover import take_off
-from companion.node.vehicle_link import ARDUPILOT_GUIDED, VehicleLink
+from companion.node.vehicle_link import ARDUPILOT_GUIDED, VehicleLink, open_link
 from tests.e2e.conftest import ROOT, Proc
 
 CONTINUOUS = ROOT / "mission_files" / "scenario1_continuous.toml"
@@ -137,14 +137,9 @@ class Airborne:
         self.frame = LocalFrame(mission.mission.region.origin)
         self.proc = start_sitl(binary, mission, 0, speedup, directory)
         url = mission.ports(0).url(mission.ports(0).serial0)
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                self.link = VehicleLink(url, self.frame, component=GCS_COMPONENT)
-                break
-            except OSError:
-                assert self.proc.alive() and time.monotonic() < deadline, self.proc.text()
-                time.sleep(0.2)
+        link = open_link(url, self.frame, 60, lambda: not self.proc.alive(), component=GCS_COMPONENT)
+        assert link is not None, self.proc.text()
+        self.link = link
         self.link.wait_heartbeat(60)
         self.link.request_streams()
         while not self.link.state.has_pose:

@@ -18,7 +18,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from companion.node.frames import LocalFrame
-from companion.node.vehicle_link import VehicleLink
+from companion.node.vehicle_link import VehicleLink, open_link
 from tests.sitl.conftest import GCS_COMPONENT, start_sitl, write_mission
 
 pytestmark = pytest.mark.timeout(300)
@@ -39,14 +39,8 @@ def _interval_ack(conn: mavutil.mavfile, timeout: float) -> object | None:
 
 
 def _connect(url: str, frame: LocalFrame, secret: bytes | None = None) -> VehicleLink:
-    deadline = time.monotonic() + 60
-    while True:
-        try:
-            link = VehicleLink(url, frame, component=GCS_COMPONENT, signing_secret=secret)
-            break
-        except OSError:
-            assert time.monotonic() < deadline, "SITL does not listen"
-            time.sleep(0.2)
+    link = open_link(url, frame, 60, component=GCS_COMPONENT, signing_secret=secret)
+    assert link is not None
     link.wait_heartbeat(60)
     return link
 
