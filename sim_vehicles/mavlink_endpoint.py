@@ -80,7 +80,12 @@ class MavlinkEndpoint:
 
     def __init__(self, host: str, port: int, sysid: int, signing_secret: bytes | None = None) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind((host, port))
+        try:
+            self.sock.bind((host, port))
+        except OSError as exc:  # another simulator of this mission, most likely
+            self.sock.close()
+            where = f"vehicle {sysid - 1}'s MAVLink endpoint udp {host}:{port}"
+            raise OSError(exc.errno, f"{where}: {exc.strerror}") from None
         self.sock.setblocking(False)
         self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
         self.peers: dict[Address, float] = {}
