@@ -296,8 +296,7 @@ def _start_px4(children: Children, opts: RunOptions, mission: Mission, seed: int
         workdir.mkdir()
         env = px4_sitl.px4_env(mission, i, opts.speedup)
         argv = px4_sitl.px4_argv(px4, build, instance, workdir)
-        log = opts.out / f"px4_{i}.log"
-        children.start(f"px4_{i}", argv, log, cwd=workdir, extra=env, stop_signal=px4_sitl.STOP_SIGNAL)
+        children.start(f"px4_{i}", argv, opts.out / f"px4_{i}.log", cwd=workdir, extra=env)
     for i in range(mission.n_uavs):
         children.wait_for_line(f"px4_{i}", px4_sitl.STARTED)
     ports = [px4_sitl.px4_ports(mission, i) for i in range(mission.n_uavs)]

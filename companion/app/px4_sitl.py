@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import fcntl
 import os
-import signal
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,7 +44,6 @@ ROOT = Path(__file__).resolve().parents[2]
 SHARED_DIR = ROOT.parent / "shared" / "px4"
 AIRFRAME = "sihsim_airplane"
 STARTED = "Startup script returned successfully"  # PX4's log line when it is up
-STOP_SIGNAL = signal.SIGINT  # what PX4 SITL shuts down cleanly on (its shell's Ctrl-C)
 PORT_ENV = "UAVSEARCH_MAVLINK_PORT"
 MAX_INSTANCE = 254  # MAV_SYS_ID = instance + 1
 OFFBOARD_LOSS_S = 3.0  # real seconds the setpoint stream may pause (PX4's default COM_OF_LOSS_T: 1 s)
