@@ -89,7 +89,4 @@ def main(argv: list[str] | None = None) -> int:
     end_with_launcher()
     parser = argparse.ArgumentParser(prog="sim_vehicles", description=__doc__.splitlines()[0])
     add_arguments(parser)
-    try:
-        return run(parser.parse_args(argv))
-    except KeyboardInterrupt:  # before `run` took SIGINT over
-        return 130
+    return run(parser.parse_args(argv))

@@ -21,13 +21,15 @@ def _integer(text: str, least: int, most: int | None = None) -> int:
     return value
 
 
-def _real(text: str) -> float:
+def _real(text: str, within: Callable[[float], bool], bound: str) -> float:
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+    if not within(value):
+        raise argparse.ArgumentTypeError(f"must be {bound}, got {text}")
     return value
 
 
@@ -53,26 +55,17 @@ def port(text: str) -> int:
 
 def positive(text: str) -> float:
     """A finite real number > 0: a speed-up."""
-    value = _real(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
+    return _real(text, lambda v: v > 0, "> 0")
 
 
 def weight(text: str) -> float:
     """A finite real number >= 0: a term's weight."""
-    value = _real(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
+    return _real(text, lambda v: v >= 0, ">= 0")
 
 
 def fraction(text: str) -> float:
     """A real number in [0, 1]: a probability."""
-    value = _real(text)
-    if not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
-    return value
+    return _real(text, lambda v: 0 <= v <= 1, "in [0, 1]")
 
 
 def _span(text: str, parse: Callable[[str], float], least: float, most: float) -> tuple[float, float]:

@@ -22,6 +22,7 @@ from companion.app.arguments import (
     weight,
     whole_span,
 )
+from companion.app.entry import INTERRUPTED
 from companion.batch.executors import ClusterError
 from companion.batch.starts import LAYOUTS
 from companion.mission import (
@@ -955,7 +956,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        return 130
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -1,15 +1,23 @@
-"""The `uavsearch` entry point. It loads the command line inside `main`, so that a SIGINT while the
-modules load (a Ctrl-C in the first second, or the launcher stopping a child it has just started)
-ends the process with exit code 130 and no traceback, as it does once they are loaded."""
+"""The processes' entry points (`uavsearch`, `python -m companion.app`, `python -m sim_vehicles`).
+Each imports its command line inside `interruptible`, so that a SIGINT while the modules load (a
+Ctrl-C in the first second) ends the process with exit code 130 and no traceback, as it does once
+they are loaded."""
 
 from __future__ import annotations
+
+import importlib
 
 INTERRUPTED = 130  # 128 + SIGINT, as a shell reports it
 
 
-def main() -> int:
+def interruptible(module: str) -> int:
+    """`main()` of `module`, imported here: INTERRUPTED on a SIGINT before it takes SIGINT over."""
     try:
-        from companion.app.cli import main as command_line
+        return importlib.import_module(module).main()
     except KeyboardInterrupt:
         return INTERRUPTED
-    return command_line()
+
+
+def main() -> int:
+    """`uavsearch`."""
+    return interruptible("companion.app.cli")

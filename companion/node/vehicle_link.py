@@ -581,15 +581,14 @@ def open_link(
     `on_retry` hears the first failure): None if `should_stop` says so first; LinkError naming the
     link and the reason once `timeout` seconds have passed."""
     deadline = time.monotonic() + timeout
-    failed = False
     while not should_stop():
         try:
             return VehicleLink(url, frame, **options)
         except LinkNotOpen as exc:
             if time.monotonic() >= deadline:
                 raise LinkError(f"cannot open {url} (tried for {timeout:.0f} s): {exc}") from None
-            if not failed and on_retry is not None:
+            if on_retry is not None:
                 on_retry(exc)
-            failed = True
+                on_retry = None  # the first failure only
             time.sleep(RETRY_OPEN_S)
     return None
