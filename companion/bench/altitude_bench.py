@@ -83,7 +83,7 @@ GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: the bench's observer
 TURN_STEPS = 12  # steps at the turn limit one way, then the other
 LOITER_S = 80.0  # vehicle seconds a loiter phase is measured for (more than one circle)
 LAYER_CHANGE_M = 40.0
-SETTLED_M, SETTLED_RATE, SETTLED_S, SETTLE_TIMEOUT_S = 1.5, 0.5, 8.0, 150.0
+SETTLED_M, SETTLED_RATE, SETTLED_S, SETTLE_TIMEOUT_S = 3.0, 0.5, 8.0, 150.0
 REACHED_M = 2.0  # a layer change is done this close to its target
 WALL_TIMEOUT_S = 240.0  # wall seconds any one wait may take
 CENTRE = (0.0, -300.0)  # where a vehicle settles: south of the region's centre
@@ -212,7 +212,7 @@ def settle(link: VehicleLink, frame: LocalFrame, altitude: float, reposition: bo
 
     def check() -> None:
         t, up = s.time_s, s.up
-        if t > prev[0][0] + 0.2:
+        if t > prev[0][0] + 1.0:  # the rate over a second: GLOBAL_POSITION_INT is noisy
             last_climb[0] = (up - prev[0][1]) / (t - prev[0][0])
             prev[0] = (t, up)
         ok = abs(up - altitude) < SETTLED_M and abs(last_climb[0]) < SETTLED_RATE
@@ -259,7 +259,8 @@ def _phase(
     body()
     flight.phases.append(Phase(name, start, link.state.time_s, target, errors))
     print(
-        f"  {flight.autopilot}: {name} done ({link.state.time_s - start:.0f} s of vehicle time)", flush=True
+        f"  {flight.autopilot}: {name} flown from {start:.0f} to {link.state.time_s:.0f} s of vehicle time",
+        flush=True,
     )
 
 
@@ -415,7 +416,6 @@ def fly_px4(flight: Flight, link: VehicleLink, mission: Mission, uav: int) -> No
     """The PX4 phases on an airborne vehicle (`link`: the companion's link, also the observer)."""
     frame, layer = link.frame, mission.altitude_of(uav)
     k = mission.kinematics
-    flight.params = link.read_params(PX4_PARAMS)
     stop = threading.Event()
     settle(link, frame, layer)
     guidance = Guidance(link, frame, mission, uav, "position-target")
@@ -447,6 +447,7 @@ def fly_px4(flight: Flight, link: VehicleLink, mission: Mission, uav: int) -> No
             raise BenchError(f"offboard loss: not in Hold (mode {link.state.custom_mode:#x})")
 
     _phase(flight, link, "offboard-loss", layer, lost)
+    flight.params = link.read_params(PX4_PARAMS)  # as the companion's take-over left them
 
 
 # -- the autopilots' processes ----------------------------------------------------------------------
@@ -542,6 +543,7 @@ def fly(autopilot: str, mission: Mission, uav: int, speedup: float, out: Path) -
     mission = on_free_ports(mission, uav)
     frame = LocalFrame(mission.region.origin)
     flight = Flight(autopilot, out / "observer.tlog")
+    flight.tlog.unlink(missing_ok=True)  # a tlog is appended to: an earlier flight's must not count
     layer = mission.altitude_of(uav)
     with running(autopilot, mission, uav, speedup, out) as (observer, companion):
         link = VehicleLink(observer, frame, tlog=flight.tlog, component=GCS_COMPONENT)

@@ -1,4 +1,4 @@
-"""The fleet's motion: constant speed, bounded turns, altitude slewed to its target.
+"""The fleet's motion: constant speed, bounded turns, altitude flown to its target as ArduPlane does.
 
 Guidance asks every vehicle either for a bank angle (ArduPlane's laws: heading holds, L1
 navigation and loiters), with a bank limit of the command's own (a heading hold's param3), or for a
@@ -18,6 +18,19 @@ positive. The flight models turn that into motion:
   the core's own `advance`, and the vehicle moves linearly from cell centre to cell centre.
 
 All tick at `substeps` physics ticks per step, so step boundaries fall exactly on ticks.
+
+Altitude (`Flight._climb`, every model): a small kinematic stand-in for ArduPlane's energy
+controller (TECS), not a copy of it. The height demand moves towards the commanded altitude at a
+rate (target - demand) / DEMAND_TCONST, clipped to CLIMB_MAX up and SINK_MAX down (ArduPlane's
+TECS_CLMB_MAX and TECS_SINK_MAX, 5 m/s in plane.parm); the climb rate follows the demand's rate
+plus (demand - altitude) / HEIGHT_TCONST with a lag of CLIMB_TCONST, a second-order loop with a
+period of about 7 s, damped as ArduPlane SITL's height is. In a steady banked turn ArduPlane holds
+its altitude (TECS_RLL2THR and its pitch compensation): measured, the error there is a few tens of
+centimetres. What moves it is the roll changing, rolling in as much as rolling out: the aircraft
+balloons, then sinks below the layer, by 1-2 m for a 40 degree change. In the banked model a roll
+rate of p rad/s adds ROLL_KICK * |p| m/s^2 upwards to the climb rate (the kinematic and grid
+models turn without a roll's dynamics and fly altitude without it). Figures and commands:
+docs/companion.md, "Altitude keeping" (`uavsearch altitude-bench`).
 """
 
 from __future__ import annotations
@@ -31,7 +44,10 @@ from companion.core.geometry import FloatArray
 from companion.core.kinematics import Kinematics, arc_advance, wrap_angle
 from sim_vehicles.dynamics.navigation import GRAVITY
 
-CLIMB_RATE = 3.0  # m/s, the rate altitude changes are flown at
+CLIMB_MAX, SINK_MAX = 5.0, 5.0  # m/s: ArduPlane's TECS_CLMB_MAX, TECS_SINK_MAX (plane.parm; measured 4.8)
+DEMAND_TCONST = 2.0  # s: how the height demand closes on a commanded altitude
+HEIGHT_TCONST, CLIMB_TCONST = 1.1, 1.1  # s: the height loop (period ~7 s, damping ~0.5, as measured)
+ROLL_KICK = 3.4  # m/s of climb per rad of roll change (banked model; fitted to ArduPlane SITL)
 ROLL_TCONST = 0.5  # s: the roll's response to its demand (ArduPlane SITL, measured)
 ROLL_RATE_MAX = math.radians(90.0)  # rad/s (plane.parm's RLL2SRV_RMAX)
 TURN_EFFICIENCY = 0.7  # heading rate / (g tan(roll) / v) of ArduPlane SITL's plane (measured)
@@ -69,7 +85,10 @@ class Flight:
         self.x, self.y = poses[:, 0].astype(float), poses[:, 1].astype(float)
         self.heading = wrap_angle(poses[:, 2])
         self.alt, self.alt_target = np.array(alt, dtype=float), np.array(alt, dtype=float)
+        self.alt_demand = np.array(alt, dtype=float)
         self.vx, self.vy, self.vz, self.omega, self.roll = (np.zeros(n) for _ in range(5))
+        self.roll_kick = 0.0  # m/s of climb per rad of roll change (the banked model's)
+        self._roll_before = np.zeros(n)
         self.step, self.substeps = step, substeps
         self.dt = step / substeps
 
@@ -87,9 +106,15 @@ class Flight:
         self._climb()
 
     def _climb(self) -> None:
-        d = np.clip(self.alt_target - self.alt, -CLIMB_RATE * self.dt, CLIMB_RATE * self.dt)
-        self.alt += d
-        self.vz = d / self.dt
+        """One tick of the height loop (see the module's docstring)."""
+        dt = self.dt
+        rate = np.clip((self.alt_target - self.alt_demand) / DEMAND_TCONST, -SINK_MAX, CLIMB_MAX)
+        self.alt_demand += rate * dt
+        want = np.clip(rate + (self.alt_demand - self.alt) / HEIGHT_TCONST, -SINK_MAX, CLIMB_MAX)
+        kick = self.roll_kick * np.abs(self.roll - self._roll_before)
+        self._roll_before = self.roll.copy()
+        self.vz = self.vz + (want - self.vz) * min(dt / CLIMB_TCONST, 1.0) + kick
+        self.alt += self.vz * dt
 
 
 class KinematicFlight(Flight):
@@ -102,15 +127,23 @@ class KinematicFlight(Flight):
 
 
 class BankedFlight(Flight):
-    """Coordinated turns with a lagged, rate-limited roll (ArduPlane-like)."""
+    """Coordinated turns with a lagged, rate-limited roll (ArduPlane-like), and the roll's effect on
+    the altitude."""
+
+    def __init__(self, poses: FloatArray, alt: FloatArray, step: float, substeps: int) -> None:
+        super().__init__(poses, alt, step, substeps)
+        self.roll_kick = ROLL_KICK
 
     def tick(self, d: Demand) -> None:
         v = np.maximum(d.speed, 1.0)
         limit = np.minimum(d.bank_limit, d.roll_limit)
         for_rate = np.arctan(d.rate * v / (GRAVITY * TURN_EFFICIENCY))
         want = np.clip(np.where(d.by_bank > 0, d.bank, for_rate), -limit, limit)
-        change = np.clip((want - self.roll) * min(self.dt / ROLL_TCONST, 1.0), -ROLL_RATE_MAX * self.dt,
-                         ROLL_RATE_MAX * self.dt)
+        change = np.clip(
+            (want - self.roll) * min(self.dt / ROLL_TCONST, 1.0),
+            -ROLL_RATE_MAX * self.dt,
+            ROLL_RATE_MAX * self.dt,
+        )
         self.roll = (self.roll + change) * d.moving
         self._advance(TURN_EFFICIENCY * GRAVITY * np.tan(self.roll) / v, d.speed * d.moving)
 
