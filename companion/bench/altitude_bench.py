@@ -80,7 +80,9 @@ MISSIONS = {
 }
 SPEEDUPS = {"ardupilot-sitl": 8.0, "px4-sitl": 4.0, "bundled": 8.0}  # as tests/sitl and tests/px4 fly them
 GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: the bench's observer
-TURN_STEPS = 12  # steps at the turn limit one way, then the other
+ARDUPILOT_PHASES = ("guided-turn", "failsafe-loiter", "hand-over", "layer-change")
+TURN_STEPS = 12
+LEVEL_STEPS = 5  # steps flown straight before turning: each phase starts wings level  # steps at the turn limit one way, then the other
 LOITER_S = 80.0  # vehicle seconds a loiter phase is measured for (more than one circle)
 LAYER_CHANGE_M = 40.0
 SETTLED_M, SETTLED_RATE, SETTLED_S, SETTLE_TIMEOUT_S = 3.0, 0.5, 8.0, 150.0
@@ -171,9 +173,23 @@ def figures(autopilot: str, phase: Phase, samples: Sequence[Sample]) -> PhaseFig
         float(np.max(np.abs(err))) if phase.errors else nan,
         float(np.percentile(np.abs(err), 95)) if phase.errors else nan,
         float(np.mean(err)) if phase.errors else nan,
-        float(max(np.max(climb), 0.0)),
-        float(max(-np.min(climb), 0.0)),
+        float(max(np.max(climb), 0.0)) if np.isfinite(climb).all() else nan,
+        float(max(-np.min(climb), 0.0)) if np.isfinite(climb).all() else nan,
     )
+
+
+class Sampler:
+    """Samples a link's altitude at every poll (for a link without a .tlog): hook it on `on_poll`.
+    Climb rates are not sampled (NaN)."""
+
+    def __init__(self, link: VehicleLink) -> None:
+        self.link, self.samples = link, list[Sample]()
+        link.on_poll = self
+
+    def __call__(self) -> None:
+        s = self.link.state
+        if s.has_pose and (not self.samples or s.time_s > self.samples[-1].t):
+            self.samples.append(Sample(s.time_s, s.up, math.nan))
 
 
 def flight_figures(flight: Flight) -> tuple[list[PhaseFigures], list[Sample]]:
@@ -225,18 +241,23 @@ def settle(link: VehicleLink, frame: LocalFrame, altitude: float, reposition: bo
 
 
 class Turns:
-    """The companion's guidance turning at the turn limit: TURN_STEPS steps one way, then the other."""
+    """The companion's guidance: `level` steps straight on (wings level), then turning at the turn
+    limit, TURN_STEPS steps one way, then the other."""
 
-    def __init__(self, guidance: Guidance, mission: Mission) -> None:
-        self.guidance, self.k = guidance, mission.kinematics
+    def __init__(self, guidance: Guidance, mission: Mission, level: int = 0) -> None:
+        self.guidance, self.k, self.level = guidance, mission.kinematics, level
         self.count, self.next_step = 0, -math.inf
+        self.straight = math.nan  # the heading flown while level
 
     def __call__(self) -> None:
         s, g = self.guidance.link.state, self.guidance
         if s.time_s >= self.next_step:
-            side = 1.0 if (self.count // TURN_STEPS) % 2 == 0 else -1.0
+            turning = self.count - self.level
+            side = 0.0 if turning < 0 else 1.0 if (turning // TURN_STEPS) % 2 == 0 else -1.0
             turn = side * math.radians(self.k.turn_limit_deg)
-            heading = float(wrap_angle(s.heading + turn))
+            if not math.isfinite(self.straight):
+                self.straight = s.heading
+            heading = float(wrap_angle(s.heading + turn)) if turning >= 0 else self.straight
             cmd = Command(
                 step=self.count,
                 turn=turn,
@@ -321,7 +342,7 @@ def fly_ardupilot(
     companion_url: str,
     mission: Mission,
     uav: int,
-    phases: Sequence[str] = ("guided-turn", "failsafe-loiter", "hand-over", "layer-change"),
+    phases: Sequence[str] = ARDUPILOT_PHASES,
 ) -> None:
     """The ArduPilot phases on an airborne vehicle in GUIDED (`link`: the observer; `companion_url`
     a second link to it, for the companion whose silence fires the failsafe)."""
@@ -331,13 +352,13 @@ def fly_ardupilot(
     if "guided-turn" in phases:
         guided(link)
         settle(link, frame, layer)
-        turns = Turns(Guidance(link, frame, mission, uav, "heading"), mission)
+        turns = Turns(Guidance(link, frame, mission, uav, "heading"), mission, LEVEL_STEPS)
         _phase(
             flight,
             link,
             "guided-turn",
             layer,
-            lambda: fly_for(link, 2 * TURN_STEPS * mission.kinematics.step, turns),
+            lambda: fly_for(link, (LEVEL_STEPS + 2 * TURN_STEPS) * mission.kinematics.step, turns),
         )
     if "failsafe-loiter" in phases:
         guided(link)
@@ -351,8 +372,8 @@ def fly_ardupilot(
     if "hand-over" in phases:
         guided(link)
         settle(link, frame, layer)
-        turns = Turns(Guidance(link, frame, mission, uav, "heading"), mission)
-        fly_for(link, 3 * mission.kinematics.step, turns)  # turning hard when the mission ends
+        turns = Turns(Guidance(link, frame, mission, uav, "heading"), mission, LEVEL_STEPS)
+        fly_for(link, (LEVEL_STEPS + 3) * mission.kinematics.step, turns)  # turning hard at the end
         loiter = FailsafeLoiter(link, world, uav, frame)
 
         def handed() -> None:
@@ -389,7 +410,7 @@ def _failsafe(
     error = arm_failsafe(loiter, _committed(companion, uav, mission))
     if error:
         raise BenchError(f"arming the failsafe: {error}")
-    turns = Turns(Guidance(companion, link.frame, mission, uav, "heading"), mission)
+    turns = Turns(Guidance(companion, link.frame, mission, uav, "heading"), mission, LEVEL_STEPS)
     step_at = [companion.state.time_s]
 
     def follow() -> None:
@@ -399,7 +420,7 @@ def _failsafe(
             loiter.follow(_committed(companion, uav, mission))
             step_at[0] = companion.state.time_s
 
-    fly_for(companion, 3 * mission.kinematics.step, follow)
+    fly_for(companion, (LEVEL_STEPS + 3) * mission.kinematics.step, follow)
     companion.poll(0.0)
     companion.send_heartbeat()
     companion.close()  # the companion dies
@@ -451,10 +472,11 @@ def fly_px4(flight: Flight, link: VehicleLink, mission: Mission, uav: int) -> No
 
 
 # -- the autopilots' processes ----------------------------------------------------------------------
-def _free_block(width: int = 6) -> int:
-    """A base port P with P..P+width-1 free for TCP and UDP on 127.0.0.1, P a multiple of 10."""
+def _free_block(taken: set[int], width: int = 6) -> int:
+    """A base port P not in `taken` with P..P+width-1 free for TCP and UDP on 127.0.0.1, P a multiple
+    of 10."""
     for base in range(21000 + (time.monotonic_ns() // 1000) % 20000 // 10 * 10, 60000, 10):
-        ok = True
+        ok = base not in taken
         for port in range(base, base + width):
             for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
                 with socket.socket(socket.AF_INET, kind) as sock:
@@ -467,10 +489,14 @@ def _free_block(width: int = 6) -> int:
     raise BenchError("no free block of loopback ports")
 
 
-def on_free_ports(mission: Mission, uav: int) -> Mission:
-    """`mission` with vehicle `uav` on a free block of loopback ports."""
-    vehicles = list(mission.vehicles)
-    vehicles[uav] = msgspec.structs.replace(vehicles[uav], mavlink_port=_free_block())
+def on_free_ports(mission: Mission) -> Mission:
+    """`mission` with every vehicle on a free block of loopback ports (the bundled simulator serves
+    them all)."""
+    vehicles, taken = [], set[int]()
+    for v in mission.vehicles:
+        base = _free_block(taken)
+        taken.add(base)
+        vehicles.append(msgspec.structs.replace(v, mavlink_port=base))
     return msgspec.structs.replace(mission, vehicles=tuple(vehicles))
 
 
@@ -532,15 +558,22 @@ def _without_none(value: object) -> object:
     """A mission's builtins as TOML writes them: unset (None) fields left out."""
     if isinstance(value, dict):
         return {k: _without_none(v) for k, v in value.items() if v is not None}
-    if isinstance(value, list):
+    if isinstance(value, list | tuple):
         return [_without_none(v) for v in value]
     return value
 
 
-def fly(autopilot: str, mission: Mission, uav: int, speedup: float, out: Path) -> Flight:
+def fly(
+    autopilot: str,
+    mission: Mission,
+    uav: int,
+    speedup: float,
+    out: Path,
+    phases: Sequence[str] = ARDUPILOT_PHASES,
+) -> Flight:
     """One autopilot's whole flight: start it, take off to the layer, fly the phases."""
     out.mkdir(parents=True, exist_ok=True)
-    mission = on_free_ports(mission, uav)
+    mission = on_free_ports(mission)
     frame = LocalFrame(mission.region.origin)
     flight = Flight(autopilot, out / "observer.tlog")
     flight.tlog.unlink(missing_ok=True)  # a tlog is appended to: an earlier flight's must not count
@@ -566,7 +599,7 @@ def fly(autopilot: str, mission: Mission, uav: int, speedup: float, out: Path) -
                         raise BenchError("the bundled simulator was not taken over")
                 elif not take_off(link, layer, uav, stop):
                     raise BenchError("ArduPlane did not take off")
-                fly_ardupilot(flight, link, companion, mission, uav)
+                fly_ardupilot(flight, link, companion, mission, uav, phases)
         finally:
             link.close()
     return flight

@@ -26,11 +26,13 @@ TECS_CLMB_MAX and TECS_SINK_MAX, 5 m/s in plane.parm); the climb rate follows th
 plus (demand - altitude) / HEIGHT_TCONST with a lag of CLIMB_TCONST, a second-order loop with a
 period of about 7 s, damped as ArduPlane SITL's height is. In a steady banked turn ArduPlane holds
 its altitude (TECS_RLL2THR and its pitch compensation): measured, the error there is a few tens of
-centimetres. What moves it is the roll changing, rolling in as much as rolling out: the aircraft
-balloons, then sinks below the layer, by 1-2 m for a 40 degree change. In the banked model a roll
-rate of p rad/s adds ROLL_KICK * |p| m/s^2 upwards to the climb rate (the kinematic and grid
-models turn without a roll's dynamics and fly altitude without it). Figures and commands:
-docs/companion.md, "Altitude keeping" (`uavsearch altitude-bench`).
+centimetres. What moves it is the load factor n = 1 / cos(roll) changing: rolling into a steep
+turn (to 55-60 degrees, as loiters are entered) it climbs 1.5-2 m above the layer, rolling out
+it sinks as far below, and a reversal (n falls, then rises again) nearly cancels. In the banked
+model a change dn of the load factor adds ROLL_KICK * dn m/s to the climb rate, which the height
+loop then takes out (the kinematic and grid models turn without a roll's dynamics and fly
+altitude without it). Figures and commands: docs/companion.md, "Altitude keeping"
+(`uavsearch altitude-bench`).
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ from sim_vehicles.dynamics.navigation import GRAVITY
 CLIMB_MAX, SINK_MAX = 5.0, 5.0  # m/s: ArduPlane's TECS_CLMB_MAX, TECS_SINK_MAX (plane.parm; measured 4.8)
 DEMAND_TCONST = 2.0  # s: how the height demand closes on a commanded altitude
 HEIGHT_TCONST, CLIMB_TCONST = 1.1, 1.1  # s: the height loop (period ~7 s, damping ~0.5, as measured)
-ROLL_KICK = 3.4  # m/s of climb per rad of roll change (banked model; fitted to ArduPlane SITL)
+ROLL_KICK = 4.0  # m/s of climb per unit of load factor gained (banked model; fitted to ArduPlane SITL)
 ROLL_TCONST = 0.5  # s: the roll's response to its demand (ArduPlane SITL, measured)
 ROLL_RATE_MAX = math.radians(90.0)  # rad/s (plane.parm's RLL2SRV_RMAX)
 TURN_EFFICIENCY = 0.7  # heading rate / (g tan(roll) / v) of ArduPlane SITL's plane (measured)
@@ -87,8 +89,8 @@ class Flight:
         self.alt, self.alt_target = np.array(alt, dtype=float), np.array(alt, dtype=float)
         self.alt_demand = np.array(alt, dtype=float)
         self.vx, self.vy, self.vz, self.omega, self.roll = (np.zeros(n) for _ in range(5))
-        self.roll_kick = 0.0  # m/s of climb per rad of roll change (the banked model's)
-        self._roll_before = np.zeros(n)
+        self.roll_kick = 0.0  # m/s of climb per unit of load factor gained (the banked model's)
+        self._load_before = np.ones(n)
         self.step, self.substeps = step, substeps
         self.dt = step / substeps
 
@@ -111,8 +113,9 @@ class Flight:
         rate = np.clip((self.alt_target - self.alt_demand) / DEMAND_TCONST, -SINK_MAX, CLIMB_MAX)
         self.alt_demand += rate * dt
         want = np.clip(rate + (self.alt_demand - self.alt) / HEIGHT_TCONST, -SINK_MAX, CLIMB_MAX)
-        kick = self.roll_kick * np.abs(self.roll - self._roll_before)
-        self._roll_before = self.roll.copy()
+        load = 1.0 / np.cos(np.clip(self.roll, -1.4, 1.4))
+        kick = self.roll_kick * (load - self._load_before)
+        self._load_before = load
         self.vz = self.vz + (want - self.vz) * min(dt / CLIMB_TCONST, 1.0) + kick
         self.alt += self.vz * dt
 
