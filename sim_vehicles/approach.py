@@ -5,8 +5,9 @@ current sampling step (dT), each pair's smallest horizontal distance and, over t
 the pair was horizontally closer than `conflict_within` (R_s), its smallest vertical separation.
 When the step ends it appends to a CSV file one row per pair that came within `report_within`
 metres (and always the step's closest pair): `step,i,j,distance_m,vertical_m`, `vertical_m` empty
-when the pair was never within `conflict_within` in the step (or no altitudes were given); a
-simulator resumed from its state file appends. Two aircraft are separated in three dimensions when
+when the pair was never within `conflict_within` in the step (or no altitudes were given), and
+without that column when no `conflict_within` is given (a horizontal record); a simulator resumed
+from its state file appends. Two aircraft are separated in three dimensions when
 they are R_s apart horizontally or `vertical_separation` apart vertically: a step whose
 `vertical_m` is below that lost 3D separation. The flown mission's evaluation and the fault
 matrix read it (`companion.app.evaluation.read_approach`, `read_vertical`).
@@ -39,7 +40,7 @@ class ApproachRecorder:
         fresh = not path.exists() or path.stat().st_size == 0
         self._file = path.open("a", encoding="utf-8")  # a resumed simulator (`--state`) appends
         if fresh:
-            self._file.write("step,i,j,distance_m,vertical_m\n")
+            self._file.write("step,i,j,distance_m" + (",vertical_m\n" if conflict_within > 0 else "\n"))
             self._file.flush()
 
     def update(self, t: float, x: FloatArray, y: FloatArray, z: FloatArray | None = None) -> None:
@@ -67,7 +68,10 @@ class ApproachRecorder:
         keep[int(np.argmin(self.minimum))] = True
         i, j = self.pairs
         near = zip(i[keep], j[keep], self.minimum[keep], self.vertical[keep], strict=True)
-        self._file.writelines(f"{self.step},{a},{b},{d:.3f},{_metres(v)}\n" for a, b, d, v in near)
+        if self.conflict_within > 0:
+            self._file.writelines(f"{self.step},{a},{b},{d:.3f},{_metres(v)}\n" for a, b, d, v in near)
+        else:
+            self._file.writelines(f"{self.step},{a},{b},{d:.3f}\n" for a, b, d, _ in near)
         self._file.flush()
 
     def close(self) -> None:
