@@ -343,6 +343,7 @@ def fly_ardupilot(
     mission: Mission,
     uav: int,
     phases: Sequence[str] = ARDUPILOT_PHASES,
+    loiter_s: float = LOITER_S,
 ) -> None:
     """The ArduPilot phases on an airborne vehicle in GUIDED (`link`: the observer; `companion_url`
     a second link to it, for the companion whose silence fires the failsafe)."""
@@ -380,7 +381,7 @@ def fly_ardupilot(
             error = hand_over(loiter, _committed(link, uav, mission), threading.Event())
             if error:
                 raise BenchError(f"hand-over: {error}")
-            fly_for(link, LOITER_S)
+            fly_for(link, loiter_s)
 
         _phase(flight, link, "hand-over", layer, handed)
     if "layer-change" in phases:
@@ -570,6 +571,7 @@ def fly(
     speedup: float,
     out: Path,
     phases: Sequence[str] = ARDUPILOT_PHASES,
+    loiter_s: float = LOITER_S,
 ) -> Flight:
     """One autopilot's whole flight: start it, take off to the layer, fly the phases."""
     out.mkdir(parents=True, exist_ok=True)
@@ -579,7 +581,8 @@ def fly(
     flight.tlog.unlink(missing_ok=True)  # a tlog is appended to: an earlier flight's must not count
     layer = mission.altitude_of(uav)
     with running(autopilot, mission, uav, speedup, out) as (observer, companion):
-        link = VehicleLink(observer, frame, tlog=flight.tlog, component=GCS_COMPONENT)
+        # it speaks (a ground station's HEARTBEAT) so that the bundled simulator keeps it as a peer
+        link = VehicleLink(observer, frame, tlog=flight.tlog, component=GCS_COMPONENT, heartbeat=True)
         try:
             if not link.wait_heartbeat(120):
                 raise BenchError(f"{autopilot}: no HEARTBEAT")
@@ -599,7 +602,7 @@ def fly(
                         raise BenchError("the bundled simulator was not taken over")
                 elif not take_off(link, layer, uav, stop):
                     raise BenchError("ArduPlane did not take off")
-                fly_ardupilot(flight, link, companion, mission, uav, phases)
+                fly_ardupilot(flight, link, companion, mission, uav, phases, loiter_s)
         finally:
             link.close()
     return flight
