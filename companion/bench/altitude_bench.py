@@ -29,7 +29,8 @@ PX4 SITL (SIH fixed-wing):
   setpoint for LOITER_S.
 
 Every phase starts with the vehicle settled at its layer (within SETTLED_M, climbing or sinking
-slower than SETTLED_RATE, for SETTLED_S); the figures cover the whole phase, its entry included.
+slower than SETTLED_RATE, for SETTLED_S), an ArduPilot one flying straight and within
+LEVEL_SETTLED_M; the figures cover the whole phase, its entry included.
 Processes are started and stopped by PID on free loopback ports.
 """
 
@@ -82,7 +83,9 @@ SPEEDUPS = {"ardupilot-sitl": 8.0, "px4-sitl": 2.0, "bundled": 8.0}  # PX4 at 4:
 GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: the bench's observer
 ARDUPILOT_PHASES = ("guided-turn", "failsafe-loiter", "hand-over", "layer-change")
 TURN_STEPS = 12  # steps at the turn limit one way, then the other
-LEVEL_STEPS = 5  # steps flown straight before turning: each phase starts wings level
+STRAIGHT = 10**6  # Turns(level=STRAIGHT) flies straight on
+HAND_OVER_TURNS = 3  # steps at the turn limit before a hand-over or failsafe
+LEVEL_SETTLED_M = 0.5  # ArduPilot phases start wings level within this of the layer
 LOITER_S = 80.0  # vehicle seconds a loiter phase is measured for (more than one circle)
 LAYER_CHANGE_M = 40.0
 SETTLED_M, SETTLED_RATE, SETTLED_S, SETTLE_TIMEOUT_S = 3.0, 0.5, 8.0, 150.0
@@ -215,9 +218,16 @@ def fly_for(link: VehicleLink, seconds: float, each: Callable[[], None] = lambda
     wait(link, lambda: link.state.time_s >= end, f"{seconds:.0f} s of flight", each)
 
 
-def settle(link: VehicleLink, frame: LocalFrame, altitude: float, reposition: bool = True) -> None:
-    """Fly to CENTRE at `altitude` and circle there until settled at it (SETTLED_S within SETTLED_M,
-    slower than SETTLED_RATE)."""
+def settle(
+    link: VehicleLink,
+    frame: LocalFrame,
+    altitude: float,
+    reposition: bool = True,
+    tolerance: float = SETTLED_M,
+    each: Callable[[], None] = lambda: None,
+) -> None:
+    """Fly to CENTRE at `altitude` and circle there (or, without `reposition`, fly on as `each`
+    steers) until settled at it (SETTLED_S within `tolerance`, slower than SETTLED_RATE)."""
     s = link.state
     if reposition:
         lat, lon, _ = frame.to_geodetic(*CENTRE)
@@ -231,7 +241,8 @@ def settle(link: VehicleLink, frame: LocalFrame, altitude: float, reposition: bo
         if t > prev[0][0] + 1.0:  # the rate over a second: GLOBAL_POSITION_INT is noisy
             last_climb[0] = (up - prev[0][1]) / (t - prev[0][0])
             prev[0] = (t, up)
-        ok = abs(up - altitude) < SETTLED_M and abs(last_climb[0]) < SETTLED_RATE
+        each()
+        ok = abs(up - altitude) < tolerance and abs(last_climb[0]) < SETTLED_RATE
         since[0] = min(since[0], t) if ok else math.inf
 
     end = s.time_s + SETTLE_TIMEOUT_S
@@ -353,13 +364,15 @@ def fly_ardupilot(
     if "guided-turn" in phases:
         guided(link)
         settle(link, frame, layer)
-        turns = Turns(Guidance(link, frame, mission, uav, "heading"), mission, LEVEL_STEPS)
+        guidance = Guidance(link, frame, mission, uav, "heading")
+        settle(link, frame, layer, False, LEVEL_SETTLED_M, Turns(guidance, mission, STRAIGHT))
+        turns = Turns(guidance, mission)
         _phase(
             flight,
             link,
             "guided-turn",
             layer,
-            lambda: fly_for(link, (LEVEL_STEPS + 2 * TURN_STEPS) * mission.kinematics.step, turns),
+            lambda: fly_for(link, 2 * TURN_STEPS * mission.kinematics.step, turns),
         )
     if "failsafe-loiter" in phases:
         guided(link)
@@ -373,8 +386,9 @@ def fly_ardupilot(
     if "hand-over" in phases:
         guided(link)
         settle(link, frame, layer)
-        turns = Turns(Guidance(link, frame, mission, uav, "heading"), mission, LEVEL_STEPS)
-        fly_for(link, (LEVEL_STEPS + 3) * mission.kinematics.step, turns)  # turning hard at the end
+        guidance = Guidance(link, frame, mission, uav, "heading")
+        settle(link, frame, layer, False, LEVEL_SETTLED_M, Turns(guidance, mission, STRAIGHT))
+        fly_for(link, HAND_OVER_TURNS * mission.kinematics.step, Turns(guidance, mission))  # turning hard
         loiter = FailsafeLoiter(link, world, uav, frame)
 
         def handed() -> None:
@@ -411,7 +425,8 @@ def _failsafe(
     error = arm_failsafe(loiter, _committed(companion, uav, mission))
     if error:
         raise BenchError(f"arming the failsafe: {error}")
-    turns = Turns(Guidance(companion, link.frame, mission, uav, "heading"), mission, LEVEL_STEPS)
+    guidance = Guidance(companion, link.frame, mission, uav, "heading")
+    turns = Turns(guidance, mission, STRAIGHT)
     step_at = [companion.state.time_s]
 
     def follow() -> None:
@@ -421,7 +436,9 @@ def _failsafe(
             loiter.follow(_committed(companion, uav, mission))
             step_at[0] = companion.state.time_s
 
-    fly_for(companion, (LEVEL_STEPS + 3) * mission.kinematics.step, follow)
+    settle(companion, link.frame, mission.altitude_of(uav), False, LEVEL_SETTLED_M, follow)
+    turns = Turns(guidance, mission)
+    fly_for(companion, HAND_OVER_TURNS * mission.kinematics.step, follow)
     companion.poll(0.0)
     companion.send_heartbeat()
     companion.close()  # the companion dies
