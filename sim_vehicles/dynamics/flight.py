@@ -27,11 +27,12 @@ plus (demand - altitude) / HEIGHT_TCONST with a lag of CLIMB_TCONST, a second-or
 period of about 11 s and a damping of 0.3, as ArduPlane SITL's height swings back. In a steady
 banked turn ArduPlane holds its altitude (TECS_RLL2THR and its pitch compensation): measured, the
 error there is a few tens of centimetres. What moves it is the load factor n = 1 / cos(roll)
-changing (the roll compensation acts on n^2 - 1): rolling into a turn it climbs above the layer
-(0.5 m into a 39 degree bank, 1.5-2 m into the 50-60 degrees loiters are entered with), rolling
-out it sinks below, and a reversal (n falls, then rises again) nearly cancels. In the banked
-model a change d(n^2) adds ROLL_KICK * d(n^2) m/s to the climb rate, which the height loop then
-takes out (the kinematic and grid models turn without a roll's dynamics and fly altitude without
+changing: rolling into a turn it climbs above the layer (0.4-0.5 m into a 39 degree bank,
+1.5-2 m into the 50-60 degrees loiters are entered with), rolling out it sinks below, and a
+reversal (n falls, then rises again) nearly cancels. The error grows with the bank faster than
+n^2 - 1 (what ArduPlane's roll compensation, TECS_RLL2THR, acts on): fitted, as n^4 - 1. In the
+banked model a change d(n^4) adds ROLL_KICK * d(n^4) m/s to the climb rate, which the height
+loop then takes out (the kinematic and grid models turn without a roll's dynamics and fly altitude without
 it). Figures and commands: docs/companion.md, "Altitude keeping" (`uavsearch altitude-bench`).
 """
 
@@ -49,7 +50,7 @@ from sim_vehicles.dynamics.navigation import GRAVITY
 CLIMB_MAX, SINK_MAX = 5.0, 5.0  # m/s: ArduPlane's TECS_CLMB_MAX, TECS_SINK_MAX (plane.parm; measured 4.8)
 DEMAND_TCONST = 2.0  # s: how the height demand closes on a commanded altitude
 HEIGHT_TCONST, CLIMB_TCONST = 1.0, 2.8  # s: the height loop (period ~11 s, damping 0.3, as measured)
-ROLL_KICK = 0.85  # m/s of climb per unit of n^2 gained (banked model; fitted to ArduPlane SITL)
+ROLL_KICK = 0.28  # m/s of climb per unit of n^4 gained (banked model; fitted to ArduPlane SITL)
 ROLL_TCONST = 0.5  # s: the roll's response to its demand (ArduPlane SITL, measured)
 ROLL_RATE_MAX = math.radians(90.0)  # rad/s (plane.parm's RLL2SRV_RMAX)
 TURN_EFFICIENCY = 0.7  # heading rate / (g tan(roll) / v) of ArduPlane SITL's plane (measured)
@@ -89,7 +90,7 @@ class Flight:
         self.alt, self.alt_target = np.array(alt, dtype=float), np.array(alt, dtype=float)
         self.alt_demand = np.array(alt, dtype=float)
         self.vx, self.vy, self.vz, self.omega, self.roll = (np.zeros(n) for _ in range(5))
-        self.roll_kick = 0.0  # m/s of climb per unit of n^2 gained (the banked model's)
+        self.roll_kick = 0.0  # m/s of climb per unit of n^4 gained (the banked model's)
         self._load_before = np.ones(n)
         self.step, self.substeps = step, substeps
         self.dt = step / substeps
@@ -113,7 +114,7 @@ class Flight:
         rate = np.clip((self.alt_target - self.alt_demand) / DEMAND_TCONST, -SINK_MAX, CLIMB_MAX)
         self.alt_demand += rate * dt
         want = np.clip(rate + (self.alt_demand - self.alt) / HEIGHT_TCONST, -SINK_MAX, CLIMB_MAX)
-        load = 1.0 / np.cos(np.clip(self.roll, -1.4, 1.4)) ** 2
+        load = 1.0 / np.cos(np.clip(self.roll, -1.4, 1.4)) ** 4
         kick = self.roll_kick * (load - self._load_before)
         self._load_before = load
         self.vz = self.vz + (want - self.vz) * min(dt / CLIMB_TCONST, 1.0) + kick
