@@ -84,6 +84,7 @@ GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: the bench's observer
 ARDUPILOT_PHASES = ("guided-turn", "failsafe-loiter", "hand-over", "layer-change")
 TURN_STEPS = 12  # steps at the turn limit one way, then the other
 STRAIGHT = 10**6  # Turns(level=STRAIGHT) flies straight on
+FAILSAFE_TIMEOUT_S = 10.0  # FS_LONG_TIMEOUT flown (vehicle s): 1.25 s of wall time at 8x, as tests/sitl
 HAND_OVER_TURNS = 3  # steps at the turn limit before a hand-over or failsafe
 LEVEL_SETTLED_M = 0.5  # ArduPilot phases start wings level within this of the layer
 LOITER_S = 80.0  # vehicle seconds a loiter phase is measured for (more than one circle)
@@ -422,23 +423,27 @@ def _failsafe(
     companion.request_streams()
     wait(companion, lambda: companion.state.has_pose, "the companion link's pose")
     loiter = FailsafeLoiter(companion, world, uav, link.frame)
-    error = arm_failsafe(loiter, _committed(companion, uav, mission))
-    if error:
-        raise BenchError(f"arming the failsafe: {error}")
     guidance = Guidance(companion, link.frame, mission, uav, "heading")
     turns = Turns(guidance, mission, STRAIGHT)
     step_at = [companion.state.time_s]
+    armed = [False]
 
     def follow() -> None:
         link.poll(0.0)
         turns()
-        if companion.state.time_s - step_at[0] >= mission.kinematics.step:
+        if armed[0] and companion.state.time_s - step_at[0] >= mission.kinematics.step:
             loiter.follow(_committed(companion, uav, mission))
             step_at[0] = companion.state.time_s
 
     settle(companion, link.frame, mission.altitude_of(uav), False, LEVEL_SETTLED_M, follow)
+    error = arm_failsafe(loiter, _committed(companion, uav, mission))
+    if error:
+        raise BenchError(f"arming the failsafe: {error}")
+    armed[0] = True
     turns = Turns(guidance, mission)
     fly_for(companion, HAND_OVER_TURNS * mission.kinematics.step, follow)
+    if link.state.custom_mode != ARDUPILOT_GUIDED:
+        raise BenchError(f"failsafe: fired before the silence (mode {link.state.custom_mode})")
     companion.poll(0.0)
     companion.send_heartbeat()
     companion.close()  # the companion dies
@@ -593,6 +598,10 @@ def fly(
     """One autopilot's whole flight: start it, take off to the layer, fly the phases."""
     out.mkdir(parents=True, exist_ok=True)
     mission = on_free_ports(mission)
+    if (mission.safety.failsafe_timeout or 0.0) < FAILSAFE_TIMEOUT_S:  # a starved companion must not fire it
+        mission = msgspec.structs.replace(
+            mission, safety=msgspec.structs.replace(mission.safety, failsafe_timeout=FAILSAFE_TIMEOUT_S)
+        )
     frame = LocalFrame(mission.region.origin)
     flight = Flight(autopilot, out / "observer.tlog")
     flight.tlog.unlink(missing_ok=True)  # a tlog is appended to: an earlier flight's must not count
