@@ -55,6 +55,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from companion.app import px4_sitl, sitl
+from companion.app.arguments import natural, positive, weight
 from companion.app.launcher import Children
 from companion.core.agent import Command
 from companion.core.kinematics import wrap_angle
@@ -692,10 +693,10 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--mission", type=Path, help="mission file (default: scenario1_continuous, scenario1_px4)"
     )
-    parser.add_argument("--uav", type=int, default=0, help="which vehicle flies (its start pose and layer)")
-    parser.add_argument("--speedup", type=float, help="simulated time per wall second (default 8, PX4 2)")
+    parser.add_argument("--uav", type=natural, default=0, help="the vehicle that flies (its pose, layer)")
+    parser.add_argument("--speedup", type=positive, help="simulated time per wall second (default 8, PX4 2)")
     parser.add_argument(
-        "--margin", type=float, default=10.0, help="metres added to twice the worst deviation"
+        "--margin", type=weight, default=10.0, help="metres added to twice the worst deviation"
     )
     parser.add_argument("--out", type=Path, help="output folder (default: a fresh temporary one)")
     args = parser.parse_args(argv)
