@@ -705,7 +705,8 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
     if unknown or not names:
         print(
             f"error: --autopilot: unknown {', '.join(unknown) or '(none)'} "
-            "(one of ardupilot-sitl, px4-sitl, bundled)"
+            "(one of ardupilot-sitl, px4-sitl, bundled)",
+            file=sys.stderr,
         )
         return 2
     out = args.out or Path(tempfile.mkdtemp(prefix="altitude-bench-"))
@@ -714,7 +715,7 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
     for name in names:
         mission = load_mission(args.mission or MISSIONS[name])
         if not 0 <= args.uav < mission.n_uavs:
-            print(f"error: --uav {args.uav}: the mission has {mission.n_uavs} vehicles")
+            print(f"error: --uav {args.uav}: the mission has {mission.n_uavs} vehicles", file=sys.stderr)
             return 2
         print(
             f"{name}: flying vehicle {args.uav} at its layer {mission.altitude_of(args.uav):.0f} m",
@@ -723,7 +724,7 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
         try:
             flight = fly(name, mission, args.uav, args.speedup or SPEEDUPS[name], out / name)
         except (BenchError, sitl.SitlError, px4_sitl.Px4Error, RuntimeError) as exc:
-            print(f"error: {name}: {exc}")
+            print(f"error: {name}: {exc}", file=sys.stderr)
             return 1
         found, samples = flight_figures(flight)
         rows += found
