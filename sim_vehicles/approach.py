@@ -1,12 +1,16 @@
 """Ground truth of separation: the closest approach of every pair of vehicles, at the physics rate.
 
-Every physics tick the simulator hands in all vehicles' horizontal positions; the recorder keeps,
-for the current sampling step (dT), each pair's smallest distance, and when the step ends it
-appends to a CSV file one row per pair that came within `report_within` metres (and always the
-step's closest pair): `step,i,j,distance_m`; a simulator resumed from its state file appends. The
-flown mission's evaluation and the fault matrix read it
-(`companion.app.evaluation.read_approach`). Altitude layers are ignored on purpose: the safety
-layer's separation is horizontal.
+Every physics tick the simulator hands in all vehicles' positions; the recorder keeps, for the
+current sampling step (dT), each pair's smallest horizontal distance and, over the ticks in which
+the pair was horizontally closer than `conflict_within` (R_s), its smallest vertical separation.
+When the step ends it appends to a CSV file one row per pair that came within `report_within`
+metres (and always the step's closest pair): `step,i,j,distance_m,vertical_m`, `vertical_m` empty
+when the pair was never within `conflict_within` in the step (or no altitudes were given), and
+without that column when no `conflict_within` is given (a horizontal record); a simulator resumed
+from its state file appends. Two aircraft are separated in three dimensions when
+they are R_s apart horizontally or `vertical_separation` apart vertically: a step whose
+`vertical_m` is below that lost 3D separation. The flown mission's evaluation and the fault
+matrix read it (`companion.app.evaluation.read_approach`, `read_vertical`).
 """
 
 from __future__ import annotations
@@ -20,22 +24,28 @@ from companion.core.geometry import FloatArray
 
 
 class ApproachRecorder:
-    """Per-step minimum pairwise horizontal distances of `n` vehicles, written to `path` as they end."""
+    """Per-step minimum pairwise horizontal distances of `n` vehicles, and vertical separations while
+    horizontally within `conflict_within`, written to `path` as they end."""
 
-    def __init__(self, path: Path, n: int, step_s: float, report_within: float) -> None:
+    def __init__(
+        self, path: Path, n: int, step_s: float, report_within: float, conflict_within: float = 0.0
+    ) -> None:
         self.path, self.step_s, self.report_within = path, step_s, report_within
+        self.conflict_within = conflict_within
         self.pairs = np.triu_indices(n, 1)
         self.step = -1
         self.minimum = np.full(len(self.pairs[0]), math.inf)
+        self.vertical = np.full(len(self.pairs[0]), math.inf)
         path.parent.mkdir(parents=True, exist_ok=True)
         fresh = not path.exists() or path.stat().st_size == 0
         self._file = path.open("a", encoding="utf-8")  # a resumed simulator (`--state`) appends
         if fresh:
-            self._file.write("step,i,j,distance_m\n")
+            self._file.write("step,i,j,distance_m" + (",vertical_m\n" if conflict_within > 0 else "\n"))
             self._file.flush()
 
-    def update(self, t: float, x: FloatArray, y: FloatArray) -> None:
-        """Positions at vehicle time `t` (seconds): the tick belongs to step floor(t / dT)."""
+    def update(self, t: float, x: FloatArray, y: FloatArray, z: FloatArray | None = None) -> None:
+        """Positions at vehicle time `t` (seconds; altitudes `z` in metres, if known): the tick belongs
+        to step floor(t / dT)."""
         if not len(self.minimum):
             return
         step = math.floor(t / self.step_s + 1e-9)
@@ -43,8 +53,13 @@ class ApproachRecorder:
             self._flush()
             self.step = step
             self.minimum[:] = math.inf
+            self.vertical[:] = math.inf
         i, j = self.pairs
-        np.minimum(self.minimum, np.hypot(x[i] - x[j], y[i] - y[j]), out=self.minimum)
+        d = np.hypot(x[i] - x[j], y[i] - y[j])
+        np.minimum(self.minimum, d, out=self.minimum)
+        if z is not None:
+            dz = np.where(d < self.conflict_within, np.abs(z[i] - z[j]), math.inf)
+            np.minimum(self.vertical, dz, out=self.vertical)
 
     def _flush(self) -> None:
         if self.step < 0 or not np.isfinite(self.minimum).any():
@@ -52,10 +67,17 @@ class ApproachRecorder:
         keep = self.minimum <= self.report_within
         keep[int(np.argmin(self.minimum))] = True
         i, j = self.pairs
-        near = zip(i[keep], j[keep], self.minimum[keep], strict=True)
-        self._file.writelines(f"{self.step},{a},{b},{d:.3f}\n" for a, b, d in near)
+        near = zip(i[keep], j[keep], self.minimum[keep], self.vertical[keep], strict=True)
+        if self.conflict_within > 0:
+            self._file.writelines(f"{self.step},{a},{b},{d:.3f},{_metres(v)}\n" for a, b, d, v in near)
+        else:
+            self._file.writelines(f"{self.step},{a},{b},{d:.3f}\n" for a, b, d, _ in near)
         self._file.flush()
 
     def close(self) -> None:
         self._flush()
         self._file.close()
+
+
+def _metres(v: float) -> str:
+    return f"{v:.3f}" if math.isfinite(v) else ""

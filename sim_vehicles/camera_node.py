@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
@@ -45,7 +46,7 @@ SIGNAL_POLL_S = 0.2
 
 
 class LatestPositions:
-    """Every vehicle's latest horizontal position, fed by the per-vehicle threads; each sample
+    """Every vehicle's latest position (and height above home), fed by the per-vehicle threads; each sample
     updates the closest-approach record with all of them, once every vehicle has a position.
 
     The vehicles' clocks (separate autopilots) need not agree: the record's steps follow the newest
@@ -54,15 +55,18 @@ class LatestPositions:
 
     def __init__(self, recorder: ApproachRecorder, n: int) -> None:
         self.recorder = recorder
-        self.x, self.y = np.full(n, np.nan), np.full(n, np.nan)
+        self.x, self.y, self.z = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
         self.t = -np.inf
         self._lock = threading.Lock()
 
-    def sample(self, uav: int, t: float, x: float, y: float) -> None:
+    def sample(self, uav: int, t: float, x: float, y: float, z: float = math.nan) -> None:
+        """Vehicle `uav`'s position at its time `t`: local x, y and height above home z (m; homes are
+        at the origin's altitude, so heights compare)."""
         with self._lock:
-            self.x[uav], self.y[uav], self.t = x, y, max(self.t, t)
+            self.x[uav], self.y[uav], self.z[uav], self.t = x, y, z, max(self.t, t)
             if np.isfinite(self.x).all():
-                self.recorder.update(self.t, self.x, self.y)
+                z_all = self.z if np.isfinite(self.z).all() else None
+                self.recorder.update(self.t, self.x, self.y, z_all)
 
 
 class CameraNode:
@@ -144,7 +148,7 @@ class CameraNode:
                 link.send_heartbeat()
                 beat = time.monotonic()
             if self.positions is not None and s.has_pose and s.gps_fix >= 3 and s.time_s != sampled:
-                self.positions.sample(uav, s.time_s, s.x, s.y)
+                self.positions.sample(uav, s.time_s, s.x, s.y, s.up)
                 sampled = s.time_s
             if not s.has_pose or s.time_s < next_t:
                 continue
@@ -199,7 +203,9 @@ def run(args: argparse.Namespace) -> int:
         positions = None
         if args.approach is not None:
             k = mission.kinematics
-            recorder = ApproachRecorder(args.approach, mission.n_uavs, k.step, 3 * mission.comms.safety)
+            recorder = ApproachRecorder(
+                args.approach, mission.n_uavs, k.step, 3 * mission.comms.safety, mission.comms.safety
+            )
             positions = LatestPositions(recorder, mission.n_uavs)
         node = CameraNode(mission, urls, seed, bus, signing, positions)
         if args.truth is not None:

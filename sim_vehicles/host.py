@@ -297,7 +297,9 @@ class Host:
         self.stopping = False
         self.stats = RunStats()
         self.approach = (
-            ApproachRecorder(options.approach, mission.n_uavs, k.step, 3 * mission.comms.safety)
+            ApproachRecorder(
+                options.approach, mission.n_uavs, k.step, 3 * mission.comms.safety, mission.comms.safety
+            )
             if options.approach is not None
             else None
         )
@@ -462,7 +464,7 @@ class Host:
         self.tick += 1
         t = self.t
         if self.approach is not None:
-            self.approach.update(t, fl.x, fl.y)
+            self.approach.update(t, fl.x, fl.y, fl.alt)
         for hv in hosted:
             if t >= hv.streams.next_any:
                 for msgid in hv.streams.due(t):

@@ -14,6 +14,8 @@ direct turn-rate command; the flight model limits and integrates it (see `dynami
   ArduPlane does after a SET_ATTITUDE_TARGET expires);
 - the fence: outside an uploaded inclusion polygon, with FENCE_ENABLE and FENCE_TYPE's polygon bit
   set, the vehicle reports the breach and, with FENCE_ACTION 1, flies RTL;
+- RTL (Return) circles home at RTL_ALTITUDE (ArduPilot; -1 keeps the altitude) or at RTL_RETURN_ALT
+  or higher (PX4: an aircraft above it returns at its own altitude; no descent to RTL_DESCEND_ALT);
 - ArduPlane's GCS failsafe: with FS_GCS_ENABL 1 or 2 (3: in AUTO only), when no HEARTBEAT from
   system MAV_GCS_SYSID has come for FS_LONG_TIMEOUT seconds (the vehicle counts its boot as heard),
   the long failsafe switches mode by FS_LONG_ACTN: in GUIDED and AUTO 1 RTL, 2 FBWA, 4 AUTO, 0 and 3
@@ -470,10 +472,20 @@ class Vehicle:
             self.nav = Loiter(x, y, self.loiter_radius)
         elif b is Behaviour.RTL:
             self.nav = Loiter(self.home[0], self.home[1], self.loiter_radius)
+            self.alt_target = self._return_altitude()
         elif b is Behaviour.OFFBOARD:
             self.nav = self.offboard_nav or Loiter(x, y, self.loiter_radius)
         else:
             self._next_waypoint()
+
+    def _return_altitude(self) -> float:
+        """The altitude a return flies at: ArduPlane's RTL_ALTITUDE (-1: the altitude it has), PX4's
+        RTL_RETURN_ALT or higher (an aircraft above it returns at its own; the simulator then circles
+        home there, without PX4's descent to RTL_DESCEND_ALT)."""
+        rtl = self.params.value("rtl_altitude", -1.0)
+        if self.px4:
+            return max(self.alt_target, rtl)
+        return rtl if rtl >= 0 else self.alt_target
 
     def _next_waypoint(self) -> None:
         """Point the AUTO guidance at the current mission item, ending the mission when done."""

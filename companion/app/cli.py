@@ -587,6 +587,12 @@ def _companion_bench(args: argparse.Namespace) -> int:
     return bench_main(args.args)
 
 
+def _altitude_bench(args: argparse.Namespace) -> int:
+    from companion.bench.altitude_bench import bench_main
+
+    return bench_main(args.args)
+
+
 def _random_starts_option(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--random-starts",
@@ -932,10 +938,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cb.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
     cb.set_defaults(func=_companion_bench)
+    ab = sub.add_parser(
+        "altitude-bench",
+        help="altitude-keeping error per flight phase of ArduPlane SITL, PX4 SITL and the bundled simulator",
+        add_help=False,
+    )
+    ab.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
+    ab.set_defaults(func=_altitude_bench)
     return parser
 
 
-PASSTHROUGH = {"sim-bench": _sim_bench, "companion-bench": _companion_bench}
+PASSTHROUGH = {
+    "sim-bench": _sim_bench,
+    "companion-bench": _companion_bench,
+    "altitude-bench": _altitude_bench,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

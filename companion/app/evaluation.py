@@ -84,6 +84,25 @@ def read_approach(path: Path) -> dict[int, float]:
     return out
 
 
+def read_vertical(path: Path) -> dict[int, float]:
+    """The separation record's third dimension: for each step in which some pair of vehicles came
+    horizontally within R_s, the smallest vertical separation (m) of such a pair while it was (its
+    `vertical_m`). Steps without such a pair, and records written without altitudes, are absent.
+    Two aircraft are separated in 3D when R_s apart horizontally or `vertical_separation` apart
+    vertically: a step here below that lost 3D separation."""
+    if not path.exists():
+        return {}
+    lines = path.read_text(encoding="utf-8", errors="replace").split("\n")[:-1]
+    out: dict[int, float] = {}
+    for row in csv.DictReader(lines):
+        try:
+            step, v = int(row["step"]), float(row["vertical_m"])
+        except (KeyError, TypeError, ValueError):  # no altitudes, not within R_s, a line cut short
+            continue
+        out[step] = min(out.get(step, math.inf), v)
+    return out
+
+
 def mission_rows(logs: dict[int, dict[int, dict[str, float]]]) -> dict[int, dict[int, dict[str, float]]]:
     """The logs without the steps a companion flew after the mission's end (`closing`: it flies
     out its trajectory in force before the hand-over); those are not part of the search."""

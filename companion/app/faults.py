@@ -43,7 +43,7 @@ from pathlib import Path
 import msgspec
 import tomli_w
 
-from companion.app.evaluation import CompanionLogs, mission_rows, read_approach
+from companion.app.evaluation import CompanionLogs, mission_rows, read_approach, read_vertical
 from companion.app.launcher import Children
 from companion.app.loopback import free_ports
 from companion.mission import Mission, NetworkFault, load_mission
@@ -332,6 +332,7 @@ class RowOutcome:
     lost_detections: list[int] = field(default_factory=list)
     closest_approach_m: float = math.inf
     separation_losses: int = 0
+    closest_vertical_within_rs_m: float = math.inf  # 3D: a pair's vertical separation while within R_s
     converged: bool = False
     notes: dict[str, object] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
@@ -502,6 +503,9 @@ def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) 
     outcome.separation_losses = sum(d <= mission.comms.safety for d in separation.values())
     if outcome.separation_losses:
         fail(f"{outcome.separation_losses} steps within R_s = {mission.comms.safety:g} m")
+    vertical = read_vertical(out / "approach.csv")
+    if vertical:
+        outcome.closest_vertical_within_rs_m = min(vertical.values())
     rows = [_last_row(out / f"uav{i}.csv") for i in range(n)]
     peers = [int(r["peers"]) for r in rows]
     tasks = [int(r["task"]) for r in rows if int(r["task"]) >= 0]

@@ -35,6 +35,7 @@ from companion.app.evaluation import (
     failed_criteria,
     flight_report,
     read_approach,
+    read_vertical,
     truth_cells,
 )
 from companion.batch import plots, report
@@ -469,6 +470,9 @@ def run_mission(opts: RunOptions) -> int:
     plots.plot_found(out / "targets_found.png", {name: [result]})
     plots.plot_links(out / "links.png", result, mission.comms.safety)
     flight = flight_report(mission, out, logs.logs)
+    vertical = read_vertical(out / "approach.csv")
+    flight["steps_within_rs"] = len(vertical)  # a pair horizontally within R_s (approach.csv)
+    flight["closest_vertical_within_rs_m"] = min(vertical.values()) if vertical else None
     (out / "tracking.json").write_text(json.dumps(flight, indent=2) + "\n")
     if opts.view:
         print(f"replay the run with: uavsearch view --replay {out}", flush=True)
@@ -488,6 +492,14 @@ def run_mission(opts: RunOptions) -> int:
             f"{result.separation_losses} steps within R_s; "
             f"{closest_flown:.1f} m over all it recorded (start-up and hand-over included)"
         )
+    if approach:
+        within = (
+            f"{len(vertical)} steps had a pair within R_s horizontally, at least "
+            f"{min(vertical.values()):.1f} m apart vertically"
+            if vertical
+            else "no pair came within R_s horizontally"
+        )
+        print(f"in three dimensions: {within}")
     p, h = flight["position_m"], flight["heading_deg"]
     if p["median"] is not None:
         print(

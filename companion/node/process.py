@@ -8,7 +8,8 @@ mode) and publishes the outbox. The clock is the vehicle's: a sped-up simulator 
 On connecting it reads the autopilot's airframe parameters, warns when the mission cannot be flown
 and refuses command modes the autopilot does not fly (`airframe`); with `--takeover` it puts the
 vehicle in guided flight (`takeover`), uploads the region plus its margin as the autopilot's fence
-(`fence`) and arms the autopilot's failsafe for its own silence (`failsafe`). Every step it
+(`fence`) with the autopilot's return altitude set to the UAV's layer (`return_altitude`) and arms
+the autopilot's failsafe for its own silence (`failsafe`). Every step it
 measures how far the vehicle is from where the plan put it and guards the region (`tracking`).
 
 In lockstep the bundled simulator advances only when every companion has reported that its step
@@ -53,6 +54,7 @@ from companion.node.frames import LocalFrame
 from companion.node.guidance import Guidance
 from companion.node.journal import Journal, Recovered, header_of
 from companion.node.mesh import Mesh
+from companion.node.return_altitude import set_return_altitude
 from companion.node.takeover import steerable, take_over
 from companion.node.tracking import Guard, PlanError, PlanTracker, RegionGuard
 from companion.node.vehicle_link import ARDUPILOT_AUTO, ARDUPILOT_GUIDED, VEHICLE_WAIT_S, VehicleLink
@@ -251,6 +253,15 @@ class Companion:
                 margin,
                 len(self.fence.vertices),
             )
+
+    def _set_return_altitude(self) -> None:
+        """The autopilot's return (the fence's breach action) at the UAV's layer (`return_altitude`)."""
+        altitude = self.opts.mission.altitude_of(self.opts.uav)
+        error = set_return_altitude(self.link, altitude)
+        if error:
+            log.warning("uav %d: return altitude not set: %s", self.opts.uav, error)
+        else:
+            log.info("uav %d: return (RTL) altitude set to its layer, %.0f m", self.opts.uav, altitude)
 
     def _arm_failsafe(self) -> None:
         if self.link.state.px4:
@@ -469,6 +480,7 @@ class Companion:
             take_over(self.link, self.guidance, self.opts.uav, stop)
         if (self.opts.takeover if self.opts.fence is None else self.opts.fence) and not stop.is_set():
             self._upload_fence()
+            self._set_return_altitude()
         if (self.opts.takeover if self.opts.failsafe is None else self.opts.failsafe) and not stop.is_set():
             self._arm_failsafe()
         budget = self.opts.steps if self.opts.steps is not None else self.opts.mission.steps

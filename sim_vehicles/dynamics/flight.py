@@ -1,4 +1,4 @@
-"""The fleet's motion: constant speed, bounded turns, altitude slewed to its target.
+"""The fleet's motion: constant speed, bounded turns, altitude flown to its target as ArduPlane does.
 
 Guidance asks every vehicle either for a bank angle (ArduPlane's laws: heading holds, L1
 navigation and loiters), with a bank limit of the command's own (a heading hold's param3), or for a
@@ -18,6 +18,22 @@ positive. The flight models turn that into motion:
   the core's own `advance`, and the vehicle moves linearly from cell centre to cell centre.
 
 All tick at `substeps` physics ticks per step, so step boundaries fall exactly on ticks.
+
+Altitude (`Flight._climb`, every model): a small kinematic stand-in for ArduPlane's energy
+controller (TECS), not a copy of it. The height demand moves towards the commanded altitude at a
+rate (target - demand) / DEMAND_TCONST, clipped to CLIMB_MAX up and SINK_MAX down (ArduPlane's
+TECS_CLMB_MAX and TECS_SINK_MAX, 5 m/s in plane.parm); the climb rate follows the demand's rate
+plus (demand - altitude) / HEIGHT_TCONST with a lag of CLIMB_TCONST, a second-order loop with a
+period of about 11 s and a damping of 0.3, as ArduPlane SITL's height swings back. In a steady
+banked turn ArduPlane holds its altitude (TECS_RLL2THR and its pitch compensation): measured, the
+error there is a few tens of centimetres. What moves it is the load factor n = 1 / cos(roll)
+changing: rolling into a turn it climbs above the layer (0.4-0.5 m into a 39 degree bank,
+1.5-2 m into the 50-60 degrees loiters are entered with), rolling out it sinks below, and a
+reversal (n falls, then rises again) nearly cancels. The error grows with the bank faster than
+n^2 - 1 (what ArduPlane's roll compensation, TECS_RLL2THR, acts on): fitted, as n^4 - 1. In the
+banked model a change d(n^4) adds ROLL_KICK * d(n^4) m/s to the climb rate, which the height
+loop then takes out (the kinematic and grid models turn without a roll's dynamics and fly altitude without
+it). Figures and commands: docs/companion.md, "Altitude keeping" (`uavsearch altitude-bench`).
 """
 
 from __future__ import annotations
@@ -31,7 +47,10 @@ from companion.core.geometry import FloatArray
 from companion.core.kinematics import Kinematics, arc_advance, wrap_angle
 from sim_vehicles.dynamics.navigation import GRAVITY
 
-CLIMB_RATE = 3.0  # m/s, the rate altitude changes are flown at
+CLIMB_MAX, SINK_MAX = 5.0, 5.0  # m/s: ArduPlane's TECS_CLMB_MAX, TECS_SINK_MAX (plane.parm; measured 4.8)
+DEMAND_TCONST = 2.0  # s: how the height demand closes on a commanded altitude
+HEIGHT_TCONST, CLIMB_TCONST = 1.0, 2.8  # s: the height loop (period ~11 s, damping 0.3, as measured)
+ROLL_KICK = 0.28  # m/s of climb per unit of n^4 gained (banked model; fitted to ArduPlane SITL)
 ROLL_TCONST = 0.5  # s: the roll's response to its demand (ArduPlane SITL, measured)
 ROLL_RATE_MAX = math.radians(90.0)  # rad/s (plane.parm's RLL2SRV_RMAX)
 TURN_EFFICIENCY = 0.7  # heading rate / (g tan(roll) / v) of ArduPlane SITL's plane (measured)
@@ -69,7 +88,10 @@ class Flight:
         self.x, self.y = poses[:, 0].astype(float), poses[:, 1].astype(float)
         self.heading = wrap_angle(poses[:, 2])
         self.alt, self.alt_target = np.array(alt, dtype=float), np.array(alt, dtype=float)
+        self.alt_demand = np.array(alt, dtype=float)
         self.vx, self.vy, self.vz, self.omega, self.roll = (np.zeros(n) for _ in range(5))
+        self.roll_kick = 0.0  # m/s of climb per unit of n^4 gained (the banked model's)
+        self._load_before = np.ones(n)
         self.step, self.substeps = step, substeps
         self.dt = step / substeps
 
@@ -87,9 +109,16 @@ class Flight:
         self._climb()
 
     def _climb(self) -> None:
-        d = np.clip(self.alt_target - self.alt, -CLIMB_RATE * self.dt, CLIMB_RATE * self.dt)
-        self.alt += d
-        self.vz = d / self.dt
+        """One tick of the height loop (see the module's docstring)."""
+        dt = self.dt
+        rate = np.clip((self.alt_target - self.alt_demand) / DEMAND_TCONST, -SINK_MAX, CLIMB_MAX)
+        self.alt_demand += rate * dt
+        want = np.clip(rate + (self.alt_demand - self.alt) / HEIGHT_TCONST, -SINK_MAX, CLIMB_MAX)
+        load = 1.0 / np.cos(np.clip(self.roll, -1.4, 1.4)) ** 4
+        kick = self.roll_kick * (load - self._load_before)
+        self._load_before = load
+        self.vz = self.vz + (want - self.vz) * min(dt / CLIMB_TCONST, 1.0) + kick
+        self.alt += self.vz * dt
 
 
 class KinematicFlight(Flight):
@@ -102,15 +131,23 @@ class KinematicFlight(Flight):
 
 
 class BankedFlight(Flight):
-    """Coordinated turns with a lagged, rate-limited roll (ArduPlane-like)."""
+    """Coordinated turns with a lagged, rate-limited roll (ArduPlane-like), and the roll's effect on
+    the altitude."""
+
+    def __init__(self, poses: FloatArray, alt: FloatArray, step: float, substeps: int) -> None:
+        super().__init__(poses, alt, step, substeps)
+        self.roll_kick = ROLL_KICK
 
     def tick(self, d: Demand) -> None:
         v = np.maximum(d.speed, 1.0)
         limit = np.minimum(d.bank_limit, d.roll_limit)
         for_rate = np.arctan(d.rate * v / (GRAVITY * TURN_EFFICIENCY))
         want = np.clip(np.where(d.by_bank > 0, d.bank, for_rate), -limit, limit)
-        change = np.clip((want - self.roll) * min(self.dt / ROLL_TCONST, 1.0), -ROLL_RATE_MAX * self.dt,
-                         ROLL_RATE_MAX * self.dt)
+        change = np.clip(
+            (want - self.roll) * min(self.dt / ROLL_TCONST, 1.0),
+            -ROLL_RATE_MAX * self.dt,
+            ROLL_RATE_MAX * self.dt,
+        )
         self.roll = (self.roll + change) * d.moving
         self._advance(TURN_EFFICIENCY * GRAVITY * np.tan(self.roll) / v, d.speed * d.moving)
 

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
 ROLL_LIMIT_DEG = 45.0  # ArduPlane's default bank limit
 # PX4's defaults (checked on PX4 SITL's SIH fixed-wing)
 PX4_ROLL_LIMIT_DEG, PX4_LOITER_RADIUS, PX4_ACCEPTANCE_RADIUS, PX4_OFFBOARD_LOSS_S = 50.0, 80.0, 10.0, 1.0
+RTL_ALTITUDE_M, PX4_RTL_DESCEND_M = 100.0, 30.0  # ArduPlane's RTL_ALTITUDE, PX4's RTL_DESCEND_ALT
 PX4_GEOFENCE_HOLD = 2  # GF_ACTION: 0 none, 1 warning, 2 Hold, 3 Return, 4 terminate, 5 land
 
 
@@ -73,6 +74,9 @@ def param_specs(mission: Mission) -> tuple[ParamSpec, ...]:
         ParamSpec("long_timeout", "FS_LONG_TIMEOUT", None, 5.0, 1.0, 300.0),
         ParamSpec("geofence_action", None, "GF_ACTION", PX4_GEOFENCE_HOLD, 0.0, 5.0, integer=True),
         ParamSpec("offboard_loss_action", None, "COM_OBL_RC_ACT", 0.0, 0.0, 7.0, integer=True),
+        # the return's altitude above home (ArduPlane 4.5 on: -1 keeps the altitude; PX4: the lowest)
+        ParamSpec("rtl_altitude", "RTL_ALTITUDE", "RTL_RETURN_ALT", RTL_ALTITUDE_M, -1.0, 5000.0),
+        ParamSpec("rtl_descend_altitude", None, "RTL_DESCEND_ALT", PX4_RTL_DESCEND_M, 2.0, 5000.0),
     )
 
 

@@ -16,6 +16,7 @@ import json
 from pathlib import Path
 
 import pytest
+from pymavlink import mavutil
 
 from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, read_csv
 
@@ -25,6 +26,7 @@ LAGGING = 0.85
 # its first step was seen) leaves its vehicle circling where it entered GUIDED for 5 steps, not 10,
 # and every wall-clock delay of the steering costs half as much flight
 SPEEDUP = 5
+RETURN_ALTITUDE = {"ardupilot": ("RTL_ALTITUDE",), "px4": ("RTL_RETURN_ALT", "RTL_DESCEND_ALT")}
 
 
 @pytest.mark.parametrize(
@@ -67,3 +69,20 @@ def test_command_mode_flies_the_vehicle(
         assert len(rows) >= STEPS - 2, f"uav{i}: {len(rows)} steps logged\n{run.text()}"
         assert_follows(rows, k.speed, k.step, f"{mode} ({flavour}) uav{i}", ratio=LAGGING)
     assert f"{flavour}, speedup {SPEEDUP}" in (out / "sim.log").read_text()
+    # the preflight set the autopilot's return altitude to each UAV's layer (docs/companion.md)
+    for i in range(mission.n):
+        sent = _param_sets(out / f"uav{i}.tlog")
+        for name in RETURN_ALTITUDE[flavour]:
+            assert sent.get(name) == mission.mission.altitude_of(i), f"uav{i} {name}: {sent}"
+
+
+def _param_sets(tlog: Path) -> dict[str, float]:
+    """The last value of each PARAM_SET the companion sent, from its .tlog."""
+    conn = mavutil.mavlink_connection(str(tlog), dialect="ardupilotmega")
+    sent: dict[str, float] = {}
+    try:
+        while (msg := conn.recv_match(type="PARAM_SET")) is not None:
+            sent[msg.param_id] = msg.param_value
+    finally:
+        conn.close()
+    return sent

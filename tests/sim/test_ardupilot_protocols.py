@@ -121,6 +121,7 @@ def test_parameters_change_behaviour(mav: Mav) -> None:
         "FS_SHORT_TIMEOUT",
         "FS_LONG_ACTN",
         "FS_LONG_TIMEOUT",
+        "RTL_ALTITUDE",
     }
     mav.mav.param_request_read_send(mav.sysid, 1, b"WP_RADIUS", -1)
     assert mav.need("PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == 40.0
