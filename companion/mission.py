@@ -45,6 +45,7 @@ Port = Annotated[int, msgspec.Meta(ge=1, le=65535)]
 # docs/companion.md, "Altitude keeping")
 DEFAULT_VERTICAL_SEPARATION = 20.0
 DEFAULT_BAND = 60.0
+ALTITUDE_KEEPING = 5.0  # m: the most one aircraft strays from its layer (measured at most 3.11 m)
 
 
 class MissionError(ValueError):
@@ -328,6 +329,13 @@ class Mission(_Base, kw_only=True):
         """Vehicle `index`'s flight altitude above the origin: the altitude of its layer."""
         return self.layer_altitude(self.layer_assignment()[index])
 
+    @property
+    def vertical_floor(self) -> float:
+        """The vertical distance two aircraft on layers `layers.separation` apart keep in flight,
+        each within `ALTITUDE_KEEPING` of its layer: below it, a pair horizontally within R_s has
+        lost separation in three dimensions."""
+        return self.layers.separation - 2 * ALTITUDE_KEEPING
+
     def near_layers(self) -> list[list[bool]]:
         """Whether each pair of vehicles flies layers closer than `layers.separation` (a UAV is near
         itself): only such pairs can meet, so only they guard against each other's failures."""
@@ -480,6 +488,12 @@ def _validate_layers(m: Mission, fail: Callable[[str, str], None]) -> None:
     if m.kinematics.altitude <= 0:
         lowest = m.kinematics.altitude
         fail("kinematics.altitude", f"the lowest layer must be above the origin, got {lowest:g} m")
+    if lay.separation <= 2 * ALTITUDE_KEEPING:
+        fail(
+            "layers.separation",
+            f"{lay.separation:g} m: two aircraft each up to {ALTITUDE_KEEPING:g} m off their layers could "
+            f"meet; it must exceed {2 * ALTITUDE_KEEPING:g} m (docs/companion.md, \"Altitude keeping\")",
+        )
     fit = int(lay.band / lay.separation + 1e-9) + 1
     if lay.count != 1 and fit < 2 and m.n_uavs > 1:
         fail(

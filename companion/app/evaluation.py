@@ -103,6 +103,15 @@ def read_vertical(path: Path) -> dict[int, float]:
     return out
 
 
+def losses_3d(path: Path, mission: Mission) -> int:
+    """Steps of the separation record at `path` in which two aircraft lost separation in three
+    dimensions: horizontally within R_s and vertically closer than `Mission.vertical_floor` (a
+    record without altitudes counts every step within R_s)."""
+    vertical = read_vertical(path)
+    r_s, floor = mission.comms.safety, mission.vertical_floor
+    return sum(d <= r_s and vertical.get(k, 0.0) < floor for k, d in read_approach(path).items())
+
+
 def mission_rows(logs: dict[int, dict[int, dict[str, float]]]) -> dict[int, dict[int, dict[str, float]]]:
     """The logs without the steps a companion flew after the mission's end (`closing`: it flies
     out its trajectory in force before the hand-over); those are not part of the search."""

@@ -43,7 +43,7 @@ from pathlib import Path
 import msgspec
 import tomli_w
 
-from companion.app.evaluation import CompanionLogs, mission_rows, read_approach, read_vertical
+from companion.app.evaluation import CompanionLogs, losses_3d, mission_rows, read_approach, read_vertical
 from companion.app.launcher import Children
 from companion.app.loopback import free_ports
 from companion.mission import Mission, NetworkFault, load_mission
@@ -500,9 +500,12 @@ def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) 
     separation = read_approach(out / "approach.csv")
     if separation:
         outcome.closest_approach_m = min(separation.values())
-    outcome.separation_losses = sum(d <= mission.comms.safety for d in separation.values())
+    outcome.separation_losses = losses_3d(out / "approach.csv", mission)
     if outcome.separation_losses:
-        fail(f"{outcome.separation_losses} steps within R_s = {mission.comms.safety:g} m")
+        fail(
+            f"{outcome.separation_losses} steps within R_s = {mission.comms.safety:g} m and "
+            f"{mission.vertical_floor:g} m vertically"
+        )
     vertical = read_vertical(out / "approach.csv")
     if vertical:
         outcome.closest_vertical_within_rs_m = min(vertical.values())

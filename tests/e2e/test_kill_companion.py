@@ -8,7 +8,8 @@ companion armed with --takeover, and kept on the loiter of its trajectory in for
 switches it to AUTO and it circles that loiter (seen on our own MAVLink connection), within
 `safety.failsafe_reach` of its centre, as the survivors' model of a silent UAV assumes. The
 simulator's physics-rate record (approach.csv) gives its closest approach to a survivor after the
-kill, which is never within R_s (docs/algorithm.md, "A silent UAV stays an obstacle": the
+kill, which is never within R_s of a survivor on a near layer, nor within R_s and vertically
+closer than the layers keep of one on a layer apart (docs/algorithm.md, "A silent UAV stays an obstacle": the
 contingency clause keeps every survivor clear of all the dead UAV's aircraft flies, off its plan
 until the failsafe fires, onto its loiter and around it).
 """
@@ -143,4 +144,11 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
     assert not (out / f"uav{VICTIM}.json").exists()  # killed: no clean-shutdown report of its own
     live = [float(r["distance_m"]) for r in record if VICTIM not in (int(r["i"]), int(r["j"]))]
     assert min(live, default=math.inf) > m.comms.safety, "two survivors came within R_s"
-    assert closest > m.comms.safety, f"the dead UAV's aircraft came {closest:.1f} m from a survivor"
+    # separation in three dimensions: the dead UAV's aircraft is never within R_s of a survivor on
+    # a near layer, and one on a layer apart stays vertically apart when within R_s
+    shared = m.near_layers()
+    for r in near:
+        survivor = int(r["i"]) + int(r["j"]) - VICTIM
+        if float(r["distance_m"]) <= m.comms.safety:
+            assert not shared[VICTIM][survivor], f"the dead UAV's aircraft came within R_s: {r}"
+            assert float(r["vertical_m"]) >= m.vertical_floor, f"3D separation lost: {r}"

@@ -31,23 +31,33 @@ def _rows(path: Path) -> list[dict[str, float]]:
 def test_fault_row(row: str, tmp_path: Path) -> None:
     mission = load_mission(SCENARIO1)
     outcome = run_row(row, mission, tmp_path, PLAN)
-    losses_only = outcome.failures == [f"{outcome.separation_losses} steps within R_s = 60 m"]
+    losses_only = len(outcome.failures) == 1 and outcome.failures[0].startswith(
+        f"{outcome.separation_losses} steps within R_s"
+    )
     if losses_only:
         with (tmp_path / "approach.csv").open() as f:
             near = [r for r in csv.DictReader(f) if float(r["distance_m"]) <= mission.comms.safety]
         pairs = {(int(r["i"]), int(r["j"])) for r in near}
     if row == "partition" and losses_only:
-        # the known gap (docs/algorithm.md, "A partition at close range"): each group takes the other
-        # as gone and flies on; only pairs across the split may come within R_s, and once the groups
-        # hear each other again the safety layer's recovery gets them apart within a few steps
+        # the known gap between UAVs sharing a layer (docs/algorithm.md, "A partition at close
+        # range"): each group takes the other as gone and flies on; only pairs across the split may
+        # come within R_s, and once the groups hear each other again the safety layer's recovery gets
+        # them apart within a few steps. Pairs on layers apart keep their vertical separation.
         half = mission.n_uavs // 2
         assert all((i < half) != (j < half) for i, j in pairs), near
+        shared = mission.near_layers()
+        assert all(shared[i][j] for i, j in pairs), f"pairs on layers apart lost 3D separation: {near}"
         last = max(int(r["step"]) for r in near)
         assert last <= PLAN.at + PLAN.outage + RECOVER_STEPS, f"within R_s until step {last}"
         pytest.xfail(f"two UAVs across the partition came {outcome.closest_approach_m:.1f} m apart")
     assert not outcome.failures, outcome
     assert outcome.completed and outcome.converged and outcome.detections > 0
-    assert outcome.separation_losses == 0 and outcome.closest_approach_m > 60.0
+    assert outcome.separation_losses == 0
+    # live peers that hear each other keep R_s horizontally whatever their layers; a vehicle flying
+    # alone (a companion restarting, a link cut) or a partition is a failure the layers guard
+    # (docs/algorithm.md, "Separation in three dimensions")
+    if row == "loss":
+        assert outcome.closest_approach_m > 60.0
     victim = _rows(tmp_path / f"uav{PLAN.victim}.csv")
     steps = [int(r["step"]) for r in victim]
     if row == "restart":

@@ -40,7 +40,6 @@ AUTO = 10
 CIRCLING_S = 60.0  # simulated seconds the victim's aircraft is watched circling after its failsafe
 FAILSAFE_S = 60.0  # simulated seconds after the kill by which the failsafe must have fired
 FAILSAFE_TIMEOUT_S = 2.0  # FS_LONG_TIMEOUT (one step): 0.5 s of wall time at speed-up 4
-VERTICAL_KEEP = 5.0  # m: how far off its layer an aircraft may fly (docs/companion.md, "Altitude keeping")
 
 
 def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path) -> None:
@@ -144,9 +143,9 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
     print(f"victim: closest approach to a survivor after the kill {closest:.1f} m (R_s {m.comms.safety:g} m)")
     # separation in three dimensions (docs/algorithm.md, "Separation in three dimensions"): a pair
     # closer than R_s horizontally is on layers at least the vertical separation apart, and keeps
-    # most of it in flight (each aircraft within VERTICAL_KEEP of its layer)
+    # most of it in flight (each aircraft within ALTITUDE_KEEPING of its layer)
     near_layers = m.near_layers()
-    floor = m.layers.separation - 2 * VERTICAL_KEEP
+    floor = m.vertical_floor
     for d, k, j in near:
         if d <= m.comms.safety:
             assert not near_layers[VICTIM][j], (f"victim and uav{j} share a layer", k, d)
