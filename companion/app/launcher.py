@@ -23,7 +23,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -357,6 +357,8 @@ def security_summary(mission: Mission) -> str:
 
 def run_mission(opts: RunOptions) -> int:
     """Fly the mission end to end; returns the process exit code."""
+    # absolute paths: the SITL instances run in working directories of their own
+    opts = replace(opts, mission_file=opts.mission_file.resolve(), out=opts.out.resolve())
     mission = load_mission(opts.mission_file)
     problem = _check_options(opts, mission)
     if problem:
