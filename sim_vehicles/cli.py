@@ -13,14 +13,14 @@ from dataclasses import asdict
 from pathlib import Path
 from types import FrameType
 
-from companion.app.arguments import natural, positive
+from companion.app.arguments import HelpFormatter, check_mission, mission_argument, natural, positive
 from companion.mission import MissionError, load_mission
 from companion.node.lifeline import end_with_launcher
 from sim_vehicles.host import Host, HostOptions
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--mission", required=True, type=Path, help="mission file (TOML)")
+    mission_argument(parser, type=Path)
     parser.add_argument("--speedup", type=positive, default=1.0,
                         help="simulated seconds per wall second (default 1)")
     parser.add_argument("--lockstep", action="store_true",
@@ -87,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     end_with_launcher()
-    parser = argparse.ArgumentParser(prog="sim_vehicles", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="sim_vehicles", description=__doc__.splitlines()[0], formatter_class=HelpFormatter
+    )
     add_arguments(parser)
-    return run(parser.parse_args(argv))
+    args = parser.parse_args(argv)
+    check_mission(parser, args)
+    return run(args)
