@@ -35,11 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
                         help="loopback Zenoh endpoint to connect to (default: the mission's mesh)")
     parser.add_argument("--truth", type=Path, default=None,
-                        help="write the ground-truth evaluation record (JSON) here")
+                        help="write the ground-truth evaluation record (JSON) here (default: not written)")
     parser.add_argument("--approach", type=Path, default=None,
-                        help="write every pair's closest approach per step, at the physics rate (CSV)")
+                        help="write every pair's closest approach per step, at the physics rate (CSV; "
+                        "default: not written)")
     parser.add_argument("--state", type=Path, default=None,
-                        help="save the simulator's state here every step, and resume from it if it exists")
+                        help="save the simulator's state here every step, and resume from it if it exists "
+                        "(default: not saved)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -116,6 +116,8 @@ class HelpFormatter(argparse.HelpFormatter):
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
         default = action.default
+        if action.required and "required" not in text:
+            return f"{text} (required)"
         if (
             "default" in text
             or action.required
@@ -159,7 +161,7 @@ def mission_argument(
     help: str = "the mission file (TOML)",
 ) -> None:
     """The mission file, given as `FILE` or as `--mission FILE` (one name for every command)."""
-    shown = f"default: {default}" if default else ("required" if required else "optional")
+    shown = f"default: {default}" if default else ("required" if required else "default: none")
     parser.add_argument(
         "--mission", default=default, type=type, metavar="FILE", help=f"{help}; or FILE ({shown})"
     )

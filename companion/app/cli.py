@@ -609,7 +609,8 @@ def _add_executor_arguments(parser: argparse.ArgumentParser) -> None:
         "--scheduler",
         default=None,
         metavar="tcp://HOST:PORT",
-        help="run on the workers of this Dask scheduler instead of local processes (README: cluster)",
+        help="run on the workers of this Dask scheduler instead of local processes (README: cluster; "
+        "default: none, the local pool)",
     )
 
 
@@ -699,12 +700,12 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument(
         "--study-runs", type=count, default=8, help="runs per mission and algorithm in the throughput"
     )
-    be.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    be.add_argument("--json", default=None, help="also write the figures to this JSON file (default: none)")
     be.add_argument(
         "--against",
         metavar="CHECKOUT",
         help="instead: CPU seconds per run of this checkout against another's (e.g. a git worktree of an "
-        "older commit), interleaved, with their ratio",
+        "older commit), interleaved, with their ratio (default: none)",
     )
     be.add_argument(
         "--rounds", type=count, default=2, help="with --against: interleaved rounds (the minimum is taken)"
@@ -730,7 +731,7 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument("--study-runs", type=count, default=20, help="runs per mission and algorithm")
     cl.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
     cl.add_argument("--seed", type=natural, default=1, help="the first run's seed")
-    cl.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    cl.add_argument("--json", default=None, help="also write the rows to this JSON file (default: none)")
     cl.set_defaults(func=_cluster_bench)
 
     def family_options(p: argparse.ArgumentParser) -> None:
@@ -774,15 +775,20 @@ def build_parser() -> argparse.ArgumentParser:
     so.set_defaults(func=_soak)
 
     def mission_set_options(p: argparse.ArgumentParser, out: str) -> None:
-        p.add_argument("--missions", type=count, default=None, help="generate this many missions")
-        p.add_argument("--seed", type=natural, default=None, help="the generator's seed")
-        p.add_argument("--mission-dir", default=None, help="use the mission files of a folder instead")
+        p.add_argument(
+            "--missions", type=count, default=None, help="generate this many missions (default: none)"
+        )
+        p.add_argument("--seed", type=natural, default=None, help="the generator's seed (default: none)")
+        p.add_argument(
+            "--mission-dir", default=None, help="use the mission files of a folder instead (default: none)"
+        )
         p.add_argument(
             "--weights",
             nargs="+",
             default=None,
             metavar="FILE",
-            help="TOML files whose [algorithm] tables replace the missions' weights, in order",
+            help="TOML files whose [algorithm] tables replace the missions' weights, in order (default: the "
+            "missions' own)",
         )
         p.add_argument("--out", default=out, help="output folder")
         _add_executor_arguments(p)
