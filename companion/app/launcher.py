@@ -443,7 +443,8 @@ def run_mission(opts: RunOptions) -> int:
     report.write_targets(out, {name: [result]})
     report.copy_mission(opts.mission_file, out)
     plots.plot_prior(out / "prior_cvt.png", world)
-    plots.plot_trajectories(out / "trajectories.png", {name: world}, {name: result})
+    starts = {name: np.array([(v.x, v.y) for v in mission.vehicles])}
+    plots.plot_trajectories(out / "trajectories.png", {name: world}, {name: result}, starts)
     plots.plot_uncertainty(out / "uncertainty.png", {name: [result]})
     plots.plot_found(out / "targets_found.png", {name: [result]})
     plots.plot_links(out / "links.png", result, mission.comms.safety)
