@@ -66,10 +66,8 @@ class Progress:
         latest = [r[max(r)] for r in rows.values()]
         pos = np.array([(r["x"], r["y"]) for r in latest])
         unc = float(np.mean([r["mean_eta"] for r in latest]))
-        m = self.world.mission
-        lam = algebraic_connectivity(pos, m.comms.range)
-        mind = min_pair_distance(pos)
-        return (
-            f"step {step:5d}  targets {int(self.seen.sum())}/{len(self.xy)}  mean uncertainty {unc:.4f}  "
-            f"lambda_2 {lam:.4f}  min distance {mind:7.1f} m"
-        )
+        line = f"step {step:5d}  targets {int(self.seen.sum())}/{len(self.xy)}  mean uncertainty {unc:.4f}"
+        if len(pos) < 2:  # one UAV: no link, no pair
+            return line
+        lam = algebraic_connectivity(pos, self.world.mission.comms.range)
+        return f"{line}  lambda_2 {lam:.4f}  min distance {min_pair_distance(pos):7.1f} m"

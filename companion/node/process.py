@@ -263,13 +263,16 @@ class Companion:
         if self.link.state.px4:
             if self.opts.command_mode == "position-target":
                 self._offboard_loss_s = self.link.read_params([PX4_OFFBOARD_LOSS]).get(PX4_OFFBOARD_LOSS)
-            log.info(
-                "uav %d: failsafe: PX4's own offboard-loss failsafe applies (%s = %s s; OFFBOARD taken back "
-                "when it fired because our setpoints paused)",
-                self.opts.uav,
-                PX4_OFFBOARD_LOSS,
-                "unknown" if self._offboard_loss_s is None else f"{self._offboard_loss_s:g}",
-            )
+            if self._offboard_loss_s is None:
+                log.info("uav %d: failsafe: PX4's own failsafes apply", self.opts.uav)
+            else:
+                log.info(
+                    "uav %d: failsafe: PX4's own offboard-loss failsafe applies after %s = %g s; OFFBOARD "
+                    "taken back when our setpoints paused that long",
+                    self.opts.uav,
+                    PX4_OFFBOARD_LOSS,
+                    self._offboard_loss_s,
+                )
             return
         m = self.opts.mission
         failsafe = FailsafeLoiter(self.link, self.world, self.opts.uav, self.frame)
