@@ -210,7 +210,8 @@ class Companion:
 
     def _keep_streaming(self) -> None:
         """Repeat the streamed guidance when due, also while a request waits for its reply (PX4
-        leaves OFFBOARD when its setpoints stop for COM_OF_LOSS_T)."""
+        leaves OFFBOARD when its setpoints stop for COM_OF_LOSS_T), and while it asks PX4 for
+        OFFBOARD back (PX4 accepts it only while setpoints stream)."""
         s = self.link.state
         loss = self._offboard_loss_s
         if loss is not None and self.guidance.due(s.time_s) and s.time_s - self.guidance.last_send >= loss:
@@ -218,7 +219,7 @@ class Companion:
         if (
             self.steering
             and self.guard.state is not Guard.RELEASED
-            and self._steerable()
+            and (self._steerable() or (s.px4 and self._retake_asked is not None))
             and self.guidance.due(s.time_s)
         ):
             self.guidance.repeat()  # the plan's command, or the way back inside
@@ -446,8 +447,6 @@ class Companion:
             log.warning("uav %d: mode %d chosen since: not taking it back", self.opts.uav, s.custom_mode)
             self._texts_steering, self._retake_asked = s.text_count, None
         elif time.monotonic() - self._retake_asked >= RETAKE_PERIOD_S:
-            if s.px4 and self.guidance.due(s.time_s):  # PX4 accepts OFFBOARD only while setpoints stream
-                self.guidance.repeat()
             self.link.set_mode(guided_mode(self.link, self.opts.command_mode))
             self._retake_asked = time.monotonic()
 
