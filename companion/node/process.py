@@ -453,8 +453,11 @@ class Companion:
     def _our_failsafe_fired(self) -> bool:
         """Whether the vehicle left its guided mode for the failsafe this companion's own silence set
         off: ArduPilot's GCS failsafe it armed (ArduPlane said so), or PX4's offboard-loss failsafe
-        (Hold, after our setpoints paused for COM_OF_LOSS_T within the last `SILENCE_RECENT_S`)."""
+        (Hold, after our setpoints paused for COM_OF_LOSS_T within the last `SILENCE_RECENT_S`); never
+        once the region guard has given the aircraft up to the autopilot's fence."""
         s = self.link.state
+        if self.guard.state is Guard.RELEASED:  # it gave the aircraft up for good
+            return False
         if s.px4:
             recent = s.time_s - self._silent_at <= SILENCE_RECENT_S
             return self._offboard_loss_s is not None and s.custom_mode == PX4_HOLD and recent
