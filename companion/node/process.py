@@ -67,7 +67,6 @@ LEAD = 0.25
 LINK_TIMEOUT_S = 3.0  # wall seconds without HEARTBEAT before the link counts as lost
 RETAKE_PERIOD_S = 1.0  # wall seconds between requests for GUIDED after our own failsafe fired
 PX4_OFFBOARD_LOSS = "COM_OF_LOSS_T"  # PX4: seconds without setpoints before the OFFBOARD failsafe
-SILENCE_RECENT_S = 30.0  # vehicle seconds: PX4 left OFFBOARD this soon after our setpoints paused: ours
 PEER_WAIT_S = 30.0  # lockstep: how long to wait for a live peer's messages before going on
 SIMULATOR_PARAM_WAIT_S = 3.0  # the airframe's parameters have answered by then: others need no longer
 LOG_COLUMNS = [
@@ -214,8 +213,9 @@ class Companion:
         OFFBOARD back (PX4 accepts it only while setpoints stream)."""
         s = self.link.state
         loss = self._offboard_loss_s
-        if loss is not None and self.guidance.due(s.time_s) and s.time_s - self.guidance.last_send >= loss:
-            self._silent_at = s.time_s  # PX4's offboard-loss failsafe may have fired: ours if so
+        silent = s.time_s - self.guidance.last_send
+        if loss is not None and self._was_steerable and self.guidance.due(s.time_s) and silent >= loss:
+            self._silent_at = s.time_s  # in OFFBOARD, our setpoints paused: PX4's failsafe may have fired
         if (
             self.steering
             and self.guard.state is not Guard.RELEASED
@@ -453,14 +453,15 @@ class Companion:
     def _our_failsafe_fired(self) -> bool:
         """Whether the vehicle left its guided mode for the failsafe this companion's own silence set
         off: ArduPilot's GCS failsafe it armed (ArduPlane said so), or PX4's offboard-loss failsafe
-        (Hold, after our setpoints paused for COM_OF_LOSS_T within the last `SILENCE_RECENT_S`); never
-        once the region guard has given the aircraft up to the autopilot's fence."""
+        (Hold, found at most COM_OF_LOSS_T of vehicle time after our setpoints, streamed in OFFBOARD,
+        had paused that long: a Hold a pilot chose while they flowed is not ours); never once the
+        region guard has given the aircraft up to the autopilot's fence."""
         s = self.link.state
         if self.guard.state is Guard.RELEASED:  # it gave the aircraft up for good
             return False
         if s.px4:
-            recent = s.time_s - self._silent_at <= SILENCE_RECENT_S
-            return self._offboard_loss_s is not None and s.custom_mode == PX4_HOLD and recent
+            loss = self._offboard_loss_s
+            return loss is not None and s.custom_mode == PX4_HOLD and s.time_s - self._silent_at <= loss
         return self.failsafe is not None and fired_by_our_silence(self.link, self._texts_steering)
 
     def _check_link(self) -> bool:
