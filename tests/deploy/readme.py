@@ -24,10 +24,12 @@ def readme_commands() -> list[str]:
 
 
 def clean_copy(directory: Path) -> Path:
-    """The checkout's files as a fresh clone has them (`git ls-files`, no out/), in `directory`, with
-    this checkout's virtual environment linked in as `.venv` and the Makefile's install step already
-    done (pyproject.toml dated before it), so `make` runs there as on a fresh machine after its
-    install."""
+    """The checkout's files as a fresh clone has them (`git ls-files`: no out/, no numba cache), in
+    `directory`, with this checkout's virtual environment linked in as `.venv` and the Makefile's
+    install step already done (pyproject.toml dated before it), so `make` runs there as on a fresh
+    machine after its install. Run it with PYTHONPATH=directory: the environment's editable install
+    points at this checkout, while the processes `uavsearch run` starts there (`python -m`) import
+    the copy's sources."""
     files = (
         subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True)
         .stdout.decode()

@@ -54,6 +54,7 @@ def _autopilot(kind: str) -> dict[str, str]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(MAKE_TIMEOUT_S + 120)
 @pytest.mark.parametrize(
     ("target", "kind", "out", "mission"),
     [
@@ -64,10 +65,11 @@ def _autopilot(kind: str) -> dict[str, str]:
 def test_make_run_on_an_autopilot_from_a_clean_copy(
     target: str, kind: str, out: str, mission: str, tmp_path: Path
 ) -> None:
-    env = {**os.environ, **_autopilot(kind)}
-    env.pop("VIRTUAL_ENV", None)
     assert f"make {target}" in readme_commands()
     copy = clean_copy(tmp_path / "clone")
+    # the copy's own sources (and numba cache), in the launcher as in the processes it starts there
+    env = {**os.environ, **_autopilot(kind), "PYTHONPATH": str(copy)}
+    env.pop("VIRTUAL_ENV", None)
     proc = subprocess.run(
         ["make", target], cwd=copy, env=env, capture_output=True, text=True, timeout=MAKE_TIMEOUT_S
     )
