@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal, get_args
 
 import msgspec
+import msgspec.inspect
 import numpy as np
 
 if TYPE_CHECKING:
@@ -394,11 +395,42 @@ _PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
 
 
 def _field_from_msgspec(message: str) -> tuple[str, str]:
-    """Split msgspec's 'reason - at `$.a.b[0]`' into ('a.b[0]', 'reason')."""
+    """Split msgspec's 'reason - at `$.a.b[0]`' into ('a.b[0]', 'reason'); a value not among a
+    field's choices gets the valid ones listed."""
     match = _PATH_RE.search(message)
     if not match:
         return "(document)", message
-    return match.group("path").lstrip(".") or "(document)", message[: match.start()]
+    field, reason = match.group("path").lstrip(".") or "(document)", message[: match.start()]
+    if reason.startswith("Invalid enum value"):
+        choices = _choices(field)
+        if choices:
+            reason += f" (one of {', '.join(repr(c) for c in choices)})"
+    return field, reason
+
+
+def _choices(field: str) -> tuple[object, ...]:
+    """The values the Mission field at `field` ('a.b[0].c') may take, if it is a choice of values."""
+    mi = msgspec.inspect
+
+    def bare(info: mi.Type) -> mi.Type:  # an optional value's type, a list's items' type
+        while True:
+            if isinstance(info, mi.UnionType):
+                kinds = [t for t in info.types if not isinstance(t, mi.NoneType)]
+                if len(kinds) != 1:
+                    return next((t for t in kinds if isinstance(t, mi.LiteralType)), info)
+                info = kinds[0]
+            elif isinstance(info, mi.ListType):
+                info = info.item_type
+            else:
+                return info
+
+    info = bare(mi.type_info(Mission))
+    for part in filter(None, re.split(r"\.|\[\d+\]", field)):
+        fields = {f.encode_name: f.type for f in info.fields} if isinstance(info, mi.StructType) else {}
+        if part not in fields:
+            return ()
+        info = bare(fields[part])
+    return tuple(info.values) if isinstance(info, mi.LiteralType) else ()
 
 
 def _non_finite(value: object, path: str) -> str | None:

@@ -24,6 +24,8 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.app.arguments import HelpFormatter
+
 DEFAULT_MISSION = Path(__file__).resolve().parents[1] / "mission_files" / "scenario1.toml"
 REAL_TIME = 0.95  # achieved / requested simulated time that counts as keeping up
 
@@ -130,8 +132,10 @@ def _drive(ports: list[int], duration: float) -> int:
 
 
 def bench_main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="sim_vehicles.bench", description=__doc__.splitlines()[0])
-    parser.add_argument("--mission", type=Path, default=DEFAULT_MISSION)
+    parser = argparse.ArgumentParser(
+        prog="uavsearch sim-bench", description=__doc__.splitlines()[0], formatter_class=HelpFormatter
+    )
+    parser.add_argument("--mission", type=Path, default=DEFAULT_MISSION, help="the mission flown")
     parser.add_argument("--vehicles", type=int, default=50, help="fleet size for the real-time run")
     parser.add_argument("--duration", type=float, default=10.0, help="wall seconds per run")
     parser.add_argument("--speedups", default="25,50,100,200,400",

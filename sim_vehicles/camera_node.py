@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.app.arguments import natural
+from companion.app.arguments import mission_argument, natural
 from companion.mission import Mission, load_mission
 from companion.node.frames import LocalFrame
 from companion.node.keys import for_mission, mavlink_secrets
@@ -161,18 +161,32 @@ class CameraNode:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--mission", required=True, type=Path, help="mission file (TOML)")
-    parser.add_argument("--vehicles", required=True, help="pymavlink URLs of the vehicles, comma-separated")
+    mission_argument(parser, type=Path)
+    parser.add_argument(
+        "--vehicles", required=True, help="pymavlink URLs of the vehicles, comma-separated (required)"
+    )
     parser.add_argument("--seed", type=natural, default=None, help="target seed (default: the mission's)")
-    parser.add_argument("--truth", type=Path, default=None, help="write the ground truth (JSON) here")
+    parser.add_argument(
+        "--truth", type=Path, default=None, help="write the ground truth (JSON) here (default: not written)"
+    )
     parser.add_argument(
         "--approach",
         type=Path,
         default=None,
-        help="write every pair's closest approach per step, from the position streams (CSV)",
+        help="write every pair's closest approach per step, from the position streams (CSV; default: not "
+        "written)",
     )
-    parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT")
-    parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT")
+    parser.add_argument(
+        "--zenoh-listen",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="loopback Zenoh listen endpoint (default: tcp/127.0.0.1:0)",
+    )
+    parser.add_argument(
+        "--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
+        help="loopback Zenoh endpoint to connect to (default: the mission's mesh)",
+    )  # fmt: skip
     parser.add_argument(
         "--setup-signing",
         action="store_true",

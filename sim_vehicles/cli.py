@@ -13,14 +13,14 @@ from dataclasses import asdict
 from pathlib import Path
 from types import FrameType
 
-from companion.app.arguments import natural, positive
+from companion.app.arguments import HelpFormatter, check_mission, mission_argument, natural, positive
 from companion.mission import MissionError, load_mission
 from companion.node.lifeline import end_with_launcher
 from sim_vehicles.host import Host, HostOptions
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--mission", required=True, type=Path, help="mission file (TOML)")
+    mission_argument(parser, type=Path)
     parser.add_argument("--speedup", type=positive, default=1.0,
                         help="simulated seconds per wall second (default 1)")
     parser.add_argument("--lockstep", action="store_true",
@@ -35,11 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
                         help="loopback Zenoh endpoint to connect to (default: the mission's mesh)")
     parser.add_argument("--truth", type=Path, default=None,
-                        help="write the ground-truth evaluation record (JSON) here")
+                        help="write the ground-truth evaluation record (JSON) here (default: not written)")
     parser.add_argument("--approach", type=Path, default=None,
-                        help="write every pair's closest approach per step, at the physics rate (CSV)")
+                        help="write every pair's closest approach per step, at the physics rate (CSV; "
+                        "default: not written)")
     parser.add_argument("--state", type=Path, default=None,
-                        help="save the simulator's state here every step, and resume from it if it exists")
+                        help="save the simulator's state here every step, and resume from it if it exists "
+                        "(default: not saved)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -87,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     end_with_launcher()
-    parser = argparse.ArgumentParser(prog="sim_vehicles", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="sim_vehicles", description=__doc__.splitlines()[0], formatter_class=HelpFormatter
+    )
     add_arguments(parser)
-    return run(parser.parse_args(argv))
+    args = parser.parse_args(argv)
+    check_mission(parser, args)
+    return run(args)

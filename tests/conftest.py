@@ -21,7 +21,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 # its own kind: each group runs in order on one worker. Both groups are handed out first (they are
 # the longest), then the other tests, those marked `slow` first, so that no long test starts last.
 REAL_TIME_GROUPS = {
-    "autopilot": ("sitl/", "px4/", "trust/test_sitl_signing.py"),
+    "autopilot": ("sitl/", "px4/", "trust/test_sitl_signing.py", "deploy/test_readme.py"),
     "swarm": ("e2e/", "mission/test_swarm.py", "view/test_view_browser.py"),
 }
 

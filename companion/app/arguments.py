@@ -107,3 +107,73 @@ def names(allowed: Sequence[str]) -> Callable[[str], tuple[str, ...]]:
         return chosen
 
     return parse
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Every option's help with its default: appended as "(default: X)" unless the text already
+    says it, or there is none to say (a flag, a required option, a default of None)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if action.required and "required" not in text:
+            return f"{text} (required)"
+        if (
+            "default" in text
+            or action.required
+            or default is None
+            or default is False
+            or default == argparse.SUPPRESS
+            or action.nargs == 0  # a flag
+            or not (action.option_strings or action.nargs in ("?", "*"))
+        ):
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, list | tuple) else str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+class _MissionPositional(argparse.Action):
+    """The mission as a positional argument: the same destination as `--mission`; a second,
+    different file is an error."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        if values is None:  # not given: `--mission` or the default stands
+            return
+        given = getattr(namespace, self.dest, None)
+        if given is not None and given != self.default_of_option and str(given) != str(values):
+            parser.error(f"the mission is given twice: {given} and {values}")
+        setattr(namespace, self.dest, values)
+
+    default_of_option: object = None
+
+
+def mission_argument(
+    parser: argparse.ArgumentParser,
+    required: bool = True,
+    default: str | None = None,
+    type: Callable[[str], object] = str,
+    help: str = "the mission file (TOML)",
+) -> None:
+    """The mission file, given as `FILE` or as `--mission FILE` (one name for every command)."""
+    shown = f"default: {default}" if default else ("required" if required else "default: none")
+    parser.add_argument(
+        "--mission", default=default, type=type, metavar="FILE", help=f"{help}; or FILE ({shown})"
+    )
+    action = parser.add_argument(
+        "mission", nargs="?", default=None, type=type, metavar="FILE", action=_MissionPositional,
+        help="the same as --mission FILE",
+    )  # fmt: skip
+    action.default_of_option = default  # type: ignore[attr-defined]
+    parser.set_defaults(mission_required=required)
+
+
+def check_mission(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Exit with `parser`'s usage when a command that needs a mission was given none."""
+    if getattr(args, "mission_required", False) and getattr(args, "mission", None) is None:
+        parser.error("a mission file is required: FILE or --mission FILE")

@@ -8,11 +8,14 @@ import json
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from companion.app.arguments import (
+    HelpFormatter,
+    check_mission,
     count,
     fraction,
+    mission_argument,
     names,
     natural,
     port,
@@ -26,6 +29,7 @@ from companion.app.entry import INTERRUPTED
 from companion.batch.executors import ClusterError
 from companion.batch.starts import LAYOUTS
 from companion.mission import (
+    ALGORITHMS,
     MAX_CENTRES,
     MAX_GRID_CELLS,
     MAX_VEHICLES,
@@ -50,7 +54,7 @@ def _mc(args: argparse.Namespace) -> int:
 
     mission = load_mission(args.mission)
     layouts = parse_layouts(args.random_starts) if args.random_starts else ()
-    algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
+    algorithms = list(args.algorithms)
     seed = mission.seed if args.seed is None else args.seed
     steps = args.steps or mission.steps
     with open_executor(args.scheduler, args.workers) as executor:
@@ -277,7 +281,7 @@ def _soak(args: argparse.Namespace) -> int:
     from companion.batch.executors import open_executor
     from companion.batch.soak import soak, soak_specs
 
-    algorithms = tuple(a.strip() for a in args.algorithms.split(",") if a.strip())
+    algorithms = tuple(args.algorithms)
     specs = soak_specs(args.missions, args.seed, args.steps, algorithms, args.loss, args.kill, _family(args))
     console = Console(highlight=False)
     runs = events = 0
@@ -606,30 +610,50 @@ def _random_starts_option(p: argparse.ArgumentParser) -> None:
 
 def _add_executor_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=count, default=None, help="local processes (default: all cores)")
+    where.add_argument("--workers", type=count, default=None, help="local processes (default: one per core)")
     where.add_argument(
         "--scheduler",
         default=None,
         metavar="tcp://HOST:PORT",
-        help="run on the workers of this Dask scheduler instead of local processes (README: cluster)",
+        help="run on the workers of this Dask scheduler instead of local processes (README: cluster; "
+        "default: none, the local pool)",
     )
+
+
+class _Parser(argparse.ArgumentParser):
+    """A subcommand's parser: every option's help shows its default (`HelpFormatter`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="uavsearch", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    algorithms = f"comma-separated, of {', '.join(ALGORITHMS)}"
 
     mc = sub.add_parser("mc", help="Monte Carlo comparison of algorithms (the paper's Figures 8-10)")
-    mc.add_argument("--mission", required=True)
-    mc.add_argument("--algorithms", default="proposed,no-ta,pheromone")
-    mc.add_argument("--runs", type=count, default=20)
+    mission_argument(mc)
     mc.add_argument(
-        "--steps", type=step_count, default=None, help="sampling moments per run (default: mission)"
+        "--algorithms",
+        type=names(ALGORITHMS),
+        default="proposed,no-ta,pheromone",
+        help=f"algorithms to compare, {algorithms}",
     )
-    mc.add_argument("--seed", type=natural, default=None, help="default: the mission's seed")
-    mc.add_argument("--out", default="out/mc")
+    mc.add_argument("--runs", type=count, default=20, help="runs per algorithm")
+    mc.add_argument(
+        "--steps",
+        type=step_count,
+        default=None,
+        help="sampling moments per run (default: the mission's steps)",
+    )
+    mc.add_argument(
+        "--seed", type=natural, default=None, help="the first run's seed (default: the mission's seed)"
+    )
+    mc.add_argument("--out", default="out/mc", help="output folder")
     _add_executor_arguments(mc)
-    mc.add_argument("--save-trajectories", action="store_true")
+    mc.add_argument("--save-trajectories", action="store_true", help="also write every run's trajectories")
     mc.add_argument("--quiet", action="store_true", help="no progress bar")
     _random_starts_option(mc)
     mc.set_defaults(func=_mc)
@@ -638,8 +662,10 @@ def build_parser() -> argparse.ArgumentParser:
         "targets", help="which targets one algorithm finds sooner than another, by distance from the start"
     )
     ta.add_argument("dir", help="an `uavsearch mc` output folder")
-    ta.add_argument("--algorithm", default="proposed")
-    ta.add_argument("--baseline", default="no-ta")
+    ta.add_argument("--algorithm", choices=ALGORITHMS, default="proposed", help="the algorithm measured")
+    ta.add_argument(
+        "--baseline", choices=ALGORITHMS, default="no-ta", help="the algorithm it is compared with"
+    )
     ta.add_argument("--edges", help="distance bins' edges, metres, comma-separated (default: 400 m bins)")
     ta.set_defaults(func=_targets)
 
@@ -651,32 +677,41 @@ def build_parser() -> argparse.ArgumentParser:
     vs.set_defaults(func=_versus)
 
     sw = sub.add_parser("sweep", help="sweep one algorithm parameter (the paper's Figure 11)")
-    sw.add_argument("--mission", required=True)
-    sw.add_argument("--param", default="n_g")
-    sw.add_argument("--values", default="10,20,30,40,50,60,70,80,90")
-    sw.add_argument("--runs", type=count, default=20)
-    sw.add_argument("--steps", type=step_count, default=None)
-    sw.add_argument("--seed", type=natural, default=None)
-    sw.add_argument("--out", default="out/sweep")
+    mission_argument(sw)
+    sw.add_argument("--param", default="n_g", help="the [algorithm] field swept")
+    sw.add_argument("--values", default="10,20,30,40,50,60,70,80,90", help="its values, comma-separated")
+    sw.add_argument("--runs", type=count, default=20, help="runs per value")
+    sw.add_argument(
+        "--steps", type=step_count, default=None, help="sampling moments per run (default: the mission's)"
+    )
+    sw.add_argument(
+        "--seed", type=natural, default=None, help="the first run's seed (default: the mission's)"
+    )
+    sw.add_argument("--out", default="out/sweep", help="output folder")
     _add_executor_arguments(sw)
-    sw.add_argument("--quiet", action="store_true")
+    sw.add_argument("--quiet", action="store_true", help="no progress bar")
     sw.set_defaults(func=_sweep)
 
     be = sub.add_parser("bench", help="time per 1,000 sampling moments and Monte Carlo throughput")
-    be.add_argument("--missions", nargs="+", default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)])
-    be.add_argument("--runs", type=count, default=3)
-    be.add_argument("--steps", type=step_count, default=1000)
-    be.add_argument("--seed", type=natural, default=1)
+    be.add_argument(
+        "--missions",
+        nargs="+",
+        default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)],
+        help="mission files",
+    )
+    be.add_argument("--runs", type=count, default=3, help="timed runs per mission and algorithm")
+    be.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
+    be.add_argument("--seed", type=natural, default=1, help="the first run's seed")
     _add_executor_arguments(be)
     be.add_argument(
         "--study-runs", type=count, default=8, help="runs per mission and algorithm in the throughput"
     )
-    be.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    be.add_argument("--json", default=None, help="also write the figures to this JSON file (default: none)")
     be.add_argument(
         "--against",
         metavar="CHECKOUT",
         help="instead: CPU seconds per run of this checkout against another's (e.g. a git worktree of an "
-        "older commit), interleaved, with their ratio",
+        "older commit), interleaved, with their ratio (default: none)",
     )
     be.add_argument(
         "--rounds", type=count, default=2, help="with --against: interleaved rounds (the minimum is taken)"
@@ -692,12 +727,17 @@ def build_parser() -> argparse.ArgumentParser:
     cl = sub.add_parser(
         "cluster-bench", help="Monte Carlo throughput: local pool against a Dask cluster on loopback"
     )
-    cl.add_argument("--missions", nargs="+", default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)])
+    cl.add_argument(
+        "--missions",
+        nargs="+",
+        default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)],
+        help="mission files",
+    )
     cl.add_argument("--workers", default="1,2", help="worker counts, e.g. 1,2")
     cl.add_argument("--study-runs", type=count, default=20, help="runs per mission and algorithm")
-    cl.add_argument("--steps", type=step_count, default=1000)
-    cl.add_argument("--seed", type=natural, default=1)
-    cl.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    cl.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
+    cl.add_argument("--seed", type=natural, default=1, help="the first run's seed")
+    cl.add_argument("--json", default=None, help="also write the rows to this JSON file (default: none)")
     cl.set_defaults(func=_cluster_bench)
 
     def family_options(p: argparse.ArgumentParser) -> None:
@@ -718,16 +758,21 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
 
     ge = sub.add_parser("generate", help="write generated missions (a family beyond the scenario files)")
-    ge.add_argument("--count", type=count, required=True)
-    ge.add_argument("--seed", type=natural, required=True)
-    ge.add_argument("--out", required=True)
+    ge.add_argument("--count", type=count, required=True, help="how many missions (required)")
+    ge.add_argument("--seed", type=natural, required=True, help="the generator's seed (required)")
+    ge.add_argument("--out", required=True, help="output folder (required)")
     family_options(ge)
     ge.set_defaults(func=_generate)
 
     so = sub.add_parser("soak", help="safety soak: separation and link events on generated missions")
-    so.add_argument("--missions", type=count, default=20)
-    so.add_argument("--seed", type=natural, default=1)
-    so.add_argument("--algorithms", default="proposed,no-ta,pheromone")
+    so.add_argument("--missions", type=count, default=20, help="generated missions")
+    so.add_argument("--seed", type=natural, default=1, help="the generator's seed")
+    so.add_argument(
+        "--algorithms",
+        type=names(ALGORITHMS),
+        default="proposed,no-ta,pheromone",
+        help=f"algorithms, {algorithms}",
+    )
     so.add_argument("--loss", type=fraction, default=0.0, help="message loss probability on the radio")
     so.add_argument("--kill", action="store_true", help="one companion per mission dies mid-run")
     _add_executor_arguments(so)
@@ -736,17 +781,22 @@ def build_parser() -> argparse.ArgumentParser:
     so.set_defaults(func=_soak)
 
     def mission_set_options(p: argparse.ArgumentParser, out: str) -> None:
-        p.add_argument("--missions", type=count, default=None, help="generate this many missions")
-        p.add_argument("--seed", type=natural, default=None, help="the generator's seed")
-        p.add_argument("--mission-dir", default=None, help="use the mission files of a folder instead")
+        p.add_argument(
+            "--missions", type=count, default=None, help="generate this many missions (default: none)"
+        )
+        p.add_argument("--seed", type=natural, default=None, help="the generator's seed (default: none)")
+        p.add_argument(
+            "--mission-dir", default=None, help="use the mission files of a folder instead (default: none)"
+        )
         p.add_argument(
             "--weights",
             nargs="+",
             default=None,
             metavar="FILE",
-            help="TOML files whose [algorithm] tables replace the missions' weights, in order",
+            help="TOML files whose [algorithm] tables replace the missions' weights, in order (default: the "
+            "missions' own)",
         )
-        p.add_argument("--out", default=out)
+        p.add_argument("--out", default=out, help="output folder")
         _add_executor_arguments(p)
         p.add_argument("--quiet", action="store_true", help="no progress bar")
         family_options(p)
@@ -765,7 +815,9 @@ def build_parser() -> argparse.ArgumentParser:
     mission_set_options(tu, "out/tune")
     tu.add_argument("--budget", type=count, required=True, help="runs in all, the current weights' included")
     tu.add_argument("--runs", type=count, default=1, help="runs per mission and candidate")
-    tu.add_argument("--algorithm", choices=("proposed", "no-ta", "pheromone"), default="proposed")
+    tu.add_argument(
+        "--algorithm", choices=ALGORITHMS, default="proposed", help="the algorithm whose weights are tuned"
+    )
     tu.add_argument("--params", default=None, help="fields to tune (default: every row the algorithm reads)")
     tu.add_argument("--space", default=None, help="a TOML search space (default: companion.batch.tune.SPACE)")
     tu.add_argument(
@@ -781,39 +833,54 @@ def build_parser() -> argparse.ArgumentParser:
     tu.set_defaults(func=_tune)
 
     fz = sub.add_parser("fuzz", help="fuzzing campaigns: mesh, MAVLink, camera frames, mission files")
-    fz.add_argument("--campaign", default="all", choices=("all", "mesh", "mavlink", "camera", "mission"))
+    fz.add_argument(
+        "--campaign",
+        default="all",
+        choices=("all", "mesh", "mavlink", "camera", "mission"),
+        help="which campaign",
+    )
     fz.add_argument(
         "--count",
         type=count,
         default=None,
         help="inputs per campaign (default: 100,000 mesh, 10,000 others, 1,000 mission files)",
     )
-    fz.add_argument("--seed", type=natural, default=0)
+    fz.add_argument("--seed", type=natural, default=0, help="the inputs' seed")
     fz.set_defaults(func=_fuzz)
 
     fa = sub.add_parser("faults", help="the fault matrix on real processes (docs/reliability.md)")
     fa.add_argument(
-        "--row", default="all", choices=("all", "restart", "sim-restart", "link-loss", "partition", "loss")
+        "--row",
+        default="all",
+        choices=("all", "restart", "sim-restart", "link-loss", "partition", "loss"),
+        help="which row of the matrix",
     )
-    fa.add_argument("--mission", default="mission_files/scenario1.toml")
+    mission_argument(fa, required=False, default="mission_files/scenario1.toml")
     fa.add_argument("--steps", type=step_count, default=300, help="steps of each row's mission")
     fa.add_argument("--at", type=natural, default=60, help="the step the fault strikes at")
     fa.add_argument("--outage", type=count, default=8, help="steps the fault lasts (link-loss: 10 s)")
     fa.add_argument("--victim", type=natural, default=1, help="the UAV a companion or link fault hits")
-    fa.add_argument("--out", default="out/faults")
+    fa.add_argument("--out", default="out/faults", help="output folder")
     fa.set_defaults(func=_faults)
 
     from companion.node.guidance import COMMAND_MODES
 
     co = sub.add_parser("companion", help="the companion process of one UAV (MAVLink + Zenoh mesh)")
-    co.add_argument("--mission", required=True)
-    co.add_argument("--uav", type=natural, required=True, help="UAV index (0-based; MAVLink system id - 1)")
+    mission_argument(co)
+    co.add_argument(
+        "--uav", type=natural, required=True, help="UAV index (0-based; MAVLink system id - 1; required)"
+    )
     co.add_argument(
         "--vehicle",
         default=None,
         help="pymavlink connection string (udp/udpin/udpout/tcp/serial); default: the simulator",
     )
-    co.add_argument("--command-mode", choices=COMMAND_MODES, default="turn-rate")
+    co.add_argument(
+        "--command-mode",
+        choices=COMMAND_MODES,
+        default="turn-rate",
+        help="how the plan is sent (docs/companion.md)",
+    )
     co.add_argument(
         "--takeover",
         action="store_true",
@@ -833,14 +900,18 @@ def build_parser() -> argparse.ArgumentParser:
         "silent (ArduPilot's GCS failsafe; default: with --takeover)",
     )
     co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
-    co.add_argument("--steps", type=step_count, default=None)
-    co.add_argument("--seed", type=natural, default=None)
-    co.add_argument("--out", default=None, help="directory for the step log, the report and the .tlog")
+    co.add_argument("--steps", type=step_count, default=None, help="steps to fly (default: the mission's)")
+    co.add_argument("--seed", type=natural, default=None, help="target seed (default: the mission's)")
+    co.add_argument(
+        "--out",
+        default=None,
+        help="directory for the step log, the report and the .tlog (default: none written)",
+    )
     co.add_argument(
         "--journal",
         default=None,
         help="journal file: every step is kept there, and a companion started again on it goes on "
-        "where it stopped (docs/reliability.md)",
+        "where it stopped (docs/reliability.md; default: none)",
     )
     co.add_argument(
         "--mavlink-key",
@@ -851,42 +922,65 @@ def build_parser() -> argparse.ArgumentParser:
     co.set_defaults(func=_companion)
 
     ke = sub.add_parser("keys", help="generate a swarm's keys and certificates (docs/reliability.md)")
-    ke.add_argument("--mission", default=None, help="the mission: its UAV count, and its key directory")
-    ke.add_argument("--uavs", type=count, default=None, help="the UAV count (without --mission)")
+    mission_argument(
+        ke, required=False, help="the mission: its UAV count, and its key directory (or --uavs and --out)"
+    )
+    ke.add_argument(
+        "--uavs", type=count, default=None, help="the UAV count (without a mission; default: none)"
+    )
     ke.add_argument("--out", default=None, help="the key directory (default: the mission's security.keys)")
     ke.add_argument("--days", type=count, default=365, help="how long the certificates are valid")
     ke.set_defaults(func=_keys)
 
     ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")
-    ru.add_argument("mission")
-    ru.add_argument("--speedup", type=positive, default=10.0)
-    ru.add_argument("--lockstep", action="store_true")
-    ru.add_argument("--steps", type=step_count, default=None)
-    ru.add_argument("--seed", type=natural, default=None)
-    ru.add_argument("--out", default="out/run")
+    mission_argument(ru)
+    ru.add_argument(
+        "--speedup", type=positive, default=10.0, help="times real time the vehicles fly (SITL: their clocks)"
+    )
+    ru.add_argument(
+        "--lockstep", action="store_true", help="the bundled simulator waits for every companion at each step"
+    )
+    ru.add_argument(
+        "--steps", type=step_count, default=None, help="the most steps to fly (default: the mission's steps)"
+    )
+    ru.add_argument("--seed", type=natural, default=None, help="target seed (default: the mission's seed)")
+    ru.add_argument("--out", default="out/run", help="output folder (reports, plots, logs, .tlogs)")
     ru.add_argument(
         "--command-mode",
         choices=COMMAND_MODES,
         default=None,
-        help="default: turn-rate on the bundled simulator, position-target on PX4 SITL, heading otherwise",
+        help="how the plan is sent (docs/companion.md; default: turn-rate on the bundled simulator, "
+        "position-target on PX4 SITL, heading otherwise)",
     )
-    ru.add_argument("--flavour", choices=("ardupilot", "px4"), default=None)
+    ru.add_argument(
+        "--flavour",
+        choices=("ardupilot", "px4"),
+        default=None,
+        help="the bundled simulator's autopilot flavour (only with --autopilot bundled: a SITL autopilot is "
+        "its own flavour; default: the mission's sim.flavour)",
+    )
     ru.add_argument(
         "--autopilot",
         choices=("bundled", "ardupilot-sitl", "px4-sitl"),
         default="bundled",
-        help="the bundled simulator, or one ArduPlane or PX4 SITL per UAV at its start pose",
+        help="the bundled simulator (its flavour: --flavour), or one ArduPlane or PX4 SITL per UAV at its "
+        "start pose",
     )
     ru.add_argument(
-        "--vehicles", default=None, help="fly vehicles that exist: one pymavlink URL per UAV, comma-separated"
+        "--vehicles",
+        default=None,
+        help="fly vehicles that exist: one pymavlink URL per UAV, comma-separated (default: start them)",
     )
     ru.add_argument(
-        "--camera-links", default=None, help="with --vehicles: links for the stand-alone simulated camera"
+        "--camera-links",
+        default=None,
+        help="with --vehicles: links for the stand-alone simulated camera (default: no camera)",
     )
     ru.add_argument(
         "--sitl-binary",
         default=None,
-        help="ArduPlane SITL binary (default: $ARDUPLANE_SITL), PX4 bin/px4 (default: $PX4_SITL_DIR/bin/px4)",
+        help="ArduPlane SITL binary (default: $ARDUPLANE_SITL, else ../shared/sitl/arduplane), PX4 bin/px4 "
+        "(default: $PX4_SITL_DIR/bin/px4, else ../shared/px4/bin/px4)",
     )
     ru.add_argument(
         "--sitl-instance",
@@ -895,11 +989,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="PX4: the first instance number tried (MAV_SYS_ID - 1)",
     )
     ru.add_argument(
-        "--sitl-defaults", default=None, help="SITL parameter defaults (default: plane.parm by it)"
+        "--sitl-defaults",
+        default=None,
+        help="ArduPlane SITL parameter defaults file (default: plane.parm in the binary's folder)",
     )
-    ru.add_argument("--quiet", action="store_true")
+    ru.add_argument("--quiet", action="store_true", help="no progress lines")
     ru.add_argument(
-        "--keep-going", action="store_true", help="fly all the steps even when every target is found"
+        "--keep-going",
+        action="store_true",
+        help="fly all the steps even when every target is found (default: stop once every target is found)",
     )
     ru.add_argument("--view", action="store_true", help="serve the live map of the swarm (uavsearch view)")
     ru.add_argument("--view-port", type=port, default=0, help="the live map's port (0: any free port)")
@@ -912,8 +1010,12 @@ def build_parser() -> argparse.ArgumentParser:
     vi.set_defaults(func=_view)
 
     ro = sub.add_parser("router", help="a Zenoh router for client-mode meshes")
-    ro.add_argument("--mission", default=None)
-    ro.add_argument("--endpoint", default=None)
+    mission_argument(ro, required=False, help="the mission whose mesh.router endpoint to listen on")
+    ro.add_argument(
+        "--endpoint",
+        default=None,
+        help="the endpoint to listen on, instead of a mission's (default: tcp/127.0.0.1:7447)",
+    )
     ro.set_defaults(func=_router)
 
     from sim_vehicles.cli import add_arguments
@@ -945,6 +1047,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ab.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
     ab.set_defaults(func=_altitude_bench)
+    for command in sub.choices.values():  # a mistake prints the subcommand's own usage (`main`)
+        command.set_defaults(parser=command)
     return parser
 
 
@@ -961,7 +1065,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if argv and argv[0] in PASSTHROUGH:  # the benchmarks parse their own options
             return PASSTHROUGH[argv[0]](argparse.Namespace(args=argv[1:]))
-        args = build_parser().parse_args(argv)
+        args, extra = build_parser().parse_known_args(argv)
+        if extra:  # the top-level parser would print its own usage
+            args.parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        check_mission(args.parser, args)
         return int(args.func(args))
     except MissionError as exc:
         print(f"error: mission file {exc}", file=sys.stderr)

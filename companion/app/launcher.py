@@ -23,7 +23,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,10 +38,10 @@ from companion.app.evaluation import (
     read_vertical,
     truth_cells,
 )
+from companion.app.progress import Progress
 from companion.batch import plots, report
 from companion.batch.engine import warm_up
-from companion.core.connectivity import algebraic_connectivity, min_pair_distance
-from companion.core.world import World, build_world
+from companion.core.world import build_world
 from companion.mission import Mission, load_mission
 from companion.node.airframe import Airframe, refusal
 from companion.node.frames import LocalFrame
@@ -157,34 +157,6 @@ class Children:
                 except subprocess.TimeoutExpired:
                     self.procs[name].kill()
                     self.procs[name].wait()
-
-
-def _live_line(
-    world: World,
-    logs: CompanionLogs,
-    new: dict[int, list[dict[str, float]]],
-    xy: np.ndarray,
-    seen: np.ndarray,
-) -> str:
-    """The progress line; marks in `seen` the targets (centres `xy`) in view of the rows in `new`."""
-    m = world.mission
-    for rows in new.values():
-        if rows:
-            p = np.array([(r["x"], r["y"]) for r in rows])
-            near = np.sum((p[:, None, :] - xy[None, :, :]) ** 2, axis=-1) <= world.grid.fov_radius2
-            seen |= near.any(axis=0)
-    latest = [rows[max(rows)] for rows in logs.logs.values() if rows]
-    if not latest:
-        return "waiting for the companions"
-    step = int(min(r["step"] for r in latest))
-    pos = np.array([(r["x"], r["y"]) for r in latest])
-    unc = float(np.mean([r["mean_eta"] for r in latest]))
-    lam = algebraic_connectivity(pos, m.comms.range)
-    mind = min_pair_distance(pos)
-    return (
-        f"step {step:5d}  targets {int(seen.sum())}/{len(xy)}  mean uncertainty {unc:.4f}  "
-        f"lambda_2 {lam:.4f}  min distance {mind:7.1f} m"
-    )
 
 
 def _check_options(opts: RunOptions, mission: Mission) -> str | None:
@@ -358,6 +330,8 @@ def security_summary(mission: Mission) -> str:
 
 def run_mission(opts: RunOptions) -> int:
     """Fly the mission end to end; returns the process exit code."""
+    # absolute paths: the SITL instances run in working directories of their own
+    opts = replace(opts, mission_file=opts.mission_file.resolve(), out=opts.out.resolve())
     mission = load_mission(opts.mission_file)
     problem = _check_options(opts, mission)
     if problem:
@@ -381,6 +355,7 @@ def run_mission(opts: RunOptions) -> int:
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     started = time.monotonic()
     failure = None
+    progress: Progress | None = None
     try:
         if mission.mesh.mode == "client":
             children.start(
@@ -416,16 +391,16 @@ def run_mission(opts: RunOptions) -> int:
                 children.wait_for_line(f"companion{i}", "waiting for the vehicle")
             _start_bundled(children, opts, mission, seed)
         targets = truth_cells(out / "truth.json")
-        seen = np.zeros(len(targets), dtype=bool)
+        progress = Progress(world, world.grid.centres[targets], started)
         last_print = 0.0
         while not stop.is_set():
             time.sleep(0.5)
-            line = _live_line(world, logs, logs.poll(), world.grid.centres[targets], seen)
-            if opts.progress and time.monotonic() - last_print >= 2.0:
+            line = progress.update(logs.logs, logs.poll(), time.monotonic())
+            if opts.progress and line is not None and time.monotonic() - last_print >= 2.0:
                 print(line, flush=True)
                 last_print = time.monotonic()
             companions = [p for n, p in children.procs.items() if n.startswith("companion")]
-            all_found = seen.all() and not opts.keep_going
+            all_found = progress.seen.all() and not opts.keep_going
             if all_found or all(p.poll() is not None for p in companions):
                 break
             failure = _stopped_early(children)
@@ -441,7 +416,11 @@ def run_mission(opts: RunOptions) -> int:
         print(failure if stop.is_set() else f"error: {failure}", file=sys.stderr)
         if not (out / "truth.json").exists():
             return 1
-    logs.poll()
+    new = logs.poll()
+    if opts.progress and progress is not None:  # the last line: the steps the summary counts
+        line = progress.update(logs.logs, new, time.monotonic(), final=True)
+        if line is not None:
+            print(line, flush=True)
     approach = read_approach(out / "approach.csv")
     targets = truth_cells(out / "truth.json")
     result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed, approach)
@@ -465,7 +444,8 @@ def run_mission(opts: RunOptions) -> int:
     report.write_targets(out, {name: [result]})
     report.copy_mission(opts.mission_file, out)
     plots.plot_prior(out / "prior_cvt.png", world)
-    plots.plot_trajectories(out / "trajectories.png", {name: world}, {name: result})
+    starts = {name: np.array([(v.x, v.y) for v in mission.vehicles])}
+    plots.plot_trajectories(out / "trajectories.png", {name: world}, {name: result}, starts)
     plots.plot_uncertainty(out / "uncertainty.png", {name: [result]})
     plots.plot_found(out / "targets_found.png", {name: [result]})
     plots.plot_links(out / "links.png", result, mission.comms.safety)

@@ -14,12 +14,15 @@ Instance i runs in its own working directory (parameters, dataman, flight logs),
 - the SIH fixed-wing, headless, home at vehicle i's start (its position, the mission's origin
   altitude: PX4_HOME_LAT/LON/ALT, which set SIH_LOC_*; SIH always starts facing north);
 - PX4_SIM_SPEED_FACTOR = the speed-up; SIH steps PX4's clock in lockstep with its controllers;
-- COM_OF_LOSS_T (PX4_PARAM_COM_OF_LOSS_T) = 3 s of real time (three times PX4's default 1 s) times
-  the speed-up, at most PX4's 60 s: the OFFBOARD setpoint stream may pause that long before PX4's
-  failsafe takes the aircraft from the companion (the companion streams from the thread that also
-  plans; three PX4 instances, three companions and the camera on two cores paused it for 1.4 s at
-  the swarm's first steps, measured from the companion's .tlog, and all three aircraft went to
-  Hold);
+- COM_OF_LOSS_T = 3 s of real time (three times PX4's default 1 s) times the speed-up, at most
+  PX4's 60 s: the OFFBOARD setpoint stream may pause that long before PX4's failsafe takes the
+  aircraft from the companion (the companion streams from the thread that also plans; three PX4
+  instances, three companions and the camera on two cores paused it for 1.4 s at the swarm's first
+  steps, measured from the companion's .tlog, and all three aircraft went to Hold). It is set in
+  our `px4-rc.mavlink`, which PX4's start-up script runs last: that script sets COM_OF_LOSS_T to
+  the speed-up times 1 s after the PX4_PARAM_* overrides (4 s at 4x, one real second), which
+  undid an override by PX4_PARAM_COM_OF_LOSS_T. A companion whose stream paused that long anyway
+  takes the aircraft back from the failsafe's Hold (companion.node.process);
 - a PX4 instance number I (MAV_SYS_ID = I + 1, /tmp/px4_lock-I, /tmp/px4-sock-I): the first free
   ones from `first_instance`;
 - three UDP MAVLink links on 127.0.0.1, from the mission's port of vehicle i, P =
@@ -45,12 +48,15 @@ SHARED_DIR = ROOT.parent / "shared" / "px4"
 AIRFRAME = "sihsim_airplane"
 STARTED = "Startup script returned successfully"  # PX4's log line when it is up
 PORT_ENV = "UAVSEARCH_MAVLINK_PORT"
+LOSS_ENV = "UAVSEARCH_OF_LOSS_T"
 MAX_INSTANCE = 254  # MAV_SYS_ID = instance + 1
 OFFBOARD_LOSS_S = 3.0  # real seconds the setpoint stream may pause (PX4's default COM_OF_LOSS_T: 1 s)
 OFFBOARD_LOSS_MAX_S = 60.0  # COM_OF_LOSS_T's maximum
-# Replaces PX4's SITL MAVLink set-up (etc/init.d-posix/px4-rc.mavlink): three links of fixed ports.
+# Replaces PX4's SITL MAVLink set-up (etc/init.d-posix/px4-rc.mavlink): three links of fixed ports,
+# and COM_OF_LOSS_T (rcS sets it from PX4_SIM_SPEED_FACTOR after the PX4_PARAM_* overrides).
 RC_MAVLINK = f"""#!/bin/sh
 # uavsearch: the companion's, the camera's and a ground station's MAVLink links (see px4_sitl.py)
+[ -n "${LOSS_ENV}" ] && param set COM_OF_LOSS_T ${LOSS_ENV}
 p=${PORT_ENV}
 mavlink start -x -u $((p + 1)) -o $p -r 4000000 -m onboard
 mavlink start -x -u $((p + 3)) -o $((p + 2)) -r 1000000
@@ -180,7 +186,7 @@ def px4_env(mission: Mission, i: int, speedup: float) -> dict[str, str]:
         "PX4_HOME_LON": f"{lon:.8f}",
         "PX4_HOME_ALT": f"{alt:.2f}",
         "PX4_SIM_SPEED_FACTOR": f"{speedup:g}",
-        "PX4_PARAM_COM_OF_LOSS_T": f"{min(OFFBOARD_LOSS_S * max(speedup, 1.0), OFFBOARD_LOSS_MAX_S):g}",
+        LOSS_ENV: f"{min(OFFBOARD_LOSS_S * max(speedup, 1.0), OFFBOARD_LOSS_MAX_S):g}",
         PORT_ENV: str(px4_ports(mission, i).companion),
     }
 

@@ -12,12 +12,26 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
 from companion.batch.engine import RunResult
 from companion.batch.report import mean_band
 from companion.core.world import World
 
 COLOURS = {"proposed": "tab:red", "no-ta": "tab:blue", "pheromone": "tab:green"}
+# one colour per UAV, none of them the regions' grey, the prior centres' red or the targets' black
+UAV_COLOURS = (
+    "tab:blue",
+    "tab:green",
+    "tab:purple",
+    "tab:orange",
+    "tab:brown",
+    "tab:pink",
+    "tab:olive",
+    "tab:cyan",
+)
+REGION_COLOUR = "0.3"
 
 
 def _lattice_image(world: World, values: np.ndarray) -> np.ndarray:
@@ -63,8 +77,8 @@ def _draw_regions(ax: plt.Axes, world: World) -> None:
         x = g.x0 + g.cell_size * c
         y = g.y0 + g.cell_size * r + h
         segments.append([(x - h, y), (x + h, y)])
-    ax.add_collection(LineCollection(segments, colors="tab:orange", linewidths=0.8))
-    ax.plot(t.generators[:, 0], t.generators[:, 1], ".", color="tab:orange", markersize=4)
+    ax.add_collection(LineCollection(segments, colors=REGION_COLOUR, linewidths=0.7, linestyles="dashed"))
+    ax.plot(t.generators[:, 0], t.generators[:, 1], "x", color=REGION_COLOUR, markersize=3, linewidth=0.6)
 
 
 def plot_prior(path: Path, world: World) -> None:
@@ -80,21 +94,73 @@ def plot_prior(path: Path, world: World) -> None:
     plt.close(fig)
 
 
-def plot_trajectories(path: Path, worlds: Mapping[str, World], runs: Mapping[str, RunResult]) -> None:
-    """Figures 8(b)-(d): one run's trajectories per algorithm over the prior, with the targets."""
-    fig, axes = plt.subplots(1, len(runs), figsize=(5.5 * len(runs), 5.5), squeeze=False)
+def _search_start(tasks: np.ndarray | None, i: int) -> int:
+    """The first step UAV i holds a task when it came after a wait: before it, it loitered while the
+    swarm started (a distributed run's companions come up one by one); 0 when it held one from the
+    second step (every batch run), or without task records."""
+    if tasks is None:
+        return 0
+    held = np.flatnonzero(tasks[:, i] >= 0)
+    first = int(held[0]) if held.size else 0
+    return first if first > 1 else 0
+
+
+def _trajectory_legend(ax: plt.Axes, n: int, regions: bool, loitered: bool) -> None:
+    line = Line2D
+    handles = [
+        line([], [], color=UAV_COLOURS[i % len(UAV_COLOURS)], linewidth=1.2, label=f"UAV {i}")
+        for i in range(n)
+    ]
+    if loitered:
+        handles.append(line([], [], color="0.4", linestyle=":", label="start-up: loitering, no task yet"))
+    handles += [
+        line([], [], color="black", marker="^", linestyle="none", label="start position"),
+        line([], [], color="black", marker="s", markerfacecolor="none", linestyle="none", label="target"),
+        line([], [], color="red", marker="*", markersize=10, linestyle="none", label="prior centre"),
+    ]
+    if regions:
+        handles += [
+            line([], [], color=REGION_COLOUR, linestyle="--", linewidth=0.7, label="CVT region boundary"),
+            line([], [], color=REGION_COLOUR, marker="x", linestyle="none", label="CVT generator"),
+        ]
+    handles.append(Patch(facecolor="0.35", label="prior probability (darker: higher)"))
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
+
+
+def plot_trajectories(
+    path: Path,
+    worlds: Mapping[str, World],
+    runs: Mapping[str, RunResult],
+    starts: Mapping[str, np.ndarray] | None = None,
+) -> None:
+    """Figures 8(b)-(d): one run's trajectories per algorithm over the prior (grey: prior probability,
+    darker higher), with the targets, each UAV in its own colour from its start (`starts[name]`, the
+    UAVs' start positions; default: the first step's), the steps it loitered before its first task
+    dotted, and for the proposed method the CVT regions it divides the area into."""
+    width = 5.5 * len(runs) + 2.6
+    fig, axes = plt.subplots(1, len(runs), figsize=(width, 5.5), squeeze=False)
+    loitered = False
     for ax, (name, r) in zip(axes[0], runs.items(), strict=True):
         world = worlds[name]
         _draw_prior(ax, world)
-        if name == "proposed":
+        regions = name == "proposed" and world.tessellation is not None
+        if regions:
             _draw_regions(ax, world)
         assert r.trajectory is not None
+        first = starts[name] if starts is not None and name in starts else r.trajectory[0, :, :2]
         for i in range(r.trajectory.shape[1]):
-            ax.plot(r.trajectory[:, i, 0], r.trajectory[:, i, 1], linewidth=0.8)
-            ax.plot(r.trajectory[0, i, 0], r.trajectory[0, i, 1], "^", color="black")
+            colour = UAV_COLOURS[i % len(UAV_COLOURS)]
+            xy = r.trajectory[:, i, :2]
+            k = _search_start(r.tasks, i)
+            if k:
+                loitered = True
+                ax.plot(xy[: k + 1, 0], xy[: k + 1, 1], ":", color=colour, linewidth=1.0)
+            ax.plot(xy[k:, 0], xy[k:, 1], color=colour, linewidth=0.9)
+            ax.plot(first[i, 0], first[i, 1], "^", color="black", markersize=7)
         t = world.grid.centres[r.target_cells]
-        ax.plot(t[:, 0], t[:, 1], "s", color="tab:blue", markersize=6, markerfacecolor="none")
+        ax.plot(t[:, 0], t[:, 1], "s", color="black", markersize=6, markerfacecolor="none")
         ax.set_title(f"{name} (run {r.run}, {r.steps} steps)")
+    _trajectory_legend(axes[0, -1], runs[next(iter(runs))].trajectory.shape[1], "proposed" in runs, loitered)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -47,6 +47,7 @@ from typing import Any
 import msgspec
 import numpy as np
 
+from companion.app.arguments import HelpFormatter
 from companion.mission import Mission, Vehicle, load_mission
 
 DEFAULT_MISSION = Path(__file__).resolve().parents[2] / "mission_files" / "scenario1.toml"
@@ -788,8 +789,9 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="uavsearch companion-bench",
         description="Companion step latency and the largest swarm that runs in real time.",
+        formatter_class=HelpFormatter,
     )
-    parser.add_argument("--mission", type=Path, default=DEFAULT_MISSION)
+    parser.add_argument("--mission", type=Path, default=DEFAULT_MISSION, help="the mission flown")
     parser.add_argument("--latency-steps", type=int, default=300, help="lockstep steps of the 4-UAV run")
     parser.add_argument("--sizes", default="4,10,20,30,50", help="swarm sizes tried, increasing")
     parser.add_argument("--modes", default="peer,client", help="mesh modes searched")
@@ -811,9 +813,9 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="repeat the latency run on a secured mesh (TLS, access control, signed bundles)",
     )
-    parser.add_argument("--skip-latency", action="store_true")
-    parser.add_argument("--skip-realtime", action="store_true")
-    parser.add_argument("--json", type=Path, help="also write every figure to this file")
+    parser.add_argument("--skip-latency", action="store_true", help="leave out the latency run")
+    parser.add_argument("--skip-realtime", action="store_true", help="leave out the real-time swarm search")
+    parser.add_argument("--json", type=Path, help="also write every figure to this file (default: none)")
     parser.add_argument("--quick", action="store_true", help="smoke run: tiny sizes and step counts")
     args = parser.parse_args(argv)
     if args.quick:

@@ -55,9 +55,9 @@ from companion.node.guidance import Guidance
 from companion.node.journal import Journal, Recovered, header_of
 from companion.node.mesh import Mesh
 from companion.node.return_altitude import set_return_altitude
-from companion.node.takeover import steerable, take_over
+from companion.node.takeover import guided_mode, steerable, take_over
 from companion.node.tracking import Guard, PlanError, PlanTracker, RegionGuard
-from companion.node.vehicle_link import ARDUPILOT_AUTO, ARDUPILOT_GUIDED, VEHICLE_WAIT_S, VehicleLink
+from companion.node.vehicle_link import ARDUPILOT_AUTO, PX4_HOLD, VEHICLE_WAIT_S, VehicleLink
 
 log = logging.getLogger("companion")
 
@@ -68,6 +68,7 @@ LOCKSTEP_COMMAND = 31010  # MAV_CMD_USER_1: "lockstep: ready for step param1"
 LEAD = 0.25
 LINK_TIMEOUT_S = 3.0  # wall seconds without HEARTBEAT before the link counts as lost
 RETAKE_PERIOD_S = 1.0  # wall seconds between requests for GUIDED after our own failsafe fired
+PX4_OFFBOARD_LOSS = "COM_OF_LOSS_T"  # PX4: seconds without setpoints before the OFFBOARD failsafe
 PEER_WAIT_S = 30.0  # lockstep: how long to wait for a live peer's messages before going on
 SIMULATOR_PARAM_WAIT_S = 3.0  # the airframe's parameters have answered by then: others need no longer
 LOG_COLUMNS = [
@@ -187,6 +188,8 @@ class Companion:
         self._was_steerable = False
         self._texts_steering = 0  # the vehicle's STATUSTEXTs counted while we last steered it
         self._retake_asked: float | None = None  # our failsafe fired: when GUIDED was last asked for
+        self._offboard_loss_s: float | None = None  # PX4 OFFBOARD: its COM_OF_LOSS_T (vehicle seconds)
+        self._silent_at = -math.inf  # PX4 OFFBOARD: vehicle time our setpoints last paused that long
         self.departures = Departures()
         self._resync = False  # lockstep: the link was lost, the vehicle may have gone on without us
         self._k: int | None = None  # the next step to fly (None: not started)
@@ -208,12 +211,17 @@ class Companion:
 
     def _keep_streaming(self) -> None:
         """Repeat the streamed guidance when due, also while a request waits for its reply (PX4
-        leaves OFFBOARD when its setpoints stop for COM_OF_LOSS_T)."""
+        leaves OFFBOARD when its setpoints stop for COM_OF_LOSS_T), and while it asks PX4 for
+        OFFBOARD back (PX4 accepts it only while setpoints stream)."""
         s = self.link.state
+        loss = self._offboard_loss_s
+        silent = s.time_s - self.guidance.last_send
+        if loss is not None and self._was_steerable and self.guidance.due(s.time_s) and silent >= loss:
+            self._silent_at = s.time_s  # in OFFBOARD, our setpoints paused: PX4's failsafe may have fired
         if (
             self.steering
             and self.guard.state is not Guard.RELEASED
-            and self._steerable()
+            and (self._steerable() or (s.px4 and self._retake_asked is not None))
             and self.guidance.due(s.time_s)
         ):
             self.guidance.repeat()  # the plan's command, or the way back inside
@@ -265,7 +273,18 @@ class Companion:
 
     def _arm_failsafe(self) -> None:
         if self.link.state.px4:
-            log.info("uav %d: failsafe: PX4's own offboard-loss failsafe applies", self.opts.uav)
+            if self.opts.command_mode == "position-target":
+                self._offboard_loss_s = self.link.read_params([PX4_OFFBOARD_LOSS]).get(PX4_OFFBOARD_LOSS)
+            if self._offboard_loss_s is None:
+                log.info("uav %d: failsafe: PX4's own failsafes apply", self.opts.uav)
+            else:
+                log.info(
+                    "uav %d: failsafe: PX4's own offboard-loss failsafe applies after %s = %g s; OFFBOARD "
+                    "taken back when our setpoints paused that long",
+                    self.opts.uav,
+                    PX4_OFFBOARD_LOSS,
+                    self._offboard_loss_s,
+                )
             return
         m = self.opts.mission
         failsafe = FailsafeLoiter(self.link, self.world, self.opts.uav, self.frame)
@@ -426,18 +445,35 @@ class Companion:
                 log.info("uav %d: back in GUIDED: steering again", self.opts.uav)
             self._texts_steering, self._retake_asked = s.text_count, None
             return
+        failsafe_mode = PX4_HOLD if s.px4 else ARDUPILOT_AUTO
         if self._retake_asked is None:
-            ours = self.failsafe is not None and fired_by_our_silence(self.link, self._texts_steering)
-            if not ours or self.closing:
+            if not self._our_failsafe_fired() or self.closing:
                 return
-            log.warning("uav %d: our own GCS failsafe fired (we were stalled): taking it back", self.opts.uav)
+            what = "offboard-loss" if s.px4 else "GCS"
+            log.warning(
+                "uav %d: our own %s failsafe fired (we were stalled): taking it back", self.opts.uav, what
+            )
             self._retake_asked = -math.inf
-        if s.custom_mode != ARDUPILOT_AUTO:  # someone else chose a mode since: theirs
+        if s.custom_mode != failsafe_mode:  # someone else chose a mode since: theirs
             log.warning("uav %d: mode %d chosen since: not taking it back", self.opts.uav, s.custom_mode)
             self._texts_steering, self._retake_asked = s.text_count, None
         elif time.monotonic() - self._retake_asked >= RETAKE_PERIOD_S:
-            self.link.set_mode(ARDUPILOT_GUIDED)
+            self.link.set_mode(guided_mode(self.link, self.opts.command_mode))
             self._retake_asked = time.monotonic()
+
+    def _our_failsafe_fired(self) -> bool:
+        """Whether the vehicle left its guided mode for the failsafe this companion's own silence set
+        off: ArduPilot's GCS failsafe it armed (ArduPlane said so), or PX4's offboard-loss failsafe
+        (Hold, found at most COM_OF_LOSS_T of vehicle time after our setpoints, streamed in OFFBOARD,
+        had paused that long: a Hold a pilot chose while they flowed is not ours); never once the
+        region guard has given the aircraft up to the autopilot's fence."""
+        s = self.link.state
+        if self.guard.state is Guard.RELEASED:  # it gave the aircraft up for good
+            return False
+        if s.px4:
+            loss = self._offboard_loss_s
+            return loss is not None and s.custom_mode == PX4_HOLD and s.time_s - self._silent_at <= loss
+        return self.failsafe is not None and fired_by_our_silence(self.link, self._texts_steering)
 
     def _check_link(self) -> bool:
         """Whether the vehicle link is up. A companion whose link is lost cannot steer: it leaves the

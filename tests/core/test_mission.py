@@ -80,6 +80,14 @@ def test_wrong_type_in_array_of_tables() -> None:
     assert err.field == "prior.centres[0].peak"
 
 
+def test_a_misspelt_choice_lists_the_valid_ones() -> None:
+    err = bad(sub(r'^name = "proposed"', 'name = "propsed"'))
+    assert err.field == "algorithm.name"
+    assert err.reason == "Invalid enum value 'propsed' (one of 'no-ta', 'pheromone', 'proposed')"
+    err = bad(sub(r'^mode = "grid"', 'mode = "gird"'))
+    assert err.field == "kinematics.mode" and "(one of 'continuous', 'grid')" in err.reason
+
+
 def test_value_out_of_range() -> None:
     err = bad(sub(r"^gamma = 0\.1", "gamma = 1.5"))
     assert err.field == "uncertainty.gamma"

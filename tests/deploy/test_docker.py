@@ -1,8 +1,13 @@
-"""docker/: every command the compose file runs exists and accepts its arguments."""
+"""docker/: the compose files are valid (`docker compose config`, or Debian's `docker-compose`, when
+installed: Docker's engine cannot run here), every command they run exists and accepts its
+arguments, and they deploy what docs and README say: outputs on a mounted volume, companions that
+start once the simulator is healthy, a router only in the client-mode file."""
 
 from __future__ import annotations
 
 import re
+import shutil
+import subprocess
 import tomllib
 from pathlib import Path
 
@@ -13,7 +18,7 @@ from companion.app.cli import build_parser
 from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
-COMPOSE = yaml.safe_load((ROOT / "docker/compose.yaml").read_text())
+BASE, CLIENT = ROOT / "docker/compose.yaml", ROOT / "docker/compose.client.yaml"
 DEFAULT = re.compile(r"\$\{(\w+):-([^}]*)\}")
 
 
@@ -22,20 +27,66 @@ def _expand(arg: str) -> str:
     return DEFAULT.sub(lambda m: m.group(2), arg)
 
 
-@pytest.mark.parametrize("service", sorted(COMPOSE["services"]))
-def test_compose_command_parses(service: str) -> None:
-    argv = [_expand(a) for a in COMPOSE["services"][service]["command"]]
-    args = build_parser().parse_args(argv)  # exits (SystemExit) on an unknown command or argument
-    assert callable(args.func)
-    mission = getattr(args, "mission", None)
-    if mission:
-        load_mission(ROOT / mission)
+def _compose_tool() -> list[str] | None:
+    docker = shutil.which("docker")
+    if docker and subprocess.run([docker, "compose", "version"], capture_output=True).returncode == 0:
+        return [docker, "compose"]
+    legacy = shutil.which("docker-compose")
+    return [legacy] if legacy else None
 
 
-def test_compose_runs_the_whole_swarm() -> None:
-    commands = [s["command"][0] for s in COMPOSE["services"].values()]
-    assert commands.count("companion") == load_mission(ROOT / "mission_files/scenario1.toml").n_uavs
-    assert {"router", "sim"} <= set(commands)
+def _config(*files: Path) -> dict:
+    """The merged compose configuration, as the compose tool resolves it (defaults expanded)."""
+    tool = _compose_tool()
+    if tool is None:
+        pytest.skip(
+            "neither `docker compose` nor `docker-compose` is installed (apt-get install docker-compose)"
+        )
+    argv = [*tool, *(a for f in files for a in ("-f", str(f))), "config"]
+    env = {"PATH": "/usr/bin:/bin:/usr/local/bin"}  # no MISSION, OUT, ... from the caller
+    proc = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120, env=env)
+    assert proc.returncode == 0, proc.stderr
+    return yaml.safe_load(proc.stdout)
+
+
+@pytest.mark.parametrize("files", [(BASE,), (BASE, CLIENT)], ids=["peer", "client"])
+def test_compose_config_deploys_the_swarm(files: tuple[Path, ...]) -> None:
+    services = _config(*files)["services"]
+    n = load_mission(ROOT / "mission_files/scenario1.toml").n_uavs
+    companions = sorted(s for s in services if s.startswith("companion"))
+    assert companions == [f"companion{i}" for i in range(n)]
+    assert ("router" in services) == (CLIENT in files), "a router only where the mission asks for one"
+    for name, s in services.items():
+        assert any(str(v).endswith(":/out:rw") or str(v).endswith(":/out") for v in s.get("volumes", [])) or (
+            name == "router"
+        ), f"{name}: no outputs volume at /out"
+        argv = [str(a) for a in s["command"]]
+        args = build_parser().parse_args(argv)  # exits (SystemExit) on an unknown command or argument
+        assert callable(args.func)
+        load_mission(ROOT / args.mission)
+    sim = services["sim"]
+    assert "healthcheck" in sim and "/out/truth.json" in " ".join(sim["healthcheck"]["test"])
+    assert "/out/truth.json" in sim["command"] and "/out/approach.csv" in sim["command"]
+    for name in companions:
+        s = services[name]
+        assert s["depends_on"]["sim"]["condition"] == "service_healthy", name
+        assert s["command"][s["command"].index("--out") + 1] == "/out", name
+        assert "--steps" in s["command"], f"{name}: a companion ends its mission by itself"
+        if CLIENT in files:
+            assert s["depends_on"]["router"]["condition"] == "service_healthy", name
+    if CLIENT in files:
+        assert "healthcheck" in services["router"]
+
+
+@pytest.mark.parametrize("path", [BASE, CLIENT], ids=["peer", "client"])
+def test_compose_commands_parse(path: Path) -> None:
+    """The same without the compose tool: each command, defaults expanded, is one the CLI accepts."""
+    for name, service in yaml.safe_load(path.read_text())["services"].items():
+        if "command" not in service:
+            continue
+        args = build_parser().parse_args([_expand(a) for a in service["command"]])
+        assert callable(args.func), name
+        load_mission(ROOT / args.mission)
 
 
 def test_dockerfile_entrypoint_is_the_project_cli() -> None:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from companion.core.world import FAILSAFE_WIDE, build_world
 from companion.node.frames import LocalFrame
+from companion.node.vehicle_link import PX4_HOLD, PX4_OFFBOARD
 from tests.e2e.conftest import GUIDED, PY, Procs, companion_pid, read_csv, wait_rows, wait_vehicles
 from tests.sim.conftest import fit_circle
 
@@ -110,3 +111,51 @@ def test_stalled_companion_takes_back_its_aircraft_and_a_piloted_one_stays_put(
         closest = min(float(r["distance_m"]) for r in csv.DictReader(f))
     print(f"closest approach of any two aircraft: {closest:.1f} m (R_s {m.comms.safety:g} m)")
     assert closest > m.comms.safety
+
+
+def test_stalled_companion_takes_its_px4_aircraft_back_from_the_offboard_loss_hold(
+    make_mission, procs: Procs, ground, tmp_path: Path
+) -> None:
+    """PX4 (the simulator's PX4 flavour, position-target in OFFBOARD): a companion stopped for longer
+    than COM_OF_LOSS_T finds its aircraft in Hold, PX4's offboard-loss failsafe, and takes it back
+    into OFFBOARD once it runs again (docs/companion.md, "A stalled companion"); R_s is kept."""
+    mission = make_mission(n=4)
+    m = mission.mission
+    out = tmp_path / "out"
+    run = procs.start(
+        "run",
+        [PY, "-m", "companion.app.cli", "run", str(mission.path), "--speedup", str(SPEEDUP),
+         "--steps", str(STEPS), "--out", str(out), "--quiet", "--keep-going", "--flavour", "px4",
+         "--command-mode", "position-target"],
+    )  # fmt: skip
+    stalled_pid = companion_pid(run, STALLED)
+    wait_vehicles(run, out, m.n_uavs)
+    stalled_gcs = ground(mission.ports[STALLED], STALLED + 1)
+    wait_rows(out / f"uav{STALLED}.csv", EVENT_AFTER, run)
+    assert "OFFBOARD taken back" in (out / f"companion{STALLED}.log").read_text()
+
+    os.kill(stalled_pid, signal.SIGSTOP)
+    try:
+        held = stalled_gcs.wait(
+            "HEARTBEAT", lambda h: h.get_srcComponent() == 1 and h.custom_mode == PX4_HOLD, 60
+        )
+        assert held is not None, (
+            "PX4's offboard-loss failsafe did not put the stalled companion's aircraft in Hold"
+        )
+        time.sleep(STALL_S)
+        stopped_at = int(read_csv(out / f"uav{STALLED}.csv")[-1]["step"])
+    finally:
+        os.kill(stalled_pid, signal.SIGCONT)
+    back = stalled_gcs.wait(
+        "HEARTBEAT", lambda h: h.get_srcComponent() == 1 and h.custom_mode == PX4_OFFBOARD, 60
+    )
+    assert back is not None, "the stalled companion did not take its aircraft back into OFFBOARD"
+    assert run.wait(timeout=600) in (0, 1), run.text()  # 1: pass criteria not met in so short a mission
+
+    log = (out / f"companion{STALLED}.log").read_text()
+    assert "our own offboard-loss failsafe fired" in log and "back in GUIDED" in log, log
+    after = [r for r in read_csv(out / f"uav{STALLED}.csv") if r["step"] > stopped_at]
+    assert sum(1 for r in after if r["steered"]) >= 20, "it did not steer again"
+    with (out / "approach.csv").open() as f:
+        closest = min(float(r["distance_m"]) for r in csv.DictReader(f))
+    assert closest > m.comms.safety, f"closest approach {closest:.1f} m"

@@ -130,3 +130,22 @@ def test_lockstep_distributed_run_reproduces_the_batch_engine(tmp_path: Path, fr
     flown_steps = [k for k in range(steps - 1) if k in approach]
     assert len(flown_steps) >= steps - 5
     assert max(abs(approach[k] - batch.approach[k]) for k in flown_steps) < 1.5  # sampled at 50 Hz
+
+
+def test_progress_agrees_with_the_summary(tmp_path: Path, free_base_port: int) -> None:
+    """The progress lines count the steps as the summary does: the last one printed is the summary's
+    step count; no line before every companion has flown reads a distance of inf; the wait is said
+    for whom, and not repeated while nothing changes."""
+    mission = _mission_copy(tmp_path, "progress", free_base_port)
+    proc = _run(mission, tmp_path / "out", "--speedup", "10", "--steps", "40", "--keep-going")
+    assert proc.returncode in (0, 1), proc.stdout + proc.stderr  # 40 steps may not meet the criteria
+    lines = proc.stdout.splitlines()
+    steps = [int(line.split()[1]) for line in lines if line.startswith("step ")]
+    summary = next(line for line in lines if line.startswith("scenario1_progress: "))
+    counted = int(summary.split(": ", 1)[1].split(" steps")[0])
+    assert steps and steps[-1] == counted, (steps, summary)
+    assert steps == sorted(set(steps)), f"a step printed twice or going back: {steps}"
+    assert not any("inf m" in line for line in lines), proc.stdout
+    waits = [line for line in lines if line.startswith("waiting for the companions")]
+    assert all("of UAV " in line and " s since the start" in line for line in waits), waits
+    assert len(waits) <= 5, waits

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.app.arguments import natural, port
+from companion.app.arguments import mission_argument, natural, port
 from companion.app.view.frames import links
 from companion.app.view.server import Address, LiveSource, ReplaySource, Source, serve
 from companion.core.uncertainty import apply_looks
@@ -21,13 +21,21 @@ DEFAULT_PORT = 8765
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--mission", help="live: the mission whose mesh to follow (replay: its mission file)")
-    parser.add_argument("--replay", help="a `uavsearch run` or `uavsearch mc --save-trajectories` output dir")
+    mission_argument(
+        parser, required=False, help="live: the mission whose mesh to follow (replay: its mission file)"
+    )
+    parser.add_argument(
+        "--replay", help="a `uavsearch run` or `uavsearch mc --save-trajectories` output dir (default: live)"
+    )
     parser.add_argument(
         "--seed", type=natural, default=None, help="live: the run's seed (default: the mission's)"
     )
-    parser.add_argument("--algorithm", default=None, help="replay: the algorithm of the run to show")
-    parser.add_argument("--run", type=natural, default=None, help="replay: the run index to show")
+    parser.add_argument(
+        "--algorithm", default=None, help="replay: the algorithm of the run to show (default: the first)"
+    )
+    parser.add_argument(
+        "--run", type=natural, default=None, help="replay: the run index to show (default: 0)"
+    )
     parser.add_argument("--host", default=DEFAULT_HOST, help=f"address to serve on (default {DEFAULT_HOST})")
     parser.add_argument("--port", type=port, default=DEFAULT_PORT, help="port (0: any free port)")
 
