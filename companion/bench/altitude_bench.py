@@ -693,10 +693,12 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--mission", type=Path, help="mission file (default: scenario1_continuous, scenario1_px4)"
     )
-    parser.add_argument("--uav", type=natural, default=0, help="the vehicle that flies (its pose, layer)")
+    parser.add_argument(
+        "--uav", type=natural, default=0, help="the vehicle that flies (its pose, layer; default 0)"
+    )
     parser.add_argument("--speedup", type=positive, help="simulated time per wall second (default 8, PX4 2)")
     parser.add_argument(
-        "--margin", type=weight, default=10.0, help="metres added to twice the worst deviation"
+        "--margin", type=weight, default=10.0, help="metres added to twice the worst deviation (default 10)"
     )
     parser.add_argument("--out", type=Path, help="output folder (default: a fresh temporary one)")
     args = parser.parse_args(argv)
