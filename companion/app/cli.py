@@ -36,6 +36,9 @@ from companion.mission import (
 )
 from companion.node.lifeline import end_with_launcher
 
+FUZZ_NEEDS = (
+    "error: uavsearch fuzz needs Hypothesis, which a plain install leaves out: pip install 'uavsearch[fuzz]'"
+)
 ACROSS_MAX = 20_000.0  # m: a generated region's grid (40 m cells) within the mission files' MAX_GRID_CELLS
 
 if TYPE_CHECKING:
@@ -467,7 +470,13 @@ def _faults(args: argparse.Namespace) -> int:
 
 
 def _fuzz(args: argparse.Namespace) -> int:
-    from companion.app.fuzz import CAMPAIGNS, run_campaign
+    try:
+        from companion.app.fuzz import CAMPAIGNS, run_campaign
+    except ImportError as exc:
+        if exc.name != "hypothesis":
+            raise
+        print(FUZZ_NEEDS, file=sys.stderr)
+        return 1
 
     names = CAMPAIGNS if args.campaign == "all" else (args.campaign,)
     failed = 0

@@ -451,10 +451,14 @@ _FIELDS = [
     "kinematics.speed", "kinematics.step", "kinematics.turn_limit_deg", "comms.range", "comms.safety",
     "algorithm.n_g", "algorithm.horizon", "steps", "vehicles", "mesh.max_bundle_bytes", "sim.physics_hz",
     "algorithm.lloyd_max_iterations", "safety.margin", "faults.network",
+    "kinematics.mode", "safety.failsafe_reach", "safety.buffer", "safety.failsafe_timeout", "sim.physics_hz",
+    "sim.camera_hz", "comms.attraction", "comms.repulsion", "algorithm.name", "kinematics.altitude_step",
 ]  # fmt: skip
 _VALUES = st.one_of(
     _JUNK,
     st.sampled_from([0.001, 1e-9, 1e12, -40.0, 0, 10**9, 10**18, 2500, 2501, 1e308]),
+    st.sampled_from([1e200, 5e-324, 0.499, 0.5, 3600.5, 1e5]),
+    st.sampled_from(["continuous", "grid", "proposed", "no-ta", "pheromone"]),
     st.lists(st.tuples(st.floats(-1e7, 1e7), st.floats(-1e7, 1e7)), max_size=6),
 )
 
