@@ -851,6 +851,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="sign the MAVLink link with this secret file (64 hex digits; default: the vehicle's in the "
         "mission's key directory when [security] mavlink_signing is on)",
     )
+    co.add_argument(
+        "--run",
+        default=None,
+        help="the run identity the swarm agreed on (default: $UAVSEARCH_RUN, else the journal's): bound "
+        "into every signature (docs/reliability.md)",
+    )
     co.set_defaults(func=_companion)
 
     ke = sub.add_parser("keys", help="generate a swarm's keys and certificates (docs/reliability.md)")
