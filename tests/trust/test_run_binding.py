@@ -20,7 +20,9 @@ from pathlib import Path
 import msgspec
 import pytest
 
+from companion.app.view.live import MeshListener
 from companion.core.messages import ClaimsMsg, Message, StateMsg, UavState
+from companion.core.world import build_world
 from companion.mission import Mission
 from companion.node import keys
 from companion.node.mesh import Bundle, Mesh, encode_bundle, key_base, mission_authenticator
@@ -77,11 +79,14 @@ def test_a_state_signed_in_an_earlier_run_is_refused_and_logged(
     receiver = stack.enter_context(
         Mesh(mission, 1, N_CELLS, N_TASKS, keys=keys.for_mission(mission, keys.uav_identity(1)))
     )
+    view = MeshListener(build_world(mission, mission.seed, 0), keys.for_mission(mission, "view"))
+    stack.callback(view.close)
+    assert _until(lambda: view.status()["connected"], 30.0), view.status()
     rogue_keys = keys.for_mission(mission, keys.uav_identity(2))
     assert rogue_keys is not None and rogue_keys.run == LATER
     rogue = _session(stack, mission, MeshSecurity.of(rogue_keys, mission))
-    assert _until(lambda: len(rogue.info.peers_zid()) == 1), "UAV 2's credentials join the mesh"
-    time.sleep(1.0)  # the receiver's subscription reaches the rogue
+    assert _until(lambda: len(rogue.info.peers_zid()) == 2), "UAV 2's credentials join the mesh"
+    time.sleep(1.0)  # the receiver's and the view's subscriptions reach the rogue
     rogue_auth = _auth(mission, 2)
     key = f"{key_base(mission)}/uav/2/msg"
     with caplog.at_level(logging.WARNING, logger="companion.mesh"):
@@ -92,9 +97,15 @@ def test_a_state_signed_in_an_earlier_run_is_refused_and_logged(
         rogue.put(key, _relay(rogue_auth, new_state, new_sig, 11))
         assert _until(lambda: receiver.stats.received == 1), receiver.stats
     assert receiver.stats.forged == 1 and receiver.stats.unauthenticated == 0
-    warnings = [r.getMessage() for r in caplog.records if "refused forged bundle" in r.getMessage()]
+    warnings = [
+        r.getMessage()
+        for r in caplog.records
+        if r.name == "companion.mesh" and "refused forged bundle" in r.getMessage()
+    ]
     assert len(warnings) == 1 and "uav/2" in warnings[0], warnings
     assert receiver.refusals.summary() == {"forged bundle": {"key uav/2": 1}}
+    assert _until(lambda: view.status()["received"] == 1), view.status()  # the live view shows it too
+    assert view.status()["refused"] == {"forged bundle": {"key uav/2": 1}}, view.status()
 
 
 def test_a_bundle_signed_in_an_earlier_run_is_unauthenticated_in_a_later_one(
