@@ -533,11 +533,22 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _keys(args: argparse.Namespace) -> int:
-    from companion.node.keys import generate
+    from companion.node.keys import KeyDirectoryError, generate, rotate
 
     mission = load_mission(args.mission) if args.mission else None
     n_uavs = mission.n_uavs if mission else args.uavs
     out = args.out or (mission.security.keys if mission else None)
+    if args.rotate is not None and out:
+        try:
+            rotate(Path(out), args.rotate)
+        except KeyDirectoryError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(
+            f"uav-{args.rotate} has a new sign.key in {out}, listed first in swarm.json beside its previous "
+            f"one: copy swarm.json to every aircraft, then restart uav {args.rotate}'s companion alone"
+        )
+        return 0
     if not n_uavs or n_uavs < 1 or not out:
         print(
             "error: give --mission FILE (with [security] keys or --out DIR), or --uavs N --out DIR",
@@ -864,6 +875,13 @@ def build_parser() -> argparse.ArgumentParser:
     ke.add_argument("--uavs", type=count, default=None, help="the UAV count (without --mission)")
     ke.add_argument("--out", default=None, help="the key directory (default: the mission's security.keys)")
     ke.add_argument("--days", type=count, default=365, help="how long the certificates are valid")
+    ke.add_argument(
+        "--rotate",
+        type=natural,
+        default=None,
+        metavar="UAV",
+        help="give this UAV a new signing key in an existing key directory (its previous one stays accepted)",
+    )
     ke.set_defaults(func=_keys)
 
     ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")
