@@ -53,6 +53,10 @@ Positive = Annotated[float, msgspec.Meta(gt=0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 Probability = Annotated[float, msgspec.Meta(ge=0, le=1)]
 Port = Annotated[int, msgspec.Meta(ge=1, le=65535)]
+# Altitude layers (docs/algorithm.md, "Separation in three dimensions"; the separation's evidence:
+# docs/companion.md, "Altitude keeping")
+DEFAULT_VERTICAL_SEPARATION = 20.0
+DEFAULT_BAND = 60.0
 
 
 class MissionError(ValueError):
@@ -110,8 +114,7 @@ class Sensor(_Base, kw_only=True):
 class Kinematics(_Base, kw_only=True):
     """Eq. 2: constant speed, turn limited to turn_limit_deg per sampling step dT.
 
-    UAV i flies at `altitude + i * altitude_step` metres above the origin (a vertical backstop for
-    real flight; the algorithm and its separation figures stay horizontal).
+    `altitude`: the lowest altitude layer, metres above the origin (`Layers` adds the others).
     """
 
     mode: Mode = "grid"
@@ -119,7 +122,21 @@ class Kinematics(_Base, kw_only=True):
     step: Positive
     turn_limit_deg: Annotated[float, msgspec.Meta(gt=0, le=180)]
     altitude: float = 100.0
-    altitude_step: float = 0.0
+
+
+class Layers(_Base, kw_only=True):
+    """Altitude layers (docs/algorithm.md, "Separation in three dimensions").
+
+    The layers lie in the band [kinematics.altitude, kinematics.altitude + `band`], evenly spaced
+    and at least `separation` metres apart: `count` of them (default: one a UAV, as many as fit).
+    Two UAVs whose layers are `separation` or more apart cannot meet, so the failure cases of the
+    safety layer (a dead companion, a partition, the hand-over) are guarded only between UAVs on
+    closer layers. `count = 1` flies everyone on one layer.
+    """
+
+    band: NonNegative = DEFAULT_BAND
+    separation: Positive = DEFAULT_VERTICAL_SEPARATION
+    count: Annotated[int, msgspec.Meta(ge=1, le=MAX_VEHICLES)] | None = None
 
 
 class Comms(_Base, kw_only=True):
@@ -201,6 +218,7 @@ class Vehicle(_Base, kw_only=True):
     y: float
     heading_deg: float = 90.0
     mavlink_port: Port | None = None
+    layer: Annotated[int, msgspec.Meta(ge=0)] | None = None  # its altitude layer (default: `assign_layers`)
 
 
 class Sim(_Base, kw_only=True):
@@ -283,6 +301,7 @@ class Mission(_Base, kw_only=True):
     prior: Prior
     sensor: Sensor
     kinematics: Kinematics
+    layers: Layers = Layers()
     comms: Comms
     safety: Safety = Safety()
     uncertainty: Uncertainty = Uncertainty()
@@ -298,9 +317,35 @@ class Mission(_Base, kw_only=True):
     def n_uavs(self) -> int:
         return len(self.vehicles)
 
+    @property
+    def layer_count(self) -> int:
+        """How many altitude layers the band holds: `layers.count`, else one a UAV, as many as fit."""
+        lay = self.layers
+        if lay.count is not None:
+            return lay.count
+        return max(1, min(self.n_uavs, int(lay.band / lay.separation + 1e-9) + 1))
+
+    def layer_altitude(self, layer: int) -> float:
+        """The altitude above the origin of layer `layer`: the band's layers evenly spaced."""
+        count = self.layer_count
+        spacing = self.layers.band / (count - 1) if count > 1 else 0.0
+        return self.kinematics.altitude + layer * spacing
+
+    def layer_assignment(self) -> tuple[int, ...]:
+        """Every vehicle's layer (`assign_layers`)."""
+        starts = [(v.x, v.y) for v in self.vehicles]
+        return assign_layers(starts, [v.layer for v in self.vehicles], self.layer_count)
+
     def altitude_of(self, index: int) -> float:
-        """Vehicle `index`'s flight altitude above the origin: its layer of `kinematics.altitude_step`."""
-        return self.kinematics.altitude + index * self.kinematics.altitude_step
+        """Vehicle `index`'s flight altitude above the origin: the altitude of its layer."""
+        return self.layer_altitude(self.layer_assignment()[index])
+
+    def near_layers(self) -> list[list[bool]]:
+        """Whether each pair of vehicles flies layers closer than `layers.separation` (a UAV is near
+        itself): only such pairs can meet, so only they guard against each other's failures."""
+        alts = [self.altitude_of(i) for i in range(self.n_uavs)]
+        gap = self.layers.separation - 1e-6
+        return [[abs(a - b) < gap for b in alts] for a in alts]
 
     def vehicle_port(self, index: int) -> int:
         """The UDP port of vehicle `index`: explicit in the file, else base_port + 10 * index."""
@@ -327,6 +372,26 @@ class Mission(_Base, kw_only=True):
     def secured(self) -> bool:
         """True when the mission names a key directory (an authenticated mesh and MAVLink link)."""
         return bool(self.security.keys)
+
+
+def assign_layers(
+    starts: list[tuple[float, float]], pinned: list[int | None], count: int
+) -> tuple[int, ...]:
+    """Each UAV's layer: a pinned one keeps its own; the others, in id order, take the layer whose
+    nearest UAV at the start is farthest away (an empty layer first, then the fewest UAVs, then the
+    lowest), so that UAVs sharing a layer start as far apart as the greedy choice makes them."""
+    layers: list[int] = [p if p is not None else -1 for p in pinned]
+    for i, p in enumerate(pinned):
+        if p is not None:
+            continue
+
+        def key(layer: int, i: int = i) -> tuple[float, int, int]:
+            members = [j for j, lj in enumerate(layers) if lj == layer]
+            nearest = min((math.dist(starts[i], starts[j]) for j in members), default=math.inf)
+            return (-nearest, len(members), layer)
+
+        layers[i] = min(range(count), key=key)
+    return tuple(layers)
 
 
 _PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
@@ -398,12 +463,7 @@ def _validate(m: Mission, source: str) -> None:
     for i, v in enumerate(m.vehicles):
         if not region.contains(v.x, v.y):
             fail(f"vehicles[{i}]", f"start position ({v.x}, {v.y}) is outside region.polygon")
-    lowest = min(m.altitude_of(i) for i in range(m.n_uavs))
-    if lowest <= 0:
-        fail(
-            "kinematics.altitude_step",
-            f"every UAV must fly above the origin: altitude + i * altitude_step goes down to {lowest:g} m",
-        )
+    _validate_layers(m, fail)
     if m.kinematics.mode == "grid" and m.kinematics.turn_limit_deg < 45:
         fail("kinematics.turn_limit_deg", "grid mode turns in 45 degree steps: the limit must be >= 45")
     ports = [m.vehicle_port(i) for i in range(m.n_uavs)]
@@ -425,6 +485,34 @@ def _validate(m: Mission, source: str) -> None:
         if any(u >= m.n_uavs for u in members) or len(set(members)) != len(members):
             fail(f"{where}.groups", f"UAVs 0..{m.n_uavs - 1}, each in at most one group")
     _validate_start(m, fail)
+
+
+def _validate_layers(m: Mission, fail: Callable[[str, str], None]) -> None:
+    """The altitude band holds the layers asked for, and every pinned layer lies inside it."""
+    lay = m.layers
+    if m.kinematics.altitude <= 0:
+        lowest = m.kinematics.altitude
+        fail("kinematics.altitude", f"the lowest layer must be above the origin, got {lowest:g} m")
+    fit = int(lay.band / lay.separation + 1e-9) + 1
+    if lay.count != 1 and fit < 2 and m.n_uavs > 1:
+        fail(
+            "layers.band",
+            f"{lay.band:g} m is too thin for two layers {lay.separation:g} m apart (layers.separation); "
+            "widen it, or set layers.count = 1 to fly every UAV on one layer",
+        )
+    if lay.count is not None and lay.count > fit:
+        fail(
+            "layers.count",
+            f"{lay.count} layers at least {lay.separation:g} m apart need a band of "
+            f"{(lay.count - 1) * lay.separation:g} m; layers.band is {lay.band:g} m",
+        )
+    count = m.layer_count
+    for i, v in enumerate(m.vehicles):
+        if v.layer is not None and v.layer >= count:
+            fail(
+                f"vehicles[{i}].layer",
+                f"layer {v.layer} is outside the band: it holds layers 0..{count - 1}",
+            )
 
 
 def _validate_sizes(m: Mission, region: ConvexPolygon, fail: Callable[[str, str], None]) -> None:
@@ -557,6 +645,7 @@ def parse_mission(text: str, source: str = "<mission>") -> Mission:
         raise MissionError(source, "(syntax)", str(exc)) from None
     except RecursionError:
         raise MissionError(source, "(syntax)", "arrays or tables nested too deeply") from None
+    _refuse_replaced(raw, source)
     try:
         mission = msgspec.convert(raw, Mission)
     except msgspec.ValidationError as exc:
@@ -564,6 +653,18 @@ def parse_mission(text: str, source: str = "<mission>") -> Mission:
         raise MissionError(source, field, reason) from None
     _validate(mission, source)
     return mission
+
+
+def _refuse_replaced(raw: dict, source: str) -> None:
+    """A field that an earlier version of the format had, named with what replaced it."""
+    kinematics = raw.get("kinematics")
+    if isinstance(kinematics, dict) and "altitude_step" in kinematics:
+        raise MissionError(
+            source,
+            "kinematics.altitude_step",
+            "replaced by the [layers] table (band, separation, count; docs/mission-files.md): "
+            "every UAV gets a layer of its own by default",
+        )
 
 
 def validate(mission: Mission | dict, source: str = "<mission>") -> Mission:

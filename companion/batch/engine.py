@@ -39,8 +39,10 @@ class RunResult:
     coverage: np.ndarray
     lambda2: np.ndarray
     min_distance: np.ndarray
-    approach: np.ndarray  # closest approach of any pair during [t_k, t_k+1] (between sampling moments)
-    separation_losses: int  # steps during which some pair came within R_s (closest approach)
+    # closest approach during [t_k, t_k+1] (between sampling moments) of any pair that can meet: two
+    # live UAVs whatever their layers, or a dead or unsteered one and another on a near layer
+    approach: np.ndarray
+    separation_losses: int  # steps during which such a pair came within R_s (closest approach)
     link_losses: int  # sampling moments at which the communication graph was split (lambda_2 = 0)
     target_cells: np.ndarray
     target_steps: np.ndarray  # -1 = never seen
@@ -88,11 +90,19 @@ APPROACH_SUBSTEPS = 8
 
 @njit(cache=True)
 def closest_approach(
-    poses: np.ndarray, turns: np.ndarray, grid: bool, speed: float, dt: float, cell: float, substeps: int
+    poses: np.ndarray,
+    turns: np.ndarray,
+    grid: bool,
+    speed: float,
+    dt: float,
+    cell: float,
+    substeps: int,
+    pairs: np.ndarray,
 ) -> float:
-    """min over pairs of the distance between two UAVs flying eq. 2 from `poses` with `turns` over one
-    step: grid UAVs fly straight between cell centres (exact); continuous UAVs fly arcs, sampled at
-    `substeps` points with straight motion between them (within the sagitta of 1/substeps of a turn)."""
+    """min over the pairs marked in `pairs` (n, n) of the horizontal distance between two UAVs
+    flying eq. 2 from `poses` with `turns` over one step: grid UAVs fly straight between cell centres
+    (exact); continuous UAVs fly arcs, sampled at `substeps` points with straight motion between
+    them (within the sagitta of 1/substeps of a turn)."""
     n = poses.shape[0]
     tracks = np.empty((n, substeps + 1, 2))
     for i in range(n):
@@ -104,7 +114,8 @@ def closest_approach(
     best = math.inf
     for i in range(n):
         for j in range(i + 1, n):
-            best = min(best, segment_clearance(tracks[i], tracks[j]))
+            if pairs[i, j]:
+                best = min(best, segment_clearance(tracks[i], tracks[j]))
     return best
 
 
@@ -143,12 +154,18 @@ class Scorer:
         self.unc[k] = uncertainty
         return sees
 
-    def record_flight(self, k: int, poses: np.ndarray, turns: np.ndarray) -> None:
-        """The closest approach of any pair while flying the turns from `poses` over [t_k, t_k+1]."""
+    def record_flight(self, k: int, poses: np.ndarray, turns: np.ndarray, live: np.ndarray) -> None:
+        """The closest approach while flying the turns from `poses` over [t_k, t_k+1] of the pairs
+        that can meet: both `live` (steered by a live companion), or on near layers (an aircraft
+        nobody steers holds its layer, so only those on layers closer than the vertical separation
+        can meet it)."""
         kin = self.world.kinematics
         grid = kin.mode == "grid"
         substeps = 1 if grid else APPROACH_SUBSTEPS
-        self.approach[k] = closest_approach(poses, turns, grid, kin.speed, kin.dt, kin.cell_size, substeps)
+        pairs = self.world.safety.near | np.logical_and.outer(live, live)
+        self.approach[k] = closest_approach(
+            poses, turns, grid, kin.speed, kin.dt, kin.cell_size, substeps, pairs
+        )
 
     def result(self, run: int, seed: int, seconds: float, **extra: object) -> RunResult:
         steps = len(self.unc)
@@ -267,7 +284,8 @@ def simulate(
         if traj is not None:
             traj[k] = poses
         inboxes = radio.deliver(poses[:, :2], outboxes)
-        scorer.record_flight(k, poses, turns)
+        live = np.array([death.get(i, steps) > k and held.get(i, steps) > k for i in range(n)])
+        scorer.record_flight(k, poses, turns, live)
         last = turns
         poses = world.kinematics.advance_poses(poses, turns)
     return scorer.result(
@@ -281,6 +299,8 @@ def simulate(
             "proposals_accepted": sum(a.commitments.accepted for a in agents),
             "proposals_rejected": sum(a.commitments.rejected for a in agents),
             "recovered": sum(a.commitments.recovered for a in agents),
+            "first_choices": sum(a.commitments.first_asked for a in agents),
+            "first_choices_refused": sum(a.commitments.first_refused for a in agents),
         },
     )
 

@@ -3,7 +3,8 @@
 A mission of the family has a random convex region (3-8 vertices, 0.8-4 km across, any
 orientation), 2-12 UAVs starting on one of its edges or clustered inside it (`starts.start_layout`:
 separated, connected, and with a start contingency for every UAV: `mission._validate_start`), 1-6
-distribution centres of eq. 1 with their own sigma, 5-20 targets, and either kinematics mode.
+distribution centres of eq. 1 with their own sigma, 5-20 targets, either kinematics mode, and
+one altitude layer for everyone, two, or one a UAV (as many as the default band holds).
 Everything else takes the paper's values (R_A, R_c, R'_c, R_s, R'_s, eta_0, gamma, M) and the
 scenario files' choices (speed, step, weights). `generate` is a pure function of (count, seed,
 family): the same seed gives the same missions, file for file.
@@ -38,6 +39,9 @@ class Family:
     sigma: tuple[float, float] = (0.06, 0.2)  # each centre's sigma, as a fraction of `across`
     layouts: tuple[str, ...] = ("edge", "clustered")
     modes: tuple[str, ...] = ("grid", "continuous")
+    # altitude layers ([layers] count): everyone on one, two, or one a UAV as far as the default band
+    # holds (0): the clause between UAVs sharing a layer stays exercised
+    layer_counts: tuple[int, ...] = (1, 2, 0)
     cell_size: float = 40.0
     steps: int = 1000
 
@@ -112,6 +116,7 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict |
     targets = int(min(rng.integers(fam.targets[0], fam.targets[1] + 1), len(grid)))
     peaks = _peaks(rng, grid, np.array(centres), sigmas, targets)
     n_g = int(np.clip(round(len(grid) / 50), 8, 120))
+    layers = int(rng.choice(fam.layer_counts))  # drawn last: the rest is as without layers
     return {
         "name": name,
         "seed": seed,
@@ -140,6 +145,7 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict |
         "safety": {"margin": 100.0, "buffer": buffer},
         "algorithm": {"name": "proposed", "n_g": n_g},
         "vehicles": [{"x": x, "y": y, "heading_deg": h} for x, y, h in poses],
+        **({"layers": {"count": layers}} if layers else {}),
     }
 
 

@@ -92,6 +92,8 @@ def summarize(results: list[RunResult]) -> dict[str, float | int]:
     found = np.array([np.mean(r.target_steps >= 0) if len(r.target_steps) else 1.0 for r in results])
     final_unc = np.array([r.uncertainty[-1] for r in results])
     mean_unc = np.array([r.uncertainty.mean() for r in results])
+    asked = sum(r.extras.get("first_choices", 0) for r in results)
+    refused = sum(r.extras.get("first_choices_refused", 0) for r in results)
     return {
         "runs": len(results),
         "steps": int(results[0].steps),
@@ -108,4 +110,6 @@ def summarize(results: list[RunResult]) -> dict[str, float | int]:
         "closest_approach": float(min(r.approach.min() for r in results)),
         "runs_with_event": sum(r.separation_losses > 0 or r.link_losses > 0 for r in results),
         "seconds_per_1000_steps": float(np.mean([1000.0 * r.seconds / r.steps for r in results])),
+        # the share of the RHC's first choices the safety layer refused (docs/algorithm.md)
+        **({"first_choice_refused_share": refused / asked} if asked else {}),
     }

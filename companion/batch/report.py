@@ -30,10 +30,18 @@ def write_summary(out: Path, results: Mapping[str, Sequence[RunResult]], extra: 
     return summary
 
 
+def refused_share(r: RunResult) -> float:
+    """The share of the RHC's first choices that the safety layer refused in run `r` (NaN: none)."""
+    asked = r.extras.get("first_choices", 0)
+    return r.extras.get("first_choices_refused", 0) / asked if asked else math.nan
+
+
 def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
     """runs.csv: one row of metrics per run (mean_uncertainty: eq. 30 averaged over the run;
-    closest_approach: of any pair between sampling moments; separation_losses, link_losses: steps
-    with a pair within R_s, sampling moments with lambda_2 = 0)."""
+    closest_approach: of any pair that can meet between sampling moments (`RunResult.approach`);
+    separation_losses, link_losses: steps with such a pair within R_s, sampling moments with
+    lambda_2 = 0; first_choice_refused: the share of the RHC's first choices the safety layer
+    refused)."""
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -53,6 +61,7 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                 "closest_approach",
                 "separation_losses",
                 "link_losses",
+                "first_choice_refused",
                 "seconds",
             ]
         )
@@ -76,6 +85,7 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                         f"{r.approach.min():.3f}",
                         r.separation_losses,
                         r.link_losses,
+                        f"{refused_share(r):.4f}",
                         f"{r.seconds:.4f}",
                     ]
                 )

@@ -19,7 +19,9 @@ in a loiter inside the fence.
 
 With `safety.contingency`, compatibility also asks each of two trajectories to keep clear of the
 other's failsafe disk (`safety.keeps_contingencies`; docs/algorithm.md, "The contingency
-clause"), and of the disk of the trajectory in force a live UAV announced before its latest. A
+clause"), and of the disk of the trajectory in force a live UAV announced before its latest. The
+clause and a gone UAV's failsafe regions guard only pairs on altitude layers closer than the
+vertical separation (`SafetyPlan.near`): an aircraft whose companion died holds its layer. A
 pair whose trajectories in force are already too close (after a fault) is only kept from getting
 closer, and the proposal that opens it fastest is taken (`safety.keeps_apart`, "Recovery").
 """
@@ -49,8 +51,11 @@ Disk = tuple[float, float, float]  # centre x, centre y, radius
 # what the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
 # (n, window + 2, 2), owners, whether a trajectory in force (else a proposal), loiter centres, loiter
 # entry indices, the rows of the UAVs whose trajectories in force before their latest are `_lone`,
-# the disks (cx, cy, r) of UAVs not heard, and the disks' owners
-Gathered = tuple[FloatArray, IntArray, BoolArray, FloatArray, IntArray, IntArray, FloatArray, IntArray]
+# the disks (cx, cy, r) of UAVs not heard, the disks' owners, and whether the contingency clause
+# holds against each row (its owner's layer is near)
+Gathered = tuple[
+    FloatArray, IntArray, BoolArray, FloatArray, IntArray, IntArray, FloatArray, IntArray, BoolArray
+]
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
 LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
 FAR = 1e4  # m: a point this far in a direction stands for the direction
@@ -79,6 +84,7 @@ class Commitments:
         # radii), entered off its tangent: what a vehicle nobody steers is taken to stay within
         self.adrift_reach = plan.failsafe_reach + FAILSAFE_WIDE * plan.loiter_radius
         self.timeout = world.mission.comms.peer_timeout_steps
+        self.near: list[bool] = plan.near[uav].tolist()  # whose failures this UAV guards against
         self.inforce: Trajectory = plan.start[uav]
         self.proposal: Trajectory | None = None  # P_i^{k-1}, resolved at step k
         self.parents: tuple[int, ...] = (plan.parents[uav],) if plan.parents[uav] >= 0 else ()
@@ -93,6 +99,7 @@ class Commitments:
         self.left: set[int] = set()  # reported gone by the mesh (liveliness), until heard again
         self.dead: set[int] = set()
         self.accepted = self.rejected = self.recovered = 0
+        self.first_asked = self.first_refused = 0  # the RHC's first choices, and those refused
         turn, m = plan.limits.reach.loiter_turn, plan.limits.horizon
         self._contingencies = [
             ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
@@ -108,6 +115,7 @@ class Commitments:
             np.zeros(0, dtype=np.int64),
             np.zeros((0, 3)),
             np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=bool),
         )
         self._lone = np.zeros((0, 2))
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
@@ -208,7 +216,8 @@ class Commitments:
         tethered or gone (their failsafe loiters are gathered too)."""
         lim = self.limits
         r = lim.reach
-        reach = 2 * r.extent + 2 * r.step + max(lim.separation, self.contingency + lim.disk_separation)
+        near_reach = 2 * r.extent + 2 * r.step + max(lim.separation, self.contingency + lim.disk_separation)
+        far_reach = 2 * r.extent + 2 * r.step + lim.separation
         links = set(self.parents) | self._children()
         trajs: list[Trajectory] = []
         owners: list[int] = []
@@ -217,22 +226,28 @@ class Commitments:
         regions: list[tuple[Disk, FloatArray]] = []
         lone: list[Trajectory] = []
         lone_rows: list[int] = []
+        clause: list[bool] = []
         for j in self.latest:
             mine, dsk = self._possible(k, j, both=True)
+            guarded = self.near[j]  # its failures can reach this UAV's layer
             if j in self.dead and k > 0:
-                regions += self.failsafe_regions(k, j)
+                if guarded or not self.latest[j].steered:  # nobody steers it: it may leave its layer
+                    regions += self.failsafe_regions(k, j)
             elif j not in links:
                 s = self.fresh[j].state if j in self.fresh else self.latest[j]
-                near = math.hypot(s.x - x, s.y - y)
-                if near > max([reach] + [r.extent + r.step + d[2] + lim.disk_separation for d in dsk]):
+                reach = near_reach if guarded else far_reach
+                if math.hypot(s.x - x, s.y - y) > max(
+                    [reach] + [r.extent + r.step + d[2] + lim.disk_separation for d in dsk]
+                ):
                     continue
-            if j not in self.dead and mine and j in self.before:
+            if guarded and j not in self.dead and mine and j in self.before:
                 lone.append(self.before[j])
                 lone_rows.append(len(trajs))  # the row of j's trajectory in force, mine[0]
             for t in mine:
                 trajs.append(t)
                 owners.append(j)
                 proposals.append(t is not mine[0])
+                clause.append(guarded)
             disks += [(j, *d) for d in dsk]
         kinematics = lim.kinematics_args
         pts, centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
@@ -246,6 +261,7 @@ class Commitments:
             np.array(lone_rows, dtype=np.int64),
             np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:]),
             np.array([j for j, *_ in disks], dtype=np.int64),
+            np.array(clause, dtype=bool),
         )
         self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1]
         if not regions:  # (empty arrays are never written to)
@@ -384,7 +400,7 @@ class Commitments:
         x, y, heading = pose
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
-        return first_allowed_from(
+        best, side = first_allowed_from(
             self._gathered,
             self._links(),
             self.uav,
@@ -410,18 +426,21 @@ class Commitments:
             self.contingency,
             lim.clearances,
         )
+        self.first_asked += 1
+        self.first_refused += bool(len(order)) and best != order[0]
+        return best, side
 
     def _turn_towards(self, x: float, y: float) -> FloatArray:
         """The point a new proposal's loiter should turn towards (that side is tried first; both are
-        checked): far away from the nearest other UAV within `SIDE_RANGE` of (x, y) that is not
-        taken as gone (its last position may be stale), so that the two UAVs' failsafe regions,
-        each reaching `failsafe_reach` + `failsafe_stray` about its loiter's centre, open apart;
-        else the region's centroid, which keeps loiters inside. `SIDE_RANGE` is the range measured
-        on the paper's scenarios (results.md, "The loiter side")."""
+        checked): far away from the nearest other UAV within `SIDE_RANGE` of (x, y) on a near layer
+        (`SafetyPlan.near`) that is not taken as gone (its last position may be stale), so that the
+        two UAVs' failsafe regions, each reaching `failsafe_reach` + `failsafe_stray` about its
+        loiter's centre, open apart; else the region's centroid, which keeps loiters inside.
+        `SIDE_RANGE` is the range measured on the paper's scenarios (results.md, "The loiter side")."""
         nearest, at = math.inf, (x, y)
         for j, s in self.latest.items():
             d = math.hypot(x - s.x, y - s.y)
-            if j not in self.dead and d < nearest:
+            if self.near[j] and j not in self.dead and d < nearest:
                 nearest, at = d, (s.x, s.y)
         if not 0.0 < nearest <= SIDE_RANGE:  # none near, or no direction to turn from
             return self._centre
@@ -438,18 +457,21 @@ def select_checked(
     uav: int,
     resolving: bool,
     proposals: bool,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, IntArray]:
+) -> tuple[
+    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, IntArray, BoolArray
+]:
     """What a check reads from this step's gathering (`Gathered`: `pts` (n, window + 2, 2) from t_k,
     their `owners`, which are trajectories `in_force`, their loiter `centres` and `entries`, the
-    rows of the `lone` centres' owners, the `disks` (cx, cy, r) and their owners) and the tethered
-    UAVs `links` (sorted): what to keep clear of, the disks, the tethers and their disks, and the
-    checked rows' centres, in-force flags, entries and the rows of the `lone` centres' owners.
+    rows of the `lone` centres' owners, the `disks` (cx, cy, r) and their owners, and whether the
+    contingency clause holds against each row) and the tethered UAVs `links` (sorted): what to keep
+    clear of, the disks, the tethers and their disks, and the checked rows' centres, in-force flags,
+    entries, the rows of the `lone` centres' owners and their clause flags.
     Rows checked: trajectories in force, and the others' proposals unless not `proposals`, or when
     `resolving` only those of lower ids than `uav`; their window from t_k when `resolving`, else
     from t_k+1. Contiguous copies: the kernels are compiled for C-ordered arrays. Called inside the
     compiled checks (`may_switch_from`, `flyable_from`, `first_allowed_from`), so its arrays never
     cross back into Python."""
-    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners = gathered
+    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, clause = gathered
     n, width = pts.shape[0], pts.shape[1] - 1
     lo = 0 if resolving else 1
     keep = np.empty(n, dtype=np.bool_)
@@ -485,6 +507,7 @@ def select_checked(
         in_force[rows],
         entries[rows] - lo,
         lone_owners,
+        clause[rows],
     )
 
 
@@ -513,7 +536,7 @@ def may_switch_from(
 ) -> bool:
     """`safety.may_switch` of the proposal rows[0] against what this step's gathering holds
     (`select_checked` for the resolution: the others' proposals only of lower ids, from t_k)."""
-    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = select_checked(
+    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners, clause = select_checked(
         gathered, links, uav, True, True
     )
     return may_switch(
@@ -534,6 +557,7 @@ def may_switch_from(
         centres,
         lone,
         lone_owners,
+        clause,
         reach,
         clearances,
     )
@@ -554,7 +578,7 @@ def flyable_from(
 ) -> bool:
     """`safety.flyable` against the others' trajectories in force of this step's gathering and the
     tethers among them, from t_k (`Commitments._flyable`)."""
-    others, _, tethers, _, _, _, _, _ = select_checked(gathered, links, uav, True, False)
+    others, _, tethers, _, _, _, _, _, _ = select_checked(gathered, links, uav, True, False)
     return flyable(row, first, window, kinematics, normals, offsets, others, tethers, clearances)
 
 
@@ -588,7 +612,7 @@ def first_allowed_from(
     """`safety.first_allowed` against everything this step's gathering holds, from t_k+1 = `first`
     (`select_checked` for a new proposal), with the trajectory in force `reference_row` expanded
     from there as the reference."""
-    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners = select_checked(
+    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners, clause = select_checked(
         gathered, links, uav, False, True
     )
     reference, reference_centre = expand_with_centres(reference_row, first, window, kinematics)
@@ -617,6 +641,7 @@ def first_allowed_from(
         centres,
         lone,
         lone_owners,
+        clause,
         reference_centre[0],
         reach,
         clearances,

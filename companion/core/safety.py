@@ -307,6 +307,7 @@ def may_switch(
     centres: FloatArray,
     lone: FloatArray,
     lone_owners: IntArray,
+    clause: BoolArray,
     reach: float,
     clearances: tuple[float, float, float],
 ) -> bool:
@@ -348,6 +349,7 @@ def may_switch(
         centres,
         lone,
         lone_owners,
+        clause,
         reach,
         disk_separation,
         known,
@@ -586,6 +588,7 @@ def keeps_contingencies(
     centres: FloatArray,
     lone: FloatArray,
     lone_owners: IntArray,
+    clause: BoolArray,
     reach: float,
     disk_separation: float,
     known: FloatArray,
@@ -595,7 +598,8 @@ def keeps_contingencies(
     `entry`, loiter centre (cx, cy)), against the others' trajectories at `others` (loiter entries
     `entries`, centres `centres`) and the loiter centres `lone` of the trajectories in force a UAV
     announced before its latest (its failsafe may still circle there, reached along its trajectory
-    in force, others[lone_owners]; one-sided): 2 if it clears every such region by more than
+    in force, others[lone_owners]; one-sided), where `clause` holds for the row (its owner's layer
+    is near; other rows are cleared vertically): 2 if it clears every such region by more than
     `disk_separation` (`contingency_clearance`); else 1 if, against every region it does not clear,
     it keeps at least as far as the trajectory in force at `reference` (`reference_entry`, loiter
     centre (rx, ry)) over the same steps (a start layout closer than the clause: pairs only move
@@ -606,7 +610,7 @@ def keeps_contingencies(
     hint[0] the entry that failed last (-1: none), which is tried first: the answer is 0 as soon as
     any entry fails, whichever it is."""
     args = (pts, entry, cx, cy, reference, reference_entry, rx, ry, others, entries, centres)
-    more = (lone, lone_owners, reach, disk_separation, known)
+    more = (lone, lone_owners, clause, reach, disk_separation, known)
     if hint[0] >= 0:
         state, c = _against(hint[0], *args, *more)
         if state == 0:
@@ -638,6 +642,7 @@ def _against(
     centres: FloatArray,
     lone: FloatArray,
     lone_owners: IntArray,
+    clause: BoolArray,
     reach: float,
     disk_separation: float,
     known: FloatArray,
@@ -647,6 +652,8 @@ def _against(
     keeps less far."""
     width = pts.shape[0]
     if o < others.shape[0]:
+        if not clause[o]:
+            return 2, math.inf
         ox, oy, oe = centres[o, 0], centres[o, 1], entries[o]
         count, other_count = fan_count(entry, width), fan_count(oe, width)
         if _clearly_clear(pts, count, cx, cy, others[o], other_count, ox, oy, reach + disk_separation):
@@ -745,6 +752,7 @@ def first_allowed(
     centres: FloatArray,
     lone: FloatArray,
     lone_owners: IntArray,
+    clause: BoolArray,
     reference_centre: FloatArray,
     reach: float,
     clearances: tuple[float, float, float],
@@ -752,7 +760,8 @@ def first_allowed(
     """The first candidate path in `order` whose trajectory, with one of the loiter sides, stays in the
     fence, is compatible with everything given, clears the others' contingency regions
     (`keeps_contingencies` with the others' loiter `entries` and `centres`, the `lone` centres of
-    `lone_owners`, and `reach`) and clears the regions `fans` (`clears_loiters`: their
+    `lone_owners`, the rows the `clause` holds against, and `reach`) and clears the regions `fans`
+    (`clears_loiters`: their
     loiters, paths and path lengths, and `progress`): (path, side +1 or -1); if none does, of
     those in the fence and compatible that may replace the trajectory in force at `reference`
     (loiter entry `reference_entry`, centre `reference_centre`; `keeps_contingencies`,
@@ -805,6 +814,7 @@ def first_allowed(
                 centres,
                 lone,
                 lone_owners,
+                clause,
                 reach,
                 disk_separation,
                 known,

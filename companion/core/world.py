@@ -13,7 +13,7 @@ from enum import IntEnum
 import numpy as np
 
 from companion.core.cvt import Tessellation, lloyd_cvt
-from companion.core.geometry import ConvexPolygon, FloatArray, Grid
+from companion.core.geometry import BoolArray, ConvexPolygon, FloatArray, Grid
 from companion.core.kinematics import Kinematics, PathTree
 from companion.core.prior import prior_map
 from companion.core.safety import Limits, initial_trajectories, tether_tree
@@ -83,6 +83,7 @@ class SafetyPlan:
     failsafe_stray: float
     shapes: FloatArray  # `Limits.shapes` of the mission's paths (eq. 23)
     centres: FloatArray  # their loiter centres (`Limits.shape_centres`)
+    near: BoolArray  # (n, n): the pairs whose layers are closer than the vertical separation
 
     @property
     def loiter_radius(self) -> float:
@@ -131,7 +132,10 @@ def build_safety(
     reach = s.failsafe_reach if s.failsafe_reach is not None else failsafe_reach(mission, limits)
     shapes = limits.shapes(sequences)
     stray = failsafe_stray(mission, limits)
-    return SafetyPlan(limits, start, ranks, parents, reach, stray, shapes, limits.shape_centres(shapes))
+    near = np.array(mission.near_layers(), dtype=bool).reshape(len(poses), len(poses))
+    return SafetyPlan(
+        limits, start, ranks, parents, reach, stray, shapes, limits.shape_centres(shapes), near
+    )
 
 
 def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> World:

@@ -16,7 +16,8 @@ from companion.core.world import World
 
 def clause_probe(world: World, rows: list[np.ndarray]) -> Callable[[int, list[Agent]], None]:
     """A `simulate` probe appending, at every step k, the (n, n) matrix of the pairs' contingency
-    clearances (upper triangle; +inf elsewhere): positive where the pair clears both regions."""
+    clearances (upper triangle, pairs on near layers: the clause guards only those; +inf elsewhere):
+    positive where the pair clears both regions."""
     plan = world.safety
     lim, reach = plan.limits, plan.failsafe_reach + plan.failsafe_stray
 
@@ -28,6 +29,8 @@ def clause_probe(world: World, rows: list[np.ndarray]) -> Callable[[int, list[Ag
         out = np.full((len(trajs), len(trajs)), np.inf)
         for i in range(len(trajs)):
             for j in range(i + 1, len(trajs)):
+                if not plan.near[i, j]:
+                    continue
                 c = contingency_clearance(
                     pts[i], entries[i], *centres[i], pts[j], entries[j], *centres[j], reach
                 )

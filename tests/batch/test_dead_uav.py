@@ -1,13 +1,14 @@
 """A UAV whose companion dies stays an obstacle (docs/algorithm.md, "A silent UAV stays an
 obstacle"), in the batch engine: generated missions (any convex region, 3-10 UAVs, grid and
-continuous kinematics, all three algorithms), one or two companions dying at random steps; their
-vehicles fly on along their trajectories in force. No pair, the dead UAVs included, ever comes
-within R_s (closest approach between sampling moments), and no trajectory in force had to be
+continuous kinematics, all three algorithms, one layer or several), one or two companions dying at
+random steps; their vehicles fly on along their trajectories in force. No pair that can meet (live,
+or on near layers: docs/algorithm.md, "Separation in three dimensions") ever comes within R_s
+(closest approach between sampling moments), and no trajectory in force had to be
 replaced. The survivors' new proposals are checked against the dead UAVs' frozen commitments and
 must clear their failsafe loiter disks (`Commitments.failsafe_loiters`), or, boxed in by the
 fence and the neighbours, keep farther from them than flying on would (`safety.leaves_loiters`):
-every survivor is, and stays, farther than R_s from the circle a real aircraft would fly there at
-a phase of its own (ArduPlane circles at up to FAILSAFE_WIDE loiter radii): from the death on if
+every survivor on a near layer is, and stays, farther than R_s from the circle a real aircraft would
+fly there at a phase of its own (ArduPlane circles at up to FAILSAFE_WIDE loiter radii): from the death on if
 the pair cleared the contingency clause then (`tests/batch/contingency.py`), else soon after it
 takes the UAV as gone (a death in a start-up closer than the clause; measured: at most 15 steps
 after the death in 30 generated missions; `LEAVE_STEPS` is a generous bound)."""
@@ -61,6 +62,8 @@ def test_no_uav_comes_within_r_s_of_a_dead_one(
         ring = np.hypot(r.trajectory[-10:, j, 0] - cx, r.trajectory[-10:, j, 1] - cy)
         assert np.allclose(ring, world.safety.loiter_radius, atol=1e-6)
         for i in set(range(n)) - set(dead):
+            if not world.safety.near[i, j]:  # a layer the vertical separation away: apart vertically
+                continue
             cleared = rows[kills[j] - 1][min(i, j), max(i, j)] > 0  # the last step j's companion took
             by = kills[j] if cleared else kills[j] + m.comms.peer_timeout_steps + LEAVE_STEPS
             near = np.hypot(r.trajectory[by:, i, 0] - cx, r.trajectory[by:, i, 1] - cy) <= wide

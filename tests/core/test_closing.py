@@ -1,13 +1,15 @@
 """The mission's end (`Observation.closing`): every UAV flies out its trajectory in force and, after
 horizon + 1 steps, is in its loiter; flown on forever, those loiters keep the swarm separated, at
 equal times and, by the safety layer's contingency clause, at any phases and at the wider radius
-ArduPlane flies them. This is what the companion's hand-over (`Companion._close`,
-`failsafe.hand_over`) relies on."""
+ArduPlane flies them, between UAVs on near layers (those a layer apart are apart vertically:
+docs/algorithm.md, "Separation in three dimensions"). This is what the companion's hand-over
+(`Companion._close`, `failsafe.hand_over`) relies on."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -18,12 +20,14 @@ from companion.core.agent import Agent, Observation
 from companion.core.messages import StateMsg
 from companion.core.safety import expand_with_centres
 from companion.core.world import FAILSAFE_WIDE, Stream, build_world, instance_rng
-from companion.mission import load_mission
+from companion.mission import Layers, load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSIONS = {
-    name: load_mission(ROOT / "mission_files" / f"{name}.toml")
+    f"{name}{suffix}": msgspec.structs.replace(mission, layers=Layers(count=count)) if count else mission
     for name in ("scenario1", "scenario1_continuous")
+    for mission in [load_mission(ROOT / "mission_files" / f"{name}.toml")]
+    for suffix, count in (("", None), ("_one_layer", 1))
 }
 
 
@@ -72,8 +76,10 @@ def test_closed_swarm_loiters_apart(name: str, seed: int, open_steps: int) -> No
         gaps = np.linalg.norm(track[:, None] - track[None, :], axis=-1)
         gaps[np.arange(len(agents)), np.arange(len(agents))] = np.inf
         assert gaps.min() > world.mission.comms.safety
-    # and whatever their phases, at the radius ArduPlane flies them (the hand-over's AUTO loiters)
+    # and whatever their phases, at the radius ArduPlane flies them (the hand-over's AUTO loiters),
+    # on near layers
     apart = np.linalg.norm(centres[:, None] - centres[None, :], axis=-1)
+    apart[world.safety.near == 0] = np.inf
     apart[np.arange(len(agents)), np.arange(len(agents))] = np.inf
     assert apart.min() > 2 * FAILSAFE_WIDE * world.safety.loiter_radius + world.mission.comms.safety
 

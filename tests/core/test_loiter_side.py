@@ -1,12 +1,14 @@
 """The loiter side a new proposal tries first (`Commitments.first_allowed`, `_turn_towards`): away
-from the nearest UAV within `SIDE_RANGE`, so that the two failsafe regions open apart; towards the
-region's centroid when none is near or the near one is taken as gone."""
+from the nearest UAV within `SIDE_RANGE` on a near layer, so that the two failsafe regions open
+apart; towards the region's centroid when none is near, the near one is taken as gone, or it flies
+a layer the vertical separation away."""
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -14,13 +16,16 @@ from companion.core.commitment import SIDE_RANGE, Commitments
 from companion.core.messages import UavState
 from companion.core.trajectory import Trajectory
 from companion.core.world import build_world
-from companion.mission import load_mission
+from companion.mission import Layers, load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _commitments(peer: tuple[float, float], stamp: int = 4) -> tuple[Commitments, np.ndarray]:
-    world = build_world(load_mission(ROOT / "mission_files" / "scenario1.toml"))
+def _commitments(
+    peer: tuple[float, float], stamp: int = 4, layers: int = 1
+) -> tuple[Commitments, np.ndarray]:
+    mission = load_mission(ROOT / "mission_files" / "scenario1.toml")
+    world = build_world(msgspec.structs.replace(mission, layers=Layers(count=layers)))
     c = Commitments(world, 0)
     c.latest = {1: UavState(1, stamp, peer[0], peer[1], 0.0, ())}
     c.observe(5, {}, [])
@@ -46,6 +51,12 @@ def test_without_a_near_uav_the_loiter_turns_to_the_centroid() -> None:
 def test_a_uav_taken_as_gone_is_not_turned_away_from() -> None:
     c, centroid = _commitments((150.0, -200.0), stamp=-10)  # silent far longer than the timeout
     assert 1 in c.dead
+    assert np.array_equal(c._turn_towards(100.0, -200.0), centroid)
+
+
+def test_a_uav_on_another_layer_is_not_turned_away_from() -> None:
+    c, centroid = _commitments((150.0, -200.0), layers=4)  # UAVs 0 and 1 on layers 20 m apart
+    assert not c.near[1]
     assert np.array_equal(c._turn_towards(100.0, -200.0), centroid)
 
 

@@ -4,7 +4,7 @@
   turn limit per step;
 - the fence (ArduPilot flavour): an uploaded inclusion polygon, enabled, makes a vehicle that
   leaves it report the breach and fly RTL;
-- `kinematics.altitude_step`: vehicle i flies at altitude + i * altitude_step.
+- `[layers]`: vehicle i flies its own layer, the band's layers evenly spaced.
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ def test_each_vehicle_flies_at_its_altitude_layer(tmp_path: Path, start_sim) -> 
     path, ports, _ = write_mission(tmp_path, n=3)
     text = path.read_text()
     assert "\naltitude = 100.0" in text
-    layers = f"\naltitude = 100.0\naltitude_step = {ALTITUDE_STEP}"
+    layers = f"\naltitude = 100.0\n\n[layers]\nband = {2 * ALTITUDE_STEP}\nseparation = {ALTITUDE_STEP}"
     path.write_text(text.replace("\naltitude = 100.0", layers))
     start_sim(path, "--speedup", "10", "--no-camera", n=3)
     for i, port in enumerate(ports):

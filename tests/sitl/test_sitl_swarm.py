@@ -40,6 +40,7 @@ AUTO = 10
 CIRCLING_S = 60.0  # simulated seconds the victim's aircraft is watched circling after its failsafe
 FAILSAFE_S = 60.0  # simulated seconds after the kill by which the failsafe must have fired
 FAILSAFE_TIMEOUT_S = 2.0  # FS_LONG_TIMEOUT (one step): 0.5 s of wall time at speed-up 4
+VERTICAL_KEEP = 5.0  # m: how far off its layer an aircraft may fly (docs/companion.md, "Altitude keeping")
 
 
 def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path) -> None:
@@ -141,19 +142,23 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
         ]
     closest = min(near, default=(math.inf, -1, -1))[0]
     print(f"victim: closest approach to a survivor after the kill {closest:.1f} m (R_s {m.comms.safety:g} m)")
-    layer = m.kinematics.altitude_step
+    # separation in three dimensions (docs/algorithm.md, "Separation in three dimensions"): a pair
+    # closer than R_s horizontally is on layers at least the vertical separation apart, and keeps
+    # most of it in flight (each aircraft within VERTICAL_KEEP of its layer)
+    near_layers = m.near_layers()
+    floor = m.layers.separation - 2 * VERTICAL_KEEP
     for d, k, j in near:
         if d <= m.comms.safety:
+            assert not near_layers[VICTIM][j], (f"victim and uav{j} share a layer", k, d)
             survivor = logs[j][max(step for step in logs[j] if step <= k)]
             vertical = abs(survivor["up"] - m.altitude_of(VICTIM))
-            assert vertical >= 0.8 * layer * abs(j - VICTIM), (f"victim, uav{j}, step {k}", d, vertical)
+            assert vertical >= floor, (f"victim, uav{j}, step {k}", d, vertical)
     for (i, a), (j, b) in itertools.combinations(logs.items(), 2):
         for k in a.keys() & b.keys():
             if math.dist((a[k]["x"], a[k]["y"]), (b[k]["x"], b[k]["y"])) <= m.comms.safety:
                 vertical = abs(a[k]["up"] - b[k]["up"])
-                assert vertical >= 0.8 * layer * (j - i), (
-                    f"uav{i} and uav{j} at step {k}: {vertical:.0f} m apart"
-                )
-    # the contingency clause keeps every survivor clear of all the dead UAV's aircraft flies: off
-    # its plan until the failsafe fires, onto its loiter, around it (docs/algorithm.md)
-    assert closest > m.comms.safety, f"the dead UAV's aircraft came {closest:.1f} m from a survivor"
+                assert vertical >= floor, f"uav{i} and uav{j} at step {k}: {vertical:.0f} m apart"
+    # on a shared layer the contingency clause keeps every survivor clear of all the dead UAV's
+    # aircraft flies: off its plan until the failsafe fires, onto its loiter, around it
+    shared = [d for d, _, j in near if near_layers[VICTIM][j]]
+    assert min(shared, default=math.inf) > m.comms.safety, f"the dead UAV's aircraft came {closest:.1f} m"
