@@ -35,6 +35,18 @@ MAX_VEHICLES = 64
 MAX_VERTICES = 256
 MAX_CENTRES = 1_000
 MAX_STEPS = 1_000_000
+# What the kinematics imply (checked before any trajectory is expanded): a loiter circle closes in at
+# most MAX_LOITER_STEPS steps (the safety layer compares whole loiters, pairwise), the M-step turn
+# lattice has at most MAX_LATTICE rows, a trajectory reaches at most MAX_REACH_M from where it starts
+# (and a failsafe region or operating margin is no wider), and every UAV's recorded path fits.
+MAX_SPEED = 1_000.0  # m/s
+MAX_STEP_S = 3_600.0  # s per sampling step
+MAX_LOITER_STEPS = 720  # continuous mode: turn_limit_deg >= 0.5
+MAX_LATTICE = 9**6  # turn options ^ horizon: grid mode's largest (180 degrees, M = 6)
+MAX_REACH_M = 100_000.0
+MIN_STEP_M = 0.01  # continuous mode: the distance flown per step (a loiter of no size has no centre)
+MAX_PHYSICS_HZ = 1_000.0
+MAX_PATH_POINTS = 10_000_000  # steps x vehicles: the poses a run records
 Mode = Literal["grid", "continuous"]  # the kinematics: the paper's 8-neighbour grid, or turn-rate limited
 MODES: tuple[str, ...] = get_args(Mode)
 
@@ -503,6 +515,7 @@ def _validate(m: Mission, source: str) -> None:
                 fail(f"mesh.{name}", "a secured mesh (security.keys) runs over TLS: use tcp/ or tls/")
     if math.isclose(m.region.cell_size, 0):
         fail("region.cell_size", "must be positive")
+    _validate_bounds(m, fail)
     _validate_sizes(m, region, fail)
     for i, f in enumerate(m.faults.network):
         where = f"faults.network[{i}]"
@@ -555,7 +568,10 @@ def _validate_sizes(m: Mission, region: ConvexPolygon, fail: Callable[[str, str]
 
     bx0, by0, bx1, by1 = region.bounds
     cell = m.region.cell_size
-    lattice = math.ceil((bx1 - bx0) / cell) * math.ceil((by1 - by0) / cell)
+    across = max(bx1 - bx0, by1 - by0) / cell  # first alone: a tiny cell overflows the product
+    lattice = across * across
+    if across <= MAX_GRID_CELLS:
+        lattice = math.ceil((bx1 - bx0) / cell) * math.ceil((by1 - by0) / cell)
     if lattice > MAX_GRID_CELLS:
         fail(
             "region.cell_size",
@@ -581,6 +597,47 @@ def _validate_sizes(m: Mission, region: ConvexPolygon, fail: Callable[[str, str]
         fail("algorithm.n_g", f"{a.n_g} tasks, more than the grid's {n_cells} cells")
     if a.name == "proposed" and n_cells * a.n_g > MAX_CVT_WORK:
         fail("algorithm.n_g", f"grid cells x n_g = {n_cells * a.n_g:,}, over {MAX_CVT_WORK:,}")
+
+
+def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
+    """What the kinematics, the safety layer and the simulator imply, within the limits above
+    (checked before anything is expanded or allocated; one line naming the field)."""
+    k, cell = m.kinematics, m.region.cell_size
+    if k.speed > MAX_SPEED:
+        fail("kinematics.speed", f"{k.speed:g} m/s; at most {MAX_SPEED:g}")
+    if k.step > MAX_STEP_S:
+        fail("kinematics.step", f"{k.step:g} s per sampling step; at most {MAX_STEP_S:g}")
+    if k.mode == "continuous":
+        if k.turn_limit_deg < 360 / MAX_LOITER_STEPS:
+            fail(
+                "kinematics.turn_limit_deg",
+                f"{k.turn_limit_deg:g} deg per step closes a loiter circle in {360 / k.turn_limit_deg:.3g} "
+                f"steps; at most {MAX_LOITER_STEPS} (a limit of at least {360 / MAX_LOITER_STEPS:g} deg)",
+            )
+        options, step = 3, k.speed * k.step
+        if step < MIN_STEP_M:
+            fail("kinematics.step", f"speed x step = {step:.3g} m per step; at least {MIN_STEP_M:g}")
+        turn = math.radians(k.turn_limit_deg)
+        diameter = 2 * step / (2 * math.sin(turn / 2)) if turn < math.pi else step
+    else:
+        options, step = 2 * math.floor(k.turn_limit_deg / 45 + 1e-9) + 1, cell * math.sqrt(2.0)
+        diameter = 3 * step  # the grid's octagon loiter, with room
+    horizon = m.algorithm.horizon
+    if options**horizon > MAX_LATTICE:
+        fail("algorithm.horizon", f"{options}^{horizon} trajectories per UAV; at most {MAX_LATTICE:,}")
+    reach = horizon * step + diameter
+    if reach > MAX_REACH_M:
+        field = "region.cell_size" if k.mode == "grid" else "kinematics.speed"
+        fail(field, f"trajectories reach {reach:.3g} m ({horizon} steps, a loiter); at most {MAX_REACH_M:g}")
+    s = m.safety
+    for name, value in (("margin", s.margin), ("buffer", s.buffer), ("failsafe_reach", s.failsafe_reach)):
+        if value is not None and value > MAX_REACH_M:
+            fail(f"safety.{name}", f"{value:g} m; at most {MAX_REACH_M:g}")
+    if m.sim.physics_hz > MAX_PHYSICS_HZ:
+        fail("sim.physics_hz", f"{m.sim.physics_hz:g} Hz; at most {MAX_PHYSICS_HZ:g}")
+    if m.steps * m.n_uavs > MAX_PATH_POINTS:
+        poses = m.steps * m.n_uavs
+        fail("steps", f"{m.steps:,} steps x {m.n_uavs} vehicles = {poses:,} poses, over {MAX_PATH_POINTS:,}")
 
 
 def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:

@@ -8,7 +8,9 @@ datagram); anything undecodable is counted and skipped.
 With a signing secret the endpoint behaves like ArduPilot once MAVLink2 signing is set up: it
 signs what it sends and accepts only frames signed with the secret, with a timestamp newer than
 the last one of their stream (replays are refused), except the radio's own RADIO_STATUS. Rejected
-frames are counted (unsigned, bad_signature) and their senders do not become peers.
+frames are counted (unsigned, bad_signature) and their senders do not become peers; only a sender of
+a frame whose signature checked becomes one (pymavlink decodes a frame of an unknown message id
+before it looks at the signature: such a frame, signed or not, is counted as unsigned and dropped).
 """
 
 from __future__ import annotations
@@ -125,6 +127,13 @@ class MavlinkEndpoint:
                     msg = self.mav.decode(bytearray(frame))
                 except Exception as exc:  # pymavlink raises MAVError, struct.error, ... on corrupt frames
                     self._count_bad(exc, stream, before)
+                    continue
+                if self.signing and not msg.get_signed():
+                    if msg.get_msgId() not in UNSIGNED_ALLOWED:  # an unknown id: never checked
+                        self.stats.unsigned += 1
+                        continue
+                    self.stats.frames += 1
+                    out.append((msg, addr))  # the radio's status: taken, but its sender gets nothing
                     continue
                 self.stats.frames += 1
                 out.append((msg, addr))

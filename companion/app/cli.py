@@ -40,6 +40,9 @@ from companion.mission import (
 )
 from companion.node.lifeline import end_with_launcher
 
+FUZZ_NEEDS = (
+    "error: uavsearch fuzz needs Hypothesis, which a plain install leaves out: pip install 'uavsearch[fuzz]'"
+)
 ACROSS_MAX = 20_000.0  # m: a generated region's grid (40 m cells) within the mission files' MAX_GRID_CELLS
 
 if TYPE_CHECKING:
@@ -471,7 +474,13 @@ def _faults(args: argparse.Namespace) -> int:
 
 
 def _fuzz(args: argparse.Namespace) -> int:
-    from companion.app.fuzz import CAMPAIGNS, run_campaign
+    try:
+        from companion.app.fuzz import CAMPAIGNS, run_campaign
+    except ImportError as exc:
+        if exc.name != "hypothesis":
+            raise
+        print(FUZZ_NEEDS, file=sys.stderr)
+        return 1
 
     names = CAMPAIGNS if args.campaign == "all" else (args.campaign,)
     failed = 0
@@ -528,11 +537,22 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _keys(args: argparse.Namespace) -> int:
-    from companion.node.keys import generate
+    from companion.node.keys import KeyDirectoryError, generate, rotate
 
     mission = load_mission(args.mission) if args.mission else None
     n_uavs = mission.n_uavs if mission else args.uavs
     out = args.out or (mission.security.keys if mission else None)
+    if args.rotate is not None and out:
+        try:
+            rotate(Path(out), args.rotate)
+        except KeyDirectoryError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(
+            f"uav-{args.rotate} has a new sign.key in {out}, listed first in swarm.json beside its previous "
+            f"one: copy swarm.json to every aircraft, then restart uav {args.rotate}'s companion alone"
+        )
+        return 0
     if not n_uavs or n_uavs < 1 or not out:
         print(
             "error: give --mission FILE (with [security] keys or --out DIR), or --uavs N --out DIR",
@@ -919,6 +939,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="sign the MAVLink link with this secret file (64 hex digits; default: the vehicle's in the "
         "mission's key directory when [security] mavlink_signing is on)",
     )
+    co.add_argument(
+        "--run",
+        default=None,
+        help="the run identity the swarm agreed on (default: $UAVSEARCH_RUN, else the journal's): bound "
+        "into every signature (docs/reliability.md)",
+    )
     co.set_defaults(func=_companion)
 
     ke = sub.add_parser("keys", help="generate a swarm's keys and certificates (docs/reliability.md)")
@@ -930,6 +956,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ke.add_argument("--out", default=None, help="the key directory (default: the mission's security.keys)")
     ke.add_argument("--days", type=count, default=365, help="how long the certificates are valid")
+    ke.add_argument(
+        "--rotate",
+        type=natural,
+        default=None,
+        metavar="UAV",
+        help="give this UAV a new signing key in an existing key directory (its previous one stays accepted)",
+    )
     ke.set_defaults(func=_keys)
 
     ru = sub.add_parser("run", help="simulator + one companion per UAV: a full simulated mission")

@@ -48,6 +48,7 @@ from companion.app.launcher import Children
 from companion.app.loopback import free_ports
 from companion.mission import Mission, NetworkFault, load_mission
 from companion.node.journal import Checkpoint, Delta, read_records
+from companion.node.keys import RUN_ENV, new_run_id
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
@@ -232,6 +233,7 @@ class Swarm:
     def __init__(self, mission_path: Path, mission: Mission, out: Path) -> None:
         self.path, self.mission, self.out = mission_path, mission, out
         self.children = Children()
+        self.children.env[RUN_ENV] = new_run_id()  # one run: a restarted companion rejoins it
         self.urls: dict[int, str] = {}
         self.starts: dict[str, int] = {}
 

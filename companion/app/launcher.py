@@ -45,7 +45,15 @@ from companion.core.world import build_world
 from companion.mission import Mission, load_mission
 from companion.node.airframe import Airframe, refusal
 from companion.node.frames import LocalFrame
-from companion.node.keys import ROLES, for_mission, insecure_warning, mavlink_secrets, uav_identity
+from companion.node.keys import (
+    ROLES,
+    RUN_ENV,
+    for_mission,
+    insecure_warning,
+    mavlink_secrets,
+    new_run_id,
+    uav_identity,
+)
 from companion.node.lifeline import launcher_env
 from sim_vehicles import camera as cam
 
@@ -100,6 +108,7 @@ class Children:
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs: dict[str, Path] = {}
         self.signals: dict[str, int] = {}
+        self.env: dict[str, str] = {}  # added to every child's environment (the run identity)
         self._stop = stop if stop is not None else threading.Event()
 
     def start(
@@ -115,7 +124,7 @@ class Children:
         `stop` sends it `stop_signal`: SIGTERM, which our processes handle as they do SIGINT but
         which, unlike SIGINT, ends one still loading its modules with no traceback. Our own
         processes end with this one (`lifeline`)."""
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", **launcher_env(), **(extra or {})}
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", **launcher_env(), **self.env, **(extra or {})}
         with log.open("w") as f:
             proc = subprocess.Popen(
                 argv, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True, cwd=cwd
@@ -314,6 +323,22 @@ def _stopped_early(children: Children) -> str | None:
     return None
 
 
+def refused_by_companions(out: Path, n: int) -> dict[str, int]:
+    """What the companions refused, summed over them, by kind ("mesh forged bundle", "MAVLink bad
+    signature", ...), from their reports (uav{i}.json)."""
+    total: dict[str, int] = {}
+    for i in range(n):
+        try:
+            refused = json.loads((out / f"uav{i}.json").read_text()).get("refused", {})
+        except (OSError, ValueError):
+            continue
+        for where, kinds in refused.items():
+            for kind, senders in kinds.items():
+                key = f"{where} {kind}"
+                total[key] = total.get(key, 0) + sum(senders.values())
+    return total
+
+
 def security_summary(mission: Mission) -> str:
     """What authenticates this run, after checking that every identity's keys load; the insecure
     warning when nothing does."""
@@ -352,6 +377,10 @@ def run_mission(opts: RunOptions) -> int:
     warm_up(mission)  # once here, so that the companions load the kernels from numba's cache
     stop = threading.Event()
     children = Children(stop)
+    run = os.environ.get(RUN_ENV) or new_run_id()  # every child signs for this run only
+    children.env[RUN_ENV] = run
+    if mission.secured:
+        print(f"run {run}: everything signed in this run is refused in any other", flush=True)
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     started = time.monotonic()
     failure = None
@@ -385,6 +414,8 @@ def run_mission(opts: RunOptions) -> int:
             print(f"live map of the swarm: {line.split('view at ', 1)[1]}", flush=True)
         for i in range(mission.n_uavs):
             argv = _companion_argv(opts, i, steps, seed, urls[i])
+            if opts.vehicles and mavlink_secrets(mission) is not None:  # not ours to provision: their key
+                argv += ["--mavlink-key", str(Path(mission.security.keys) / uav_identity(i) / "mavlink.key")]
             children.start(f"companion{i}", argv, out / f"companion{i}.log")
         if not opts.external:
             for i in range(mission.n_uavs):  # companions first: each waits for its vehicle's heartbeat
@@ -437,8 +468,11 @@ def run_mission(opts: RunOptions) -> int:
     summary = report.write_summary(
         out,
         {name: [result]},
-        {"mission": mission.name, "seed": seed, "distributed": True, "lockstep": opts.lockstep},
-    )
+        {
+            "mission": mission.name, "seed": seed, "distributed": True, "lockstep": opts.lockstep,
+            "run": run, "refused": refused_by_companions(out, mission.n_uavs),
+        },
+    )  # fmt: skip
     report.write_trajectories(out, {name: [result]})
     report.write_steps(out, {name: [result]})
     report.write_targets(out, {name: [result]})
@@ -487,6 +521,10 @@ def run_mission(opts: RunOptions) -> int:
             f"heading error median {h['median']:.1f} deg, p95 {h['p95']:.1f} deg; "
             f"{flight['outside_fence']} logged poses outside the fence"
         )
+    refused = summary["_meta"]["refused"]
+    if mission.secured and refused:
+        kinds = ", ".join(f"{n} {kind}" for kind, n in sorted(refused.items()))
+        print(f"secured run: the companions refused {kinds} (who sent them: companion*.log, uav*.json)")
     (out / "criteria.json").write_text(
         json.dumps({"passed": not failures, "failures": failures}, indent=2) + "\n"
     )

@@ -2,9 +2,11 @@
 
 An append-only file of records, each `length (u32 LE) | CRC-32 of the payload (u32 LE) | payload`
 (msgpack of a `Record`). The first record is a `Header` naming the mission (a digest of the whole
-mission), the UAV and the seed; then, after every step, either a `Checkpoint` (the agent's whole
-`AgentSnapshot`: the first step and every `CHECKPOINT_STEPS` steps) or the step's `StepDelta`
-(the FOV cells applied, the targets learnt, task and trajectory in force: about 200 bytes).
+mission), the UAV, the seed and the run identity (`keys.run_id`: a restarted companion rejoins
+the run its journal names, and a journal of another run is refused); then, after every step,
+either a `Checkpoint` (the agent's whole `AgentSnapshot`: the first step and every
+`CHECKPOINT_STEPS` steps) or the step's `StepDelta` (the FOV cells applied, the targets learnt,
+task and trajectory in force: about 200 bytes).
 
 Durability: each record goes to the file with one `write` and `fdatasync` before the step's bundle
 is published, so nothing a peer heard of is lost by a kill (SIGKILL keeps what was written) or by a
@@ -47,6 +49,7 @@ class Header(msgspec.Struct, frozen=True, tag="header", array_like=True):
     digest: str
     uav: int
     seed: int
+    run: str = ""
 
 
 class Checkpoint(msgspec.Struct, frozen=True, tag="checkpoint", array_like=True):
@@ -62,9 +65,20 @@ _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(Record)
 
 
-def header_of(mission: Mission, uav: int, seed: int) -> Header:
+def header_of(mission: Mission, uav: int, seed: int, run: str = "") -> Header:
     digest = hashlib.sha256(msgspec.msgpack.encode(mission)).hexdigest()[:32]
-    return Header(JOURNAL_VERSION, mission.name, digest, uav, seed)
+    return Header(JOURNAL_VERSION, mission.name, digest, uav, seed, run)
+
+
+def journal_run(path: Path) -> str | None:
+    """The run identity a journal's header names (None: no journal there, or no header yet)."""
+    try:
+        with path.open("rb") as f:
+            data = f.read(_PREFIX.size + 4096)
+    except FileNotFoundError:
+        return None
+    records, _ = read_records(data)
+    return records[0].run if records and isinstance(records[0], Header) else None
 
 
 def frame(record: Record) -> bytes:
@@ -123,13 +137,14 @@ class Journal:
         if records and records[0] != header:
             h = records[0]
             what = (
-                f"mission {h.mission!r} (digest {h.digest}), uav {h.uav}, seed {h.seed}"
+                f"mission {h.mission!r} (digest {h.digest}), uav {h.uav}, seed {h.seed}, run {h.run!r}"
                 if isinstance(h, Header)
                 else "no header"
             )
             raise JournalError(
                 f"journal {path}: written for {what}, not for this companion "
-                f"(mission {header.mission!r} (digest {header.digest}), uav {header.uav}, seed {header.seed})"
+                f"(mission {header.mission!r} (digest {header.digest}), uav {header.uav}, "
+                f"seed {header.seed}, run {header.run!r})"
             )
         recovered, last_checkpoint = None, -CHECKPOINT_STEPS
         checkpoints = [i for i, r in enumerate(records) if isinstance(r, Checkpoint)]

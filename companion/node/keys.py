@@ -1,7 +1,8 @@
 """A swarm's key directory: written by `uavsearch keys`, read by every process that joins the mesh.
 
 ```
-DIR/swarm.json          public: the swarm's size and every UAV's Ed25519 signing key (hex)
+DIR/swarm.json          public: the swarm's size and every UAV's Ed25519 signing keys (hex; a list
+                        of the keys accepted for it while one is rotated)
 DIR/ca.pem              public: the swarm's certificate authority (trust anchor of the TLS mesh)
 DIR/ca.key              the CA's private key: only to issue certificates, keep it off the aircraft
 DIR/uav-{i}/            what UAV i carries: tls.pem + tls.key (its mesh certificate, CN uav-{i}),
@@ -12,13 +13,22 @@ DIR/camera/, view/, router/   the simulated camera's, the live view's and the ro
 Every certificate is issued by the CA, carries its identity as the common name (Zenoh's access
 control matches on it) and is valid for client and server use; private keys are written 0600.
 An aircraft needs `swarm.json`, `ca.pem` and its own folder. See docs/reliability.md.
+
+A run identity (`run_id`: `uavsearch run` issues one, an operator passes `--run` or sets
+UAVSEARCH_RUN) is bound into everything signed: the mesh's signed texts name it, and each vehicle's
+MAVLink2 signing key for the run is derived from its secret and the run (`run_secret`), so nothing
+signed in one run is accepted in another. `rotate` gives one UAV a new signing key while its old one
+stays accepted; peers read swarm.json again when a signature does not check with the keys they hold.
 """
 
 from __future__ import annotations
 
 import datetime
+import hashlib
+import hmac
 import json
 import os
+import re
 import secrets
 import sys
 from dataclasses import dataclass
@@ -37,6 +47,8 @@ SWARM_FILE = "swarm.json"
 FORMAT = 1
 ROLES = ("camera", "view", "router")  # identities besides the UAVs
 VALID_DAYS = 365
+RUN_ENV = "UAVSEARCH_RUN"  # the run identity of a process started without --run
+RUN_RE = re.compile(r"[A-Za-z0-9._-]{0,64}")
 
 
 class KeyDirectoryError(ValueError):
@@ -65,13 +77,40 @@ class SwarmKeys:
     directory: Path
     identity: str
     tls: TlsFiles
-    public: tuple[Ed25519PublicKey, ...]
+    public: tuple[tuple[Ed25519PublicKey, ...], ...]  # per UAV: the keys accepted for it
     signing: Ed25519PrivateKey | None = None
-    mavlink_secret: bytes | None = None
+    mavlink_secret: bytes | None = None  # for this run (`run_secret`)
+    run: str = ""
 
     @property
     def n_uavs(self) -> int:
         return len(self.public)
+
+    def reload_public(self) -> tuple[tuple[Ed25519PublicKey, ...], ...]:
+        """The accepted keys as swarm.json lists them now (a rotation adds one)."""
+        return _public_keys(self.directory / SWARM_FILE)
+
+
+def run_id(explicit: str | None = None) -> str:
+    """This process's run identity: `explicit` (`--run`), else $UAVSEARCH_RUN, else "" (none: what
+    it signs is bound to no run). KeyDirectoryError for one that is not 0-64 of [A-Za-z0-9._-]."""
+    run = explicit if explicit is not None else os.environ.get(RUN_ENV, "")
+    if not RUN_RE.fullmatch(run):
+        raise KeyDirectoryError(f"run id {run[:80]!r}: at most 64 letters, digits, '.', '_' or '-'")
+    return run
+
+
+def new_run_id() -> str:
+    """A fresh run identity (what `uavsearch run` issues)."""
+    return secrets.token_hex(8)
+
+
+def run_secret(secret: bytes, run: str) -> bytes:
+    """The MAVLink2 signing key of one run: HMAC-SHA256 of the run under the vehicle's secret
+    (the secret itself when no run is named)."""
+    if not run:
+        return secret
+    return hmac.new(secret, b"uavsearch mavlink run\0" + run.encode(), hashlib.sha256).digest()
 
 
 def generate(directory: Path, n_uavs: int, valid_days: int = VALID_DAYS) -> None:
@@ -106,7 +145,26 @@ def generate(directory: Path, n_uavs: int, valid_days: int = VALID_DAYS) -> None
     (directory / SWARM_FILE).write_text(json.dumps(swarm, indent=2) + "\n")
 
 
-def load(directory: str | Path, identity: str) -> SwarmKeys:
+def rotate(directory: Path, uav: int, keep: int = 2) -> None:
+    """Give UAV `uav` a new signing key (its sign.key) and list it first in swarm.json with the
+    `keep` - 1 latest of its older keys, which stay accepted: peers take the new key once they read
+    swarm.json again, with no restart; only UAV `uav`'s companion restarts (on its journal)."""
+    path = directory / SWARM_FILE
+    public = _public_keys(path)
+    if not 0 <= uav < len(public):
+        raise KeyDirectoryError(f"{path}: no uav {uav}")
+    signing = Ed25519PrivateKey.generate()
+    swarm = json.loads(path.read_text())
+    listed = [[_raw(k).hex() for k in keys] for keys in public]
+    listed[uav] = [_raw(signing.public_key()).hex(), *listed[uav]][: max(keep, 1)]
+    swarm["signing_keys"] = [keys[0] if len(keys) == 1 else keys for keys in listed]
+    _write_private(directory / uav_identity(uav) / "sign.key", _pem(signing))
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(swarm, indent=2) + "\n")
+    tmp.replace(path)  # readers see the old list or the new, never half of one
+
+
+def load(directory: str | Path, identity: str, run: str = "") -> SwarmKeys:
     """The key material of `identity` ("uav-{i}", "camera", "view" or "router") in `directory`.
 
     Raises KeyDirectoryError naming the file and the reason for anything missing or malformed.
@@ -119,19 +177,21 @@ def load(directory: str | Path, identity: str) -> SwarmKeys:
         if not path.is_file():
             raise KeyDirectoryError(f"{path}: missing (is {d} a key directory from `uavsearch keys`?)")
     if not identity.startswith("uav-"):
-        return SwarmKeys(d, identity, tls, public)
+        return SwarmKeys(d, identity, tls, public, run=run)
     signing = _private_key(folder / "sign.key")
     uav = int(identity.removeprefix("uav-"))
-    if uav >= len(public) or _raw(signing.public_key()) != _raw(public[uav]):
+    if uav >= len(public) or _raw(signing.public_key()) not in {_raw(k) for k in public[uav]}:
         raise KeyDirectoryError(f"{folder / 'sign.key'}: not the key {SWARM_FILE} lists for {identity}")
-    return SwarmKeys(d, identity, tls, public, signing, mavlink_secret(folder / "mavlink.key"))
+    secret = run_secret(mavlink_secret(folder / "mavlink.key"), run)
+    return SwarmKeys(d, identity, tls, public, signing, secret, run)
 
 
-def for_mission(mission: Mission, identity: str) -> SwarmKeys | None:
-    """`identity`'s keys from the mission's key directory, or None for an insecure mission."""
+def for_mission(mission: Mission, identity: str, run: str | None = None) -> SwarmKeys | None:
+    """`identity`'s keys from the mission's key directory for the run `run_id(run)`, or None for an
+    insecure mission."""
     if not mission.secured:
         return None
-    keys = load(mission.security.keys, identity)
+    keys = load(mission.security.keys, identity, run_id(run))
     if keys.n_uavs != mission.n_uavs:
         raise KeyDirectoryError(
             f"{keys.directory / SWARM_FILE}: keys for {keys.n_uavs} uavs, the mission has {mission.n_uavs}"
@@ -139,13 +199,14 @@ def for_mission(mission: Mission, identity: str) -> SwarmKeys | None:
     return keys
 
 
-def mavlink_secrets(mission: Mission) -> list[bytes] | None:
-    """Every vehicle's MAVLink signing secret (what the autopilots hold), or None when the
-    mission does not sign its MAVLink links."""
+def mavlink_secrets(mission: Mission, run: str | None = None) -> list[bytes] | None:
+    """Every vehicle's MAVLink signing key for the run `run_id(run)` (what the autopilots hold), or
+    None when the mission does not sign its MAVLink links."""
     if not (mission.secured and mission.security.mavlink_signing):
         return None
-    directory = Path(mission.security.keys)
-    return [mavlink_secret(directory / uav_identity(i) / "mavlink.key") for i in range(mission.n_uavs)]
+    directory, name = Path(mission.security.keys), run_id(run)
+    paths = [directory / uav_identity(i) / "mavlink.key" for i in range(mission.n_uavs)]
+    return [run_secret(mavlink_secret(p), name) for p in paths]
 
 
 def insecure_warning(mission: Mission) -> str:
@@ -178,12 +239,20 @@ def mavlink_secret(path: str | Path) -> bytes:
     return secret
 
 
-def _public_keys(path: Path) -> tuple[Ed25519PublicKey, ...]:
+def _public_keys(path: Path) -> tuple[tuple[Ed25519PublicKey, ...], ...]:
     try:
         swarm = json.loads(path.read_text())
         if swarm.get("format") != FORMAT:
             raise KeyDirectoryError(f"{path}: format {swarm.get('format')!r}, expected {FORMAT}")
-        keys = tuple(Ed25519PublicKey.from_public_bytes(bytes.fromhex(k)) for k in swarm["signing_keys"])
+        keys = tuple(
+            tuple(
+                Ed25519PublicKey.from_public_bytes(bytes.fromhex(h))
+                for h in ([k] if isinstance(k, str) else k)
+            )
+            for k in swarm["signing_keys"]
+        )
+        if not all(keys):
+            raise KeyDirectoryError(f"{path}: a UAV with no signing key")
     except OSError as exc:
         raise KeyDirectoryError(f"{path}: {exc.strerror or exc}") from None
     except (KeyError, TypeError, AttributeError, ValueError) as exc:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -15,13 +16,37 @@ from companion.core.world import Stream, build_world, instance_rng
 from companion.mission import load_mission
 from companion.node.camera_feed import CameraFeed
 from companion.node.frames import LocalFrame
-from companion.node.journal import JournalError
-from companion.node.keys import KeyDirectoryError, for_mission, mavlink_secret, uav_identity, warn_if_insecure
+from companion.node.journal import JournalError, journal_run
+from companion.node.keys import (
+    RUN_ENV,
+    KeyDirectoryError,
+    for_mission,
+    mavlink_secret,
+    run_id,
+    uav_identity,
+    warn_if_insecure,
+)
 from companion.node.mesh import Mesh
 from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
 from companion.node.vehicle_link import COMPANION_SYSTEM, VEHICLE_WAIT_S, LinkError, LinkNotOpen, open_link
 
 log = logging.getLogger("companion")
+
+
+NO_RUN_WARNING = (
+    "WARNING: no run identity (--run, or $UAVSEARCH_RUN; `uavsearch run` issues one): what this companion "
+    "signs is bound to no run, so bundles and MAVLink frames recorded in an earlier run can be replayed"
+)
+
+
+def run_of(explicit: str | None, journal: Path | None) -> str:
+    """The companion's run identity: `--run`, else $UAVSEARCH_RUN, else the one its journal names
+    (a restart rejoins its run), else none. KeyDirectoryError for a malformed one."""
+    if explicit is None and RUN_ENV not in os.environ and journal is not None:
+        kept = journal_run(journal)
+        if kept is not None:
+            return run_id(kept)
+    return run_id(explicit)
 
 
 def run_companion(args: argparse.Namespace) -> int:
@@ -33,13 +58,18 @@ def run_companion(args: argparse.Namespace) -> int:
         print(f"error: --uav {args.uav}: the mission has UAVs 0..{mission.n_uavs - 1}", file=sys.stderr)
         return 2
     out = Path(args.out) if args.out else None
+    journal = Path(args.journal) if args.journal else None
     warn_if_insecure(mission)
     try:
-        keys = for_mission(mission, uav_identity(args.uav))
-        secret = mavlink_secret(args.mavlink_key) if args.mavlink_key else None
+        run = run_of(args.run, journal)
+        keys = for_mission(mission, uav_identity(args.uav), run)
+        secret = mavlink_secret(args.mavlink_key) if args.mavlink_key else None  # as the autopilot holds it
     except KeyDirectoryError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if mission.secured and not run:
+        print(NO_RUN_WARNING, file=sys.stderr, flush=True)
+    log.info("uav %d: run %r", args.uav, run)
     if secret is None and keys is not None and mission.security.mavlink_signing:
         secret = keys.mavlink_secret
     opts = CompanionOptions(
@@ -54,7 +84,8 @@ def run_companion(args: argparse.Namespace) -> int:
         seed=args.seed,
         steps=args.steps,
         out=out,
-        journal=Path(args.journal) if args.journal else None,
+        journal=journal,
+        run=run,
     )
     stop, abort = threading.Event(), threading.Event()
 
@@ -86,6 +117,8 @@ def run_companion(args: argparse.Namespace) -> int:
         return 1
     if link is None:
         return 0  # stopped before the link could be opened: nothing flown
+    if link.local_address is not None:
+        log.info("uav %d: MAVLink link %s on %s:%d", args.uav, url, *link.local_address)
     restarting = opts.journal is not None and opts.journal.exists() and opts.journal.stat().st_size > 0
     try:
         with Mesh(

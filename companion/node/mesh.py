@@ -3,7 +3,8 @@
 Each step a UAV puts one `Bundle` (its whole outbox, msgpack) on `{prefix}/{mission}/uav/{i}/msg`;
 in a secured mesh, inside a signed `signing.Envelope`. Receipt runs in a Zenoh callback
 thread: every sample is size-checked, decoded, validated (`check_bundle`) and, in a secured mesh,
-authenticated; anything rejected is dropped and counted, nothing raises. Valid bundles wait in
+authenticated; anything rejected is dropped, counted, and logged rate-limited per kind and sender
+(`refusals`), nothing raises. Valid bundles wait in
 a small per-sender buffer until `inbox(k)` takes those stamped k-1 and applies the batch engine's
 radio: range gating at R_c and optional loss. Liveliness tokens on `{prefix}/{mission}/alive/{i}`
 tell who is alive. `run_router`/`router_main` run a Zenoh router for client mode.
@@ -13,6 +14,7 @@ See docs/mesh.md.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import signal
 import sys
@@ -31,6 +33,7 @@ from companion.core.messages import PROTOCOL_VERSION, Message, MessageError, che
 from companion.core.wire import MsgpackCodec
 from companion.mission import Mission, MissionError, load_mission
 from companion.node.keys import KeyDirectoryError, SwarmKeys, for_mission, uav_identity, warn_if_insecure
+from companion.node.refusals import Refusals
 from companion.node.signing import Authenticator, Forged, Unauthenticated, decode_envelope
 from companion.node.zenoh_config import (
     MeshConfig,
@@ -47,6 +50,7 @@ DEFAULT_ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
 # The router's main thread wakes this often: a SIGTERM that the kernel hands to one of Zenoh's
 # threads only flags Python's handler, which runs when the main thread next runs Python code.
 SIGNAL_POLL_S = 0.2
+log = logging.getLogger("companion.mesh")
 
 
 class Bundle(msgspec.Struct, frozen=True, kw_only=True):
@@ -115,10 +119,11 @@ def received_bundle(
 
 
 def mission_authenticator(mission: Mission, keys: SwarmKeys | None) -> Authenticator | None:
-    """What checks (and, with a UAV's keys, signs) bundles in this mission; None if insecure."""
+    """What checks (and, with a UAV's keys, signs) bundles in this mission and run; None if
+    insecure. It takes a rotated key from the key directory's swarm.json when one appears."""
     if keys is None:
         return None
-    return Authenticator(keys.public, key_base(mission), keys.signing)
+    return Authenticator(keys.public, key_base(mission), keys.signing, keys.run, keys.reload_public)
 
 
 @dataclass
@@ -185,6 +190,7 @@ class Mesh:
         self._auth = mission_authenticator(mission, keys)
         self._cond = threading.Condition()
         self._stats = MeshStats()
+        self.refusals = Refusals(log, f"uav {uav}: mesh")
         self._held: dict[int, dict[int, Bundle]] = {}  # sender -> stamp -> bundle
         self._floor = 0  # bundles stamped below this are stale
         self._alive: set[int] = set()
@@ -229,6 +235,7 @@ class Mesh:
     def close(self) -> None:
         """Close the session (idempotent): peers see our liveliness token go."""
         self._session.close()
+        self.refusals.flush()
         with self._cond:
             self._cond.notify_all()
 
@@ -283,22 +290,27 @@ class Mesh:
                 raise Spoofed("a bundle claiming our id")
         except (ValueError, msgspec.MsgspecError) as exc:  # MessageError is a ValueError
             with self._cond:
-                self._count_rejected(exc)
+                kind = self._count_rejected(exc)
+            self.refusals.refuse(f"{kind} bundle", f"key uav/{str(sample.key_expr).split('/')[-2]}", str(exc))
             return
         with self._cond:
             self._hold(bundle)
             self._cond.notify_all()
 
-    def _count_rejected(self, exc: Exception) -> None:
+    def _count_rejected(self, exc: Exception) -> str:
+        """Count a rejected sample; returns its kind."""
         s = self._stats
         if isinstance(exc, Spoofed):
             s.spoofed += 1
-        elif isinstance(exc, Unauthenticated):
+            return "spoofed"
+        if isinstance(exc, Unauthenticated):
             s.unauthenticated += 1
-        elif isinstance(exc, Forged):
+            return "unauthenticated"
+        if isinstance(exc, Forged):
             s.forged += 1
-        else:
-            s.malformed += 1
+            return "forged"
+        s.malformed += 1
+        return "malformed"
 
     def _hold(self, bundle: Bundle) -> None:
         s = self._stats

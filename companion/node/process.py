@@ -135,6 +135,7 @@ class CompanionOptions:
     steps: int | None = None
     out: Path | None = None
     journal: Path | None = None  # the journal file (docs/reliability.md, "Restart without loss")
+    run: str = ""  # the run identity (`keys.run_id`), kept in the journal
 
 
 def default_vehicle_url(mission: Mission, uav: int) -> str:
@@ -155,7 +156,7 @@ class Companion:
         self.journal: Journal | None = None
         self.recovered: Recovered | None = None
         if opts.journal is not None:  # JournalError (a ValueError) for a journal of another mission
-            header = header_of(m, opts.uav, seed)
+            header = header_of(m, opts.uav, seed, opts.run)
             self.journal, self.recovered = Journal.open(opts.journal, header, self.agent)
             if self.recovered is not None:
                 r = self.recovered
@@ -691,6 +692,8 @@ class Companion:
             "rejected_mavlink": self.link.rejected,
             "mavlink_signed": self.link.signed,
             "mavlink_unauthenticated": self.link.unauthenticated,
+            "mavlink_wrong_system": self.link.wrong_system,
+            "refused": {"mesh": self.mesh.refusals.summary(), "mavlink": self.link.refusals.summary()},
             "rejected_camera": self.camera.rejected,
             "mesh": asdict(self.mesh.stats),
             "plan_vs_flight": self.tracker.summary(),

@@ -5,9 +5,9 @@ and one originator signature per UAV state it carries (the sender's own `StateMs
 then every state relayed in a `ClaimsMsg`, in order). A receiver checks the bundle's signature with
 the public key of the sender it names, and every state's with the key of the UAV the state is
 about, so a state relayed over any number of UAVs still proves its origin, and a member cannot put
-words in another's mouth. The signed texts name the mission's key space, so nothing signed for one
-mission is accepted by another. Detections and bids are first-hand only: the bundle's signature
-covers them.
+words in another's mouth. The signed texts name the mission's key space and the run (`keys.run_id`),
+so nothing signed for one mission, or in another run of it, is accepted. Detections and bids are
+first-hand only: the bundle's signature covers them.
 
 Signatures are kept (bounded) so that a state relayed by several neighbours is checked once, and
 so that this UAV can relay a state with its originator's signature. What a sender says about
@@ -20,7 +20,8 @@ journal) or does not check is not relayed. See docs/reliability.md.
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 
 import msgspec
 from cryptography.exceptions import InvalidSignature
@@ -31,6 +32,8 @@ from companion.core.wire import MsgpackCodec
 
 SIGNATURE_BYTES = 64
 KEPT_PER_UAV = 16  # checked state signatures kept per UAV (a relay needs only the latest few)
+RELOAD_S = 5.0  # a signature that does not check reads the accepted keys again at most this often
+PublicKeys = Sequence[Sequence[Ed25519PublicKey]]  # per UAV: the keys accepted for it
 
 
 class Unauthenticated(MessageError):
@@ -70,18 +73,28 @@ def carried_states(messages: Sequence[Message]) -> list[UavState]:
 class Authenticator:
     """Signs this UAV's bundles (with `signing`, its private key) and checks everyone's.
 
-    `public[i]` is UAV i's key; `base` the mission's key space (bound into every signed text).
+    `public[i]` are the keys accepted for UAV i; `base` the mission's key space and `run` the run
+    identity (both bound into every signed text). `reload` gives the accepted keys as they are now
+    (a key rotated since): called when a signature does not check, at most once per RELOAD_S.
     A listener without a key of its own (the live view) passes `signing=None`: it only checks.
     A sender's signature of its own state is kept unchecked (the bundle's signature already
     vouches for what the sender says about itself) and checked only if the state is to be relayed.
     """
 
     def __init__(
-        self, public: Sequence[Ed25519PublicKey], base: str, signing: Ed25519PrivateKey | None = None
+        self,
+        public: PublicKeys,
+        base: str,
+        signing: Ed25519PrivateKey | None = None,
+        run: str = "",
+        reload: Callable[[], PublicKeys] | None = None,
     ) -> None:
-        self.public, self.signing = tuple(public), signing
-        self._bundle_domain = b"uavsearch bundle\0" + base.encode() + b"\0"
-        self._state_domain = b"uavsearch state\0" + base.encode() + b"\0"
+        self.public = tuple(tuple(keys) for keys in public)
+        self.signing, self._reload = signing, reload
+        bound = base.encode() + b"\0" + run.encode() + b"\0"
+        self._bundle_domain = b"uavsearch bundle\0" + bound
+        self._state_domain = b"uavsearch state\0" + bound
+        self._next_reload = -float("inf")
         self._lock = threading.Lock()
         # per UAV: state bytes -> (its signature, checked)
         self._sigs: list[dict[bytes, tuple[bytes, bool]]] = [{} for _ in self.public]
@@ -123,10 +136,8 @@ class Authenticator:
         """Raise Unauthenticated unless `sender` signed the envelope's body, Forged unless every
         carried state about another UAV is signed by that UAV; keep the states' signatures for
         relaying (the sender's own unchecked)."""
-        try:
-            self.public[sender].verify(envelope.sig, self._bundle_domain + envelope.body)
-        except InvalidSignature:
-            raise Unauthenticated(f"bundle not signed by uav {sender}") from None
+        if not self._checks(sender, envelope.sig, self._bundle_domain + envelope.body):
+            raise Unauthenticated(f"bundle not signed by uav {sender}")
         states = carried_states(messages)
         if len(states) != len(envelope.state_sigs):
             raise Forged(f"{len(states)} states, {len(envelope.state_sigs)} signatures")
@@ -157,11 +168,26 @@ class Authenticator:
         return held[0]
 
     def _verify(self, uav: int, data: bytes, sig: bytes) -> bool:
+        return self._checks(uav, sig, self._state_domain + data)
+
+    def _checks(self, uav: int, sig: bytes, text: bytes) -> bool:
+        """Whether `sig` is UAV `uav`'s signature of `text` under a key accepted for it (reading
+        the accepted keys again, rate-limited, before saying no)."""
+        if _signed_by(self.public[uav], sig, text):
+            return True
+        with self._lock:
+            now = time.monotonic()
+            if self._reload is None or now < self._next_reload:
+                return False
+            self._next_reload = now + RELOAD_S
         try:
-            self.public[uav].verify(sig, self._state_domain + data)
-        except InvalidSignature:
+            public = tuple(tuple(keys) for keys in self._reload())
+        except (OSError, ValueError):  # a key file being rewritten: the keys held stay
             return False
-        return True
+        if len(public) != len(self.public):
+            return False
+        self.public = public
+        return _signed_by(public[uav], sig, text)
 
     def _held(self, uav: int, data: bytes) -> tuple[bytes, bool] | None:
         with self._lock:
@@ -173,3 +199,13 @@ class Authenticator:
             held[data] = entry
             if len(held) > KEPT_PER_UAV:
                 del held[next(iter(held))]
+
+
+def _signed_by(keys: Sequence[Ed25519PublicKey], sig: bytes, text: bytes) -> bool:
+    for key in keys:
+        try:
+            key.verify(sig, text)
+        except InvalidSignature:
+            continue
+        return True
+    return False

@@ -21,14 +21,24 @@ the vehicle moves, not ATTITUDE's yaw.
 With a signing secret (the vehicle's, from the mission's key directory or `--mavlink-key`) every
 frame sent is MAVLink2-signed and only frames signed with the same secret are accepted (besides the
 radio's RADIO_STATUS), as between ArduPilot and a ground station once signing is set up; rejected
-frames are counted in `unauthenticated`.
+frames are counted in `unauthenticated`. A frame whose signature fails never moves its stream's
+timestamp (pymavlink moves it before it checks: one forged frame stamped far ahead would make every
+genuine frame after it look like a replay), and pymavlink's own per-frame log lines are silenced.
+
+Once its vehicle's HEARTBEAT is heard, the link takes only what that system's autopilot component
+says; frames of other systems or components are counted in `wrong_system`. Every refusal is
+counted by kind and sender and logged rate-limited (`refusals`, `companion.node.refusals`).
+A `udpout` link to a loopback address sends from (and so is reachable on) loopback only.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ipaddress
+import logging
 import math
 import os
+import socket
 import struct
 import time
 from collections import deque
@@ -42,6 +52,10 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.node.frames import LocalFrame, yaw_to_heading
+from companion.node.refusals import Refusals
+
+log = logging.getLogger("companion.link")
+logging.getLogger("pymavlink").setLevel(logging.WARNING)  # "old timestamp" once per refused frame
 
 COMPANION_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
 # The companion's own system id: no ground station (255; MAVSDK 245) or on-board component (the
@@ -84,6 +98,44 @@ REPLIES = frozenset({"COMMAND_ACK", "PARAM_VALUE", "MISSION_REQUEST", "MISSION_R
 def signing_timestamp(now: float | None = None) -> int:
     """A MAVLink signing timestamp: 10 us units since 2015-01-01 UTC."""
     return int(((time.time() if now is None else now) - 1420070400) * 1e5)
+
+
+def keep_stream_timestamps(mav: mavlink.MAVLink) -> None:
+    """Make `mav` put a stream's timestamp back when a frame's signature fails (pymavlink sets it
+    before checking, so one forged frame stamped far ahead would lock the genuine stream out)."""
+    check = mav.check_signature
+
+    def checked(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        stream = (msgbuf[-13], src_system, src_component)
+        timestamps = mav.signing.stream_timestamps
+        before = timestamps.get(stream)
+        if check(msgbuf, src_system, src_component):
+            return True
+        if before is None:
+            timestamps.pop(stream, None)
+        else:
+            timestamps[stream] = before
+        return False
+
+    mav.check_signature = checked
+
+
+def frame_sender(data: bytes) -> tuple[str, str]:
+    """(kind, sender) of a frame refused for its signature: "bad signature" if it was signed,
+    "unsigned" if not; the sender as "system S component C" from its header."""
+    if len(data) >= 10 and data[0] == 0xFD:
+        kind = "bad signature" if data[2] & 1 else "unsigned"
+        return kind, f"system {data[5]} component {data[6]}"
+    if len(data) >= 6 and data[0] == 0xFE:
+        return "unsigned", f"system {data[3]} component {data[4]}"
+    return "unsigned", "unknown"
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(socket.gethostbyname(host)).is_loopback
+    except (OSError, ValueError):
+        return False
 
 
 class LinkError(RuntimeError):
@@ -162,6 +214,8 @@ class VehicleLink:
         self.state = VehicleState()
         self.rejected = 0
         self.unauthenticated = 0
+        self.wrong_system = 0
+        self.refusals = Refusals(log, f"MAVLink {url}")
         self.replies: deque[mavlink.MAVLink_message] = deque(maxlen=256)
         self._own_system = system
         self._heartbeat = heartbeat
@@ -181,6 +235,7 @@ class VehicleLink:
         except OSError as exc:  # a TCP port that refuses, no such serial device
             raise LinkNotOpen(str(exc)) from None
         try:
+            self._bind_loopback()
             self._tlog = TlogWriter(tlog) if tlog else None
         except OSError:
             self._conn.close()
@@ -195,6 +250,23 @@ class VehicleLink:
                 allow_unsigned_callback=lambda _mav, msg_id: msg_id in UNSIGNED_ALLOWED,
                 link_id=0,
             )
+            keep_stream_timestamps(self._conn.mav)
+
+    def _bind_loopback(self) -> None:
+        """A udpout link to a loopback address: bind its socket to loopback before it sends (the
+        OS would bind it to every interface, where anyone on the network could write to it)."""
+        conn = self._conn
+        if isinstance(conn, mavutil.mavudp) and not conn.udp_server and _loopback(conn.destination_addr[0]):
+            conn.port.bind(("127.0.0.1", 0))
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        """The address this link receives on (UDP), None for other links or before it is bound."""
+        conn = self._conn
+        if not isinstance(conn, mavutil.mavudp):
+            return None
+        host, port = conn.port.getsockname()[:2]
+        return (host, port) if port else None
 
     @property
     def signed(self) -> bool:
@@ -265,13 +337,18 @@ class VehicleLink:
         if kind == "BAD_DATA":
             if "signature" in str(getattr(msg, "reason", "")):
                 self.unauthenticated += 1
+                self.refusals.refuse(*frame_sender(bytes(getattr(msg, "data", b""))))
             else:
                 self.rejected += 1
             return
         if self._tlog:
             self._tlog.write(msg.get_msgbuf())
         s = self.state
-        if s.system and msg.get_srcSystem() != s.system:
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if s.system and source != (s.system, mavlink.MAV_COMP_ID_AUTOPILOT1):
+            if msg.get_msgId() not in UNSIGNED_ALLOWED:  # the radio's own status: not a fault
+                self.wrong_system += 1
+                self.refusals.refuse("wrong system", f"system {source[0]} component {source[1]}", kind)
             return
         if kind == "HEARTBEAT":
             if msg.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1 or msg.type == mavlink.MAV_TYPE_GCS:
@@ -562,6 +639,7 @@ class VehicleLink:
         return int(self._conn.mav.srcSystem)
 
     def close(self) -> None:
+        self.refusals.flush()
         with contextlib.suppress(OSError, AttributeError):  # pymavlink's TCP link after a failed reconnect
             self._conn.close()
         if self._tlog:

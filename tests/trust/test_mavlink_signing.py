@@ -109,3 +109,32 @@ def test_signing_off_the_same_unsigned_command_is_answered(
     rc, stats = sim.stop()
     assert rc == 0 and stats["input"]["unsigned"] == stats["input"]["bad_signature"] == 0
     conn.close()
+
+
+def test_signing_on_an_unknown_message_id_earns_no_telemetry(
+    tmp_path: Path, start_sim: Callable[..., SimProcess]
+) -> None:
+    """pymavlink decodes a frame of an unknown message id before it looks at the signature: such a
+    frame, unsigned, must not make its sender a peer (it used to receive the vehicle's telemetry)."""
+    path, ports, _ = write_mission(tmp_path, n=1)
+    keys.generate(tmp_path / "keys", 1)
+    path.write_text(path.read_text() + f'\n[security]\nkeys = "{tmp_path / "keys"}"\n')
+    sim = start_sim(path)
+    payload = b"\x00" * 4
+    unknown = bytes([0xFD, len(payload), 0, 0, 0, 250, 1, 0xEF, 0xBE, 0x00]) + payload + b"\x00\x00"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        s.settimeout(0.2)
+        heard = 0
+        deadline = time.monotonic() + 3 * QUIET_S
+        while time.monotonic() < deadline:
+            s.sendto(unknown, ("127.0.0.1", ports[0]))
+            try:
+                s.recvfrom(65535)
+                heard += 1
+            except TimeoutError:
+                pass
+    rc, stats = sim.stop()
+    assert rc == 0
+    assert heard == 0, f"{heard} datagrams sent to an unauthenticated sender"
+    assert stats["input"]["unsigned"] > 0, stats

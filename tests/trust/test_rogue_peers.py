@@ -57,14 +57,16 @@ def test_rogue_peers_fail_to_inject_into_a_secured_swarm(make_mission, procs: Pr
     out = tmp_path / "out"
     rogue = [PY, "-m", "tests.trust.rogue"]
     attack = [str(mission.path), str(INSIDER), str(VICTIM), str(N)]
+    swarm_run = {keys.RUN_ENV: "rogue-test"}  # the insider, a member, knows the run (it is no secret)
     run = procs.start(
         "run",
         [PY, "-m", "companion.app.cli", "run", str(mission.path), "--lockstep", "--steps", str(MAX_STEPS),
          "--seed", str(SEED), "--keep-going", "--quiet", "--out", str(out)],
+        env=swarm_run,
     )  # fmt: skip
     # the rogues after the run, whose simulator binds the mission's ports first: a rogue's ephemeral
     # sockets, bound before it, once took one of them ("Address already in use")
-    insider = procs.start("insider", [*rogue, "insider", *attack])
+    insider = procs.start("insider", [*rogue, "insider", *attack], env=swarm_run)
     outsider = procs.start("outsider", [*rogue, "outsider", str(mission.path), str(tmp_path / "foreign")])
     assert insider.wait(STARTUP_S + 300) == 0, insider.text()
     attacked = max((r["step"] for r in read_csv(out / f"uav{VICTIM}.csv")), default=0)
@@ -73,6 +75,7 @@ def test_rogue_peers_fail_to_inject_into_a_secured_swarm(make_mission, procs: Pr
     assert run.stop() in (0, 1), run.text()  # Ctrl-C: the run ends with its report; 1: its criteria
     assert outsider.stop() == 0
     assert "secured: mesh over mutually authenticated TLS" in run.text()
+    assert "secured run: the companions refused" in run.text(), run.text()[-3000:]
 
     did = _json_line(insider.text())
     assert did["alive"] == [0, 1, 2, 3] and did["peers"] >= 4, "the insider's credentials do join"
@@ -86,6 +89,8 @@ def test_rogue_peers_fail_to_inject_into_a_secured_swarm(make_mission, procs: Pr
         assert report["steps"] >= steps > attacked + AFTER
         rejected = (mesh["spoofed"], mesh["forged"], mesh["unauthenticated"], mesh["malformed"])
         assert rejected == (N, N, 2 * N, 0), (i, mesh)
+        refused = {kind: sum(senders.values()) for kind, senders in report["refused"]["mesh"].items()}
+        assert refused == {"spoofed bundle": N, "forged bundle": N, "unauthenticated bundle": 2 * N}, refused
         assert report["mavlink_signed"] and report["mavlink_unauthenticated"] == 0
     stats = json.loads(re.findall(r"sim_vehicles stats: (.*)", (out / "sim.log").read_text())[-1])["input"]
     assert (stats["unsigned"], stats["bad_signature"]) == (m.n_uavs * N, m.n_uavs * N), stats

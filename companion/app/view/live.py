@@ -14,6 +14,7 @@ is counted as unauthenticated and dropped.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from typing import Any
@@ -25,6 +26,7 @@ from companion.app.view.swarm_model import Report, SwarmModel
 from companion.core.world import World
 from companion.node.keys import SwarmKeys
 from companion.node.mesh import Spoofed, key_base, mission_authenticator, received_bundle
+from companion.node.refusals import Refusals
 from companion.node.signing import Forged, Unauthenticated
 from companion.node.zenoh_config import MeshConfig, open_session
 
@@ -68,6 +70,7 @@ class MeshListener:
         self._first = 0  # index of _frames[0] among all frames made
         self.alive: set[int] = set()
         self.received = self.malformed = self.unauthenticated = 0
+        self.refusals = Refusals(logging.getLogger("companion.view"), "view: mesh")
         self.session: zenoh.Session | None = None
         self.error = ""
         self._threads = [threading.Thread(target=self._run, name="view-mesh", daemon=True)]
@@ -123,9 +126,11 @@ class MeshListener:
             try:
                 bundle = received_bundle(sample, max_bytes, n, self.n_cells, self.n_tasks, self._auth)
                 report = Report.of(bundle)
-            except (Spoofed, Unauthenticated, Forged):
+            except (Spoofed, Unauthenticated, Forged) as exc:
                 with self._lock:
                     self.unauthenticated += 1
+                kind = {Spoofed: "spoofed", Unauthenticated: "unauthenticated", Forged: "forged"}[type(exc)]
+                self.refusals.refuse(f"{kind} bundle", f"key uav/{str(sample.key_expr).split('/')[-2]}")
                 continue
             except (ValueError, msgspec.MsgspecError):
                 with self._lock:
@@ -172,6 +177,7 @@ class MeshListener:
                 "received": self.received,
                 "malformed": self.malformed,
                 "unauthenticated": self.unauthenticated,
+                "refused": self.refusals.summary(),
                 "secured": self.keys is not None,
                 "late": self.model.late,
                 "step": self.model.closed,

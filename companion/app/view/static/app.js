@@ -458,9 +458,13 @@
     else if (!s.connected) text = `joining the mesh… ${s.error || ""}`;
     else text = `mesh: ${s.alive.length} alive (${s.alive.map((u) => "U" + u).join(" ") || "none"})`;
     $("connection").textContent = text;
-    if (st.live && s.connected !== undefined)
+    if (st.live && s.connected !== undefined) {
+      const refused = Object.entries(s.refused || {}).map(([kind, senders]) =>
+        `${kind} ${Object.entries(senders).map(([who, n]) => `${n} from ${who}`).join(", ")}`);
       $("counters").textContent = `bundles received ${s.received}, malformed ${s.malformed}, `
-        + `unauthenticated ${s.unauthenticated}, late ${s.late}${s.secured ? "" : " (INSECURE mesh)"}`;
+        + `unauthenticated ${s.unauthenticated}, late ${s.late}${s.secured ? "" : " (INSECURE mesh)"}`
+        + (refused.length ? `; REFUSED: ${refused.join("; ")}` : "");
+    }
     document.body.dataset.malformed = s.malformed ?? "";
   }
 
