@@ -961,7 +961,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=natural,
         default=None,
         metavar="UAV",
-        help="give this UAV a new signing key in an existing key directory (its previous one stays accepted)",
+        help="give this UAV a new signing key in an existing key directory, its previous one still "
+        "accepted (default: none: write a new directory)",
     )
     ke.set_defaults(func=_keys)
 
