@@ -352,7 +352,7 @@ class Mission(_Base, kw_only=True):
     def near_layers(self) -> list[list[bool]]:
         """Whether each pair of vehicles flies layers closer than `layers.separation` (a UAV is near
         itself): only such pairs can meet, so only they guard against each other's failures."""
-        alts = [self.altitude_of(i) for i in range(self.n_uavs)]
+        alts = [self.layer_altitude(layer) for layer in self.layer_assignment()]
         gap = self.layers.separation - 1e-6
         return [[abs(a - b) < gap for b in alts] for a in alts]
 
