@@ -75,8 +75,7 @@ def loopback_mission(
 ) -> tuple[Path, Mission]:
     """`base` on free loopback ports and its own mesh key space, with `steps` steps and the injected
     mesh faults; written into `directory`."""
-    ports = free_ports(socket.SOCK_DGRAM, base.n_uavs)
-    seed, router = free_ports(socket.SOCK_STREAM, 2)
+    *ports, seed, router = free_ports(base.n_uavs + 2)
     s = msgspec.structs.replace
     mission = s(
         base,

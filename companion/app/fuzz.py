@@ -216,7 +216,7 @@ def fuzz_mesh(count: int, seed: int) -> Campaign:
 
 def _mesh_over_zenoh(mission: Mission, world: object, payloads: list[bytes], c: Campaign) -> dict:
     """Garbled and valid payloads published over loopback to a real Mesh: every sample is counted."""
-    ports = free_ports(socket.SOCK_STREAM, 1)
+    ports = free_ports(1)
     m = msgspec.structs.replace(
         mission,
         mesh=msgspec.structs.replace(
@@ -306,7 +306,7 @@ def fuzz_mavlink(count: int, seed: int) -> Campaign:
     c.inputs = len(datagrams)
     half = len(datagrams) // 2
     with tempfile.TemporaryDirectory() as tmp:
-        sim_port, link_port = free_ports(socket.SOCK_DGRAM, 2)
+        sim_port, link_port = free_ports(2)
         text = SCENARIO.read_text(encoding="utf-8")
         text = text.replace("[pass_criteria]", f"[sim]\nbase_port = {sim_port}\n\n[pass_criteria]", 1)
         mission_path = Path(tmp) / "fuzz.toml"
@@ -412,7 +412,7 @@ def fuzz_camera(count: int, seed: int) -> Campaign:
     structured = _structured([msgspec.to_builtins(f) for f in valid_frames])
     _run(st.one_of(_mutations(valid), structured), count, seed, lambda d: payloads.append(d))  # type: ignore[arg-type]
     c.inputs = len(payloads)
-    port = free_ports(socket.SOCK_STREAM, 1)[0]
+    port = free_ports(1)[0]
     key = f"fuzz{uuid.uuid4().hex[:10]}/cam/uav/0/camera"
     rx = open_session(MeshConfig("peer", (f"tcp/127.0.0.1:{port}",), ()))
     tx = open_session(MeshConfig("peer", (), (f"tcp/127.0.0.1:{port}",)))

@@ -40,7 +40,6 @@ import argparse
 import csv
 import math
 import shutil
-import socket
 import sys
 import tempfile
 import threading
@@ -57,6 +56,7 @@ from pymavlink import mavutil
 from companion.app import px4_sitl, sitl
 from companion.app.arguments import natural, positive, weight
 from companion.app.launcher import Children
+from companion.app.loopback import free_blocks
 from companion.core.agent import Command
 from companion.core.kinematics import wrap_angle
 from companion.core.trajectory import Trajectory
@@ -496,31 +496,12 @@ def fly_px4(flight: Flight, link: VehicleLink, mission: Mission, uav: int) -> No
 
 
 # -- the autopilots' processes ----------------------------------------------------------------------
-def _free_block(taken: set[int], width: int = 6) -> int:
-    """A base port P not in `taken` with P..P+width-1 free for TCP and UDP on 127.0.0.1, P a multiple
-    of 10."""
-    for base in range(21000 + (time.monotonic_ns() // 1000) % 20000 // 10 * 10, 60000, 10):
-        ok = base not in taken
-        for port in range(base, base + width):
-            for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
-                with socket.socket(socket.AF_INET, kind) as sock:
-                    try:
-                        sock.bind(("127.0.0.1", port))
-                    except OSError:
-                        ok = False
-        if ok:
-            return base
-    raise BenchError("no free block of loopback ports")
-
-
 def on_free_ports(mission: Mission) -> Mission:
     """`mission` with every vehicle on a free block of loopback ports (the bundled simulator serves
     them all)."""
-    vehicles, taken = [], set[int]()
-    for v in mission.vehicles:
-        base = _free_block(taken)
-        taken.add(base)
-        vehicles.append(msgspec.structs.replace(v, mavlink_port=base))
+    bases = free_blocks(mission.n_uavs, width=6)
+    ports = zip(mission.vehicles, bases, strict=True)
+    vehicles = [msgspec.structs.replace(v, mavlink_port=p) for v, p in ports]
     return msgspec.structs.replace(mission, vehicles=tuple(vehicles))
 
 

@@ -17,7 +17,6 @@ import csv
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -85,8 +84,7 @@ def write_mission(
     assert 1 <= n <= len(vehicles)
     prefix = f"e2e{uuid.uuid4().hex[:12]}"
     head = head.replace('mode = "grid"', f'mode = "{kinematics}"')
-    ports = free_ports(socket.SOCK_DGRAM, n)
-    seed, router = free_ports(socket.SOCK_STREAM, 2)
+    *ports, seed, router = free_ports(n + 2)
     out = head
     for body, port in zip(vehicles[:n], ports, strict=True):
         out += "[[vehicles]]" + body.rstrip() + f"\nmavlink_port = {port}\n\n"

@@ -22,10 +22,11 @@ from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, read_csv
 
 STEPS = 40
 LAGGING = 0.85
-# 5x, not 10x: a companion slow to start on a loaded machine (2 s of wall time from its take-over to
-# its first step was seen) leaves its vehicle circling where it entered GUIDED for 5 steps, not 10,
-# and every wall-clock delay of the steering costs half as much flight
-SPEEDUP = 5
+# 3x, not 10x: a companion slow to start on a loaded machine (2 s of wall time from its take-over to
+# its first step was seen) leaves its vehicle circling where it entered GUIDED for 3 steps, not 10,
+# and every wall-clock delay of the steering costs a third as much flight (at 5x, a heading command
+# late on a busy machine left the vehicle 0.96 of straight on's distance from the plan)
+SPEEDUP = 3
 RETURN_ALTITUDE = {"ardupilot": ("RTL_ALTITUDE",), "px4": ("RTL_RETURN_ALT", "RTL_DESCEND_ALT")}
 
 

@@ -17,6 +17,7 @@ from tests.e2e.conftest import GUIDED, Procs, assert_follows, read_csv, wait_row
 
 MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")  # installed with the test extras
 WITH_GCS_STEPS = 25  # steps flown with MAVProxy attached
+GCS_WAIT_S = 300.0  # generous: MAVProxy starts and downloads the parameters slowly on a busy machine
 
 
 def test_mavproxy_attached_while_the_companion_flies(make_mission, procs: Procs, tmp_path: Path) -> None:
@@ -24,7 +25,7 @@ def test_mavproxy_attached_while_the_companion_flies(make_mission, procs: Procs,
     k = mission.mission.kinematics
     out = tmp_path / "out"
     procs.sim(mission, "--speedup", "10")
-    comp = procs.companion(mission, 0, out, "--takeover", "--command-mode", "turn-rate", "--steps", "1000")
+    comp = procs.companion(mission, 0, out, "--takeover", "--command-mode", "turn-rate", "--steps", "5000")
     csv_path = out / "uav0.csv"
     wait_rows(csv_path, 5, comp, cond=lambda r: r["steered"] == 1)
 
@@ -45,10 +46,10 @@ def test_mavproxy_attached_while_the_companion_flies(make_mission, procs: Procs,
         cwd=gcs_dir,
     )
     ardupilot_params = sum(p.ardupilot is not None for p in param_specs(mission.mission))
-    proxy.wait_for_text(f"Received {ardupilot_params} parameters")
-    proxy.wait_for_text("Mode GUIDED")
+    proxy.wait_for_text(f"Received {ardupilot_params} parameters", timeout=GCS_WAIT_S)
+    proxy.wait_for_text("Mode GUIDED", timeout=GCS_WAIT_S)
     attached = int(read_csv(csv_path)[-1]["step"])
-    wait_rows(csv_path, WITH_GCS_STEPS, comp, cond=lambda r: r["step"] > attached)
+    wait_rows(csv_path, WITH_GCS_STEPS, comp, timeout=GCS_WAIT_S, cond=lambda r: r["step"] > attached)
     assert proxy.alive(), proxy.text()
     rc = proxy.stop(timeout=15)
     text = proxy.text()

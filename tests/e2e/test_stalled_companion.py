@@ -10,19 +10,21 @@
   takes it back, and never moves the failsafe loiter while it does not steer, so the aircraft
   circles one fixed circle, the loiter of the last trajectory in force it announced, which is what
   its peers keep clear of (docs/algorithm.md, "A UAV nobody steers").
-- No two aircraft come within R_s at any time (the simulator's physics-rate record).
+- No two aircraft lose separation at any time (the simulator's physics-rate record): none comes
+  within R_s horizontally while closer vertically than the layers' floor.
 """
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import signal
 import time
 from pathlib import Path
 
+from companion.app.evaluation import losses_3d, read_approach
 from companion.core.world import FAILSAFE_WIDE, build_world
+from companion.mission import Mission
 from companion.node.frames import LocalFrame
 from companion.node.vehicle_link import PX4_HOLD, PX4_OFFBOARD
 from tests.e2e.conftest import GUIDED, PY, Procs, companion_pid, read_csv, wait_rows, wait_vehicles
@@ -106,11 +108,7 @@ def test_stalled_companion_takes_back_its_aircraft_and_a_piloted_one_stays_put(
     assert any(not r["steered"] for r in after), "no unsteered step after the stall"
     assert sum(1 for r in after if r["steered"]) >= 20, "it did not steer again"
 
-    # separation, throughout, from the simulator's physics-rate record
-    with (out / "approach.csv").open() as f:
-        closest = min(float(r["distance_m"]) for r in csv.DictReader(f))
-    print(f"closest approach of any two aircraft: {closest:.1f} m (R_s {m.comms.safety:g} m)")
-    assert closest > m.comms.safety
+    assert_separated(out / "approach.csv", m)
 
 
 def test_stalled_companion_takes_its_px4_aircraft_back_from_the_offboard_loss_hold(
@@ -118,7 +116,7 @@ def test_stalled_companion_takes_its_px4_aircraft_back_from_the_offboard_loss_ho
 ) -> None:
     """PX4 (the simulator's PX4 flavour, position-target in OFFBOARD): a companion stopped for longer
     than COM_OF_LOSS_T finds its aircraft in Hold, PX4's offboard-loss failsafe, and takes it back
-    into OFFBOARD once it runs again (docs/companion.md, "A stalled companion"); R_s is kept."""
+    into OFFBOARD once it runs again (docs/companion.md, "A stalled companion"); separation is kept."""
     mission = make_mission(n=4)
     m = mission.mission
     out = tmp_path / "out"
@@ -156,6 +154,13 @@ def test_stalled_companion_takes_its_px4_aircraft_back_from_the_offboard_loss_ho
     assert "our own offboard-loss failsafe fired" in log and "back in GUIDED" in log, log
     after = [r for r in read_csv(out / f"uav{STALLED}.csv") if r["step"] > stopped_at]
     assert sum(1 for r in after if r["steered"]) >= 20, "it did not steer again"
-    with (out / "approach.csv").open() as f:
-        closest = min(float(r["distance_m"]) for r in csv.DictReader(f))
-    assert closest > m.comms.safety, f"closest approach {closest:.1f} m"
+    assert_separated(out / "approach.csv", m)
+
+
+def assert_separated(approach: Path, m: Mission) -> None:
+    """Separation throughout, from the simulator's physics-rate record, in three dimensions: a
+    stalled companion's aircraft is not a live peer, so a UAV on a layer apart may pass it closer
+    than R_s horizontally (docs/algorithm.md, "Separation in three dimensions")."""
+    closest = min(read_approach(approach).values())
+    print(f"closest horizontal approach of any two aircraft: {closest:.1f} m (R_s {m.comms.safety:g} m)")
+    assert losses_3d(approach, m) == 0, f"separation lost in 3D (closest horizontal {closest:.1f} m)"

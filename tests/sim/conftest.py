@@ -8,7 +8,6 @@ import json
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -34,14 +33,8 @@ ARRIVED_M = 120.0
 M = mavutil.mavlink
 
 
-def free_udp_ports(n: int) -> list[int]:
-    return free_ports(socket.SOCK_DGRAM, n)
-
-
 def free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_ports(1)[0]
 
 
 def write_mission(
@@ -60,13 +53,12 @@ def write_mission(
     text = text.replace('mode = "grid"', f'mode = "{mode}"')
     if sensor:
         text = text.replace("radius = 60.0", f"radius = 60.0\n{sensor}")
-    ports = free_udp_ports(n)
+    *ports, seed = free_ports(n + 1)
     spacing = min(400.0, 1600.0 / max(1, n - 1))  # a connected line across the region
     starts = starts or [(-800.0 + spacing * i, -900.0) for i in range(n)]
     for (x, y), port in zip(starts, ports, strict=True):
         text += f"\n[[vehicles]]\nx = {x}\ny = {y}\nheading_deg = {heading}\nmavlink_port = {port}\n"
     prefix = f"simtest{uuid.uuid4().hex[:10]}"
-    seed = free_tcp_port()
     text += f'\n[sim]\nflavour = "{flavour}"\n{sim}\n'
     text += f'\n[mesh]\nkey_prefix = "{prefix}"\nseed_endpoint = "tcp/127.0.0.1:{seed}"\n'
     path = directory / f"mission-{prefix}.toml"

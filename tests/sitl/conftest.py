@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import socket
 import threading
 import time
 import uuid
@@ -22,10 +21,11 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.app import sitl
+from companion.app.loopback import free_blocks
 from companion.mission import Mission, load_mission
 from companion.node.frames import LocalFrame
 from companion.node.takeover import take_off
-from companion.node.vehicle_link import ARDUPILOT_GUIDED, VehicleLink, open_link
+from companion.node.vehicle_link import ARDUPILOT_GUIDED, LinkError, VehicleLink, open_link
 from tests.e2e.conftest import ROOT, Proc
 
 CONTINUOUS = ROOT / "mission_files" / "scenario1_continuous.toml"
@@ -33,6 +33,7 @@ CONTINUOUS = ROOT / "mission_files" / "scenario1_continuous.toml"
 # (ArduPlane's 5 s would be 0.6 s at 8x, less than a companion may be starved on a busy machine).
 SLACK_FAILSAFE_TIMEOUT = "failsafe_timeout = 10.0"
 GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: the tests' ground station
+STARTUP_S = 180.0  # generous: SITL boots slowly on a busy 2-core machine
 
 
 @pytest.fixture(scope="session")
@@ -45,28 +46,9 @@ def sitl_binary() -> Path:
         pytest.skip(str(exc))
 
 
-def _all_free(base: int) -> bool:
-    for port in range(base, base + 6):
-        for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
-            with socket.socket(socket.AF_INET, kind) as s:
-                try:
-                    s.bind(("127.0.0.1", port))
-                except OSError:
-                    return False
-    return True
-
-
 def free_bases(n: int) -> list[int]:
-    """n port blocks P..P+5, each free for TCP and UDP on 127.0.0.1, 10 apart."""
-    start = 20000 + (os.getpid() * 97 + uuid.uuid4().int) % 30000
-    bases: list[int] = []
-    base = start - start % 10
-    while len(bases) < n:
-        if _all_free(base):
-            bases.append(base)
-        base += 10
-        assert base < 60000, "no free port blocks"
-    return bases
+    """n port blocks P..P+5 free for TCP and UDP on 127.0.0.1, below the ephemeral range."""
+    return free_blocks(n, width=6)
 
 
 @dataclass(frozen=True)
@@ -137,10 +119,14 @@ class Airborne:
         self.frame = LocalFrame(mission.mission.region.origin)
         self.proc = start_sitl(binary, mission, 0, speedup, directory)
         url = mission.ports(0).url(mission.ports(0).serial0)
-        link = open_link(url, self.frame, 60, lambda: not self.proc.alive(), component=GCS_COMPONENT)
+        gone = lambda: not self.proc.alive()  # noqa: E731
+        link = open_link(url, self.frame, STARTUP_S, gone, component=GCS_COMPONENT)
         assert link is not None, self.proc.text()
         self.link = link
-        self.link.wait_heartbeat(60)
+        try:
+            assert self.link.wait_heartbeat(STARTUP_S, gone), f"SITL exited:\n{self.proc.text()}"
+        except LinkError as exc:
+            raise AssertionError(f"{exc}; SITL's output:\n{self.proc.text()}") from exc
         self.link.request_streams()
         while not self.link.state.has_pose:
             self.link.poll(0.2)
