@@ -28,10 +28,11 @@ run-sitl: install
 		--steps 300 --out out/scenario1_sitl
 
 # The same on PX4: one PX4 SITL (SIH fixed-wing) per UAV (build from $PX4_SITL_DIR or ../shared/px4),
-# sped up 4x (docs/companion.md, "Flying PX4 SITL").
+# sped up 2x, 150 steps: four SIH instances take more of two cores than ArduPlane's (docs/companion.md,
+# "Flying PX4 SITL").
 run-px4: install
-	$(BIN)/uavsearch run mission_files/scenario1_px4.toml --autopilot px4-sitl --speedup 4 \
-		--steps 300 --out out/scenario1_px4
+	$(BIN)/uavsearch run mission_files/scenario1_px4.toml --autopilot px4-sitl --speedup 2 \
+		--steps 150 --out out/scenario1_px4
 
 # The paper's Monte Carlo comparison on scenario 1 (summary table and plots).
 mc: install

@@ -171,10 +171,12 @@ def evaluate(
     return scorer.result(0, seed, seconds, trajectory=traj, tasks=tasks)
 
 
-def failed_criteria(world: World, result: RunResult, closest_flown: float = math.inf) -> list[str]:
-    """The mission file's pass criteria that the run did not meet (empty: passed). Separation is
-    also required of everything flown outside the scored steps (`closest_flown`: the separation
-    record's minimum from start-up to the simulator's stop, the hand-over included)."""
+def failed_criteria(world: World, result: RunResult, record: Path | None = None) -> list[str]:
+    """The mission file's pass criteria that the run did not meet (empty: passed).
+
+    Separation is judged in three dimensions over everything the separation record at `record`
+    holds, start-up and hand-over included (`losses_3d`: a pair within R_s horizontally and closer
+    vertically than `Mission.vertical_floor`); without a record, on the logged poses in 2D."""
     m, c = world.mission, world.mission.pass_criteria
     failures = []
     found = int(np.count_nonzero(result.target_steps >= 0))
@@ -182,15 +184,14 @@ def failed_criteria(world: World, result: RunResult, closest_flown: float = math
         failures.append(f"targets found {found} < {c.min_targets_found}")
     if c.require_connected and result.steps and result.lambda2.min() <= 0:
         failures.append(f"network disconnected (min lambda_2 = {result.lambda2.min():.4f})")
-    # the flown tracks' closest approach (approach.csv), else the logged poses': with one clock per
-    # vehicle (SITL instances) the poses logged at step k are not taken at one moment
-    closest = result.approach.min() if result.steps else math.inf
-    if c.require_safe_distance and closest <= m.comms.safety:
+    if c.require_safe_distance and record is not None and record.exists():
+        if lost := losses_3d(record, m):
+            failures.append(
+                f"separation lost at {lost} steps: within R_s = {m.comms.safety:g} m horizontally and "
+                f"closer than {m.vertical_floor:g} m vertically"
+            )
+    elif c.require_safe_distance and result.steps and (closest := result.approach.min()) <= m.comms.safety:
         failures.append(f"closest approach {closest:.1f} m <= R_s = {m.comms.safety} m")
-    elif c.require_safe_distance and closest_flown <= m.comms.safety:
-        failures.append(
-            f"closest approach outside the mission's steps {closest_flown:.1f} m <= R_s = {m.comms.safety} m"
-        )
     if result.steps == 0:
         failures.append("no step was flown")
     return failures

@@ -491,7 +491,7 @@ def run_mission(opts: RunOptions) -> int:
     if opts.view:
         print(f"replay the run with: uavsearch view --replay {out}", flush=True)
     closest_flown = min(approach.values()) if approach else math.inf
-    failures = failed_criteria(world, result, closest_flown)
+    failures = failed_criteria(world, result, out / "approach.csv")
     s = summary[name]
     print(
         f"{mission.name}: {result.steps} steps, targets found {int(np.sum(result.target_steps >= 0))}/"

@@ -18,10 +18,14 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
-from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, read_csv
+from tests.e2e.conftest import PY, STARTUP_S, Procs, assert_follows, assert_turns, read_csv
 
 STEPS = 40
 LAGGING = 0.85
+# heading mode (a roll's lag at every reversal of the plan's turn): measured on a busy 2-core machine,
+# uavs turned their way after 87-89 % of the commanded turns, ended 0.95 of straight on's distance
+# from the plan and nearer than straight on after 63-67 % of the steps (ArduPlane SITL: 45-100 %)
+TURNED, REVERSALS = 0.8, 0.45
 # 3x, not 10x: a companion slow to start on a loaded machine (2 s of wall time from its take-over to
 # its first step was seen) leaves its vehicle circling where it entered GUIDED for 3 steps, not 10,
 # and every wall-clock delay of the steering costs a third as much flight (at 5x, a heading command
@@ -70,7 +74,14 @@ def test_command_mode_flies_the_vehicle(
     for i in range(mission.n):
         rows = read_csv(out / f"uav{i}.csv")
         assert len(rows) >= STEPS - 2, f"uav{i}: {len(rows)} steps logged\n{run.text()}"
-        assert_follows(rows, k.speed, k.step, f"{mode} ({flavour}) uav{i}", ratio=LAGGING)
+        what = f"{mode} ({flavour}) uav{i}"
+        if mode == "heading":  # as on ArduPlane SITL (tests/sitl/test_sitl_flight.py): each turn
+            # flown its way, most of the way, ending near the straight-on point when the plan
+            # reverses its turn; on a busy machine a late command costs a few turns more
+            assert_turns(rows, what, share=TURNED)
+            assert_follows(rows, k.speed, k.step, what, ratio=1.0, closer_share=REVERSALS)
+        else:
+            assert_follows(rows, k.speed, k.step, what, ratio=LAGGING)
     assert f"{flavour}, speedup {SPEEDUP}" in (out / "sim.log").read_text()
     # the preflight set the autopilot's return altitude to each UAV's layer (docs/companion.md)
     for i in range(mission.n):

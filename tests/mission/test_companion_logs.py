@@ -115,3 +115,30 @@ def test_separation_is_judged_on_the_flown_tracks_where_they_were_recorded() -> 
     assert not any("closest approach" in f for f in failed_criteria(world, flown))
     close = evaluate(world, logs, none, 1.0, mission.seed, {10: 250.0, 11: 45.0, 12: 250.0, 13: 250.0})
     assert any("closest approach 45.0 m" in f for f in failed_criteria(world, close))
+
+
+def test_the_pass_criterion_judges_a_recorded_flight_in_three_dimensions(tmp_path: Path) -> None:
+    """With a separation record, a pair within R_s horizontally fails the mission only when it was
+    also closer vertically than the layers' floor (docs/algorithm.md, "Separation in three
+    dimensions"); a record without altitudes is judged in 2D."""
+    mission = load_mission(ROOT / "mission_files" / "scenario1_px4.toml")
+    world = build_world(mission, mission.seed, 0)
+    starts = [(v.x, v.y) for v in mission.vehicles]
+    logs = {
+        i: {k: {"x": x, "y": y, "heading": 0.0, "task": -1.0, "mean_eta": 1.0} for k in range(10, 14)}
+        for i, (x, y) in enumerate(starts)
+    }
+    floor = mission.vertical_floor
+    record = tmp_path / "approach.csv"
+    far = {k: 250.0 for k in range(10, 14)}
+    result = evaluate(world, logs, np.zeros(0, dtype=np.int64), 1.0, mission.seed, far)
+
+    def lost(text: str) -> bool:
+        record.write_text(text)
+        return any("separation lost" in f for f in failed_criteria(world, result, record))
+
+    head = "step,i,j,distance_m,vertical_m\n"
+    assert not lost(head + f"11,2,3,1.8,{floor + 5.2}\n")  # layers apart: separated
+    assert lost(head + f"11,2,3,1.8,{floor - 0.5}\n")  # too close vertically as well
+    assert not lost(head + "11,2,3,75.0,\n")  # never within R_s: no vertical figure
+    assert lost("step,i,j,distance_m\n11,2,3,45.0\n")  # no altitudes: 2D

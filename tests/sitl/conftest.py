@@ -87,15 +87,16 @@ def write_mission(
     starts: list[tuple[float, float]] | None = None,
     grid: bool = False,
     safety: str = SLACK_FAILSAFE_TIMEOUT,
+    extra: str = "",
 ) -> SitlMission:
-    """scenario1_continuous with its first n vehicles (or vehicles at `starts`, heading north) and
-    the `[safety]` section's lines `safety`."""
+    """scenario1_continuous with its first n vehicles (or vehicles at `starts`, heading north), the
+    `[safety]` section's lines `safety`, and the TOML text `extra` at the end."""
     text = CONTINUOUS.read_text(encoding="utf-8")
     if grid:
         text = text.replace('mode = "continuous"', 'mode = "grid"')
     path = write_autopilot_mission(directory, text, "scenario1_continuous", "sitl", n, starts)
     with path.open("a", encoding="utf-8") as f:
-        f.write(f"\n[safety]\n{safety}\n")
+        f.write(f"\n[safety]\n{safety}\n{extra}")
     return SitlMission(path, load_mission(path))
 
 

@@ -1,19 +1,20 @@
 """A whole swarm on ArduPlane SITL with one command: `uavsearch run --autopilot ardupilot-sitl`.
 
 Four SITL instances (speed-up 4), the stand-alone camera, four companions taking off by themselves
-at their altitude layers, each arming its autopilot's failsafe for its own silence and keeping it on
-the loiter of its trajectory in force. One companion is killed mid-mission: its aircraft flies its
-last guidance for `safety.failsafe_timeout` (one step, the default), then ArduPlane's GCS failsafe switches
-it to AUTO and it circles that loiter (seen on a ground station of our own, SITL's SERIAL2), within
-`safety.failsafe_reach` of the loiter's centre. The others fly on; the run, stopped with Ctrl-C,
-is scored: targets found, every logged pose inside the fence, each UAV at its altitude layer, and
-separation: the camera's record of every pair's closest approach (approach.csv, from the vehicles'
-position streams at 10 Hz) should never have the dead UAV's aircraft within R_s of a survivor
-horizontally after the kill (docs/algorithm.md, "A silent UAV stays an obstacle": the contingency
-clause), and wherever two live UAVs are closer than R_s horizontally they are apart by their
-altitude layers (the vertical backstop: on a real autopilot the plans' tracking error exceeds
-`safety.buffer`).
+at their altitude layers (one each), each arming its autopilot's failsafe for its own silence and
+keeping it on the loiter of its trajectory in force. UAV 1 starts 140 m from UAV 2, on the layer
+next to it. A radio partition ({0, 1} against {2, 3}, the fault matrix's partition row) cuts that
+pair apart while both are in range, and UAV 1's companion is then killed mid-partition: its aircraft
+flies its last guidance for `safety.failsafe_timeout` (one step, the default), then ArduPlane's GCS
+failsafe switches it to AUTO and it circles that loiter (seen on a ground station of our own, SITL's
+SERIAL2), within `safety.failsafe_reach` of the loiter's centre. The others fly on; the run,
+stopped with Ctrl-C, is scored: targets found, every logged pose inside the fence, each UAV at its
+altitude layer, and separation in three dimensions (docs/algorithm.md, "Separation in three
+dimensions"): in the camera's record of every pair's closest approach (approach.csv, from the
+vehicles' position streams at 10 Hz, with their altitudes) no two aircraft are within R_s
+horizontally and closer vertically than the layers' floor, at any time.
 """
+
 
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ import signal
 import statistics
 from pathlib import Path
 
+from companion.app.evaluation import losses_3d
 from companion.core.world import FAILSAFE_WIDE, build_world
 from companion.node.frames import LocalFrame
 from companion.node.vehicle_link import VehicleLink
@@ -40,11 +42,18 @@ AUTO = 10
 CIRCLING_S = 60.0  # simulated seconds the victim's aircraft is watched circling after its failsafe
 FAILSAFE_S = 60.0  # simulated seconds after the kill by which the failsafe must have fired
 FAILSAFE_TIMEOUT_S = 2.0  # FS_LONG_TIMEOUT (one step): 0.5 s of wall time at speed-up 4
+NEIGHBOUR = 2  # on the layer next to the victim's, 140 m from it at the start
+STARTS = [(-620.0, -980.0), (-20.0, -980.0), (120.0, -980.0), (580.0, -980.0)]
+PARTITION = (4, 90)  # steps [start, end): {0, 1} hear nothing of {2, 3}, across the kill
 
 
 def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path) -> None:
-    mission = write_mission(tmp_path, 4, safety=f"failsafe_timeout = {FAILSAFE_TIMEOUT_S}")
+    start, end = PARTITION
+    partition = f"\n[[faults.network]]\nstart = {start}\nend = {end}\ngroups = [[0, 1], [2, 3]]\n"
+    safety = f"failsafe_timeout = {FAILSAFE_TIMEOUT_S}"
+    mission = write_mission(tmp_path, 4, starts=STARTS, safety=safety, extra=partition)
     m = mission.mission
+    assert abs(m.altitude_of(VICTIM) - m.altitude_of(NEIGHBOUR)) == m.layers.separation  # adjacent
     out = tmp_path / "out"
     procs = Procs(tmp_path)
     argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--autopilot", "ardupilot-sitl"]
@@ -62,6 +71,7 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
         os.kill(victim_pid, signal.SIGKILL)
         last = read_csv(out / f"uav{VICTIM}.csv")[-1]
         killed_at, report = int(last["step"]), (last["x"], last["y"])
+        assert PARTITION[0] < killed_at < PARTITION[1], f"killed at step {killed_at}, not mid-partition"
 
         s = gcs.state
         while not s.has_pose:
@@ -161,3 +171,31 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
     # aircraft flies: off its plan until the failsafe fires, onto its loiter, around it
     shared = [d for d, _, j in near if near_layers[VICTIM][j]]
     assert min(shared, default=math.inf) > m.comms.safety, f"the dead UAV's aircraft came {closest:.1f} m"
+    # the whole flight, every pair, at the camera's 10 Hz: nothing lost in three dimensions
+    approach = out / "approach.csv"
+    assert losses_3d(approach, m) == 0, "separation lost in three dimensions"
+    print(
+        f"uav{VICTIM} and uav{NEIGHBOUR} (adjacent layers, {m.layers.separation:g} m apart; "
+        f"partitioned over steps {PARTITION[0]}-{PARTITION[1] - 1}, uav{VICTIM} killed at step {killed_at})"
+    )
+    phases = {"both alive": range(start, killed_at + 1), "after the kill": range(killed_at + 1, end)}
+    for what, steps in phases.items():
+        d, k, v = pair_figures(approach, VICTIM, NEIGHBOUR, steps)
+        print(
+            f"  partitioned, {what}: closest horizontal approach {d:.1f} m (step {k}); least vertical "
+            f"separation while within R_s {v:.1f} m (floor {m.vertical_floor:g} m)"
+        )
+
+
+def pair_figures(approach: Path, i: int, j: int, steps: range) -> tuple[float, int, float]:
+    """Pair (i, j)'s closest horizontal approach over `steps` of the separation record, its step, and
+    the least vertical separation of the pair while within R_s of each other (inf if never)."""
+    with approach.open() as f:
+        rows = [
+            r for r in csv.DictReader(f) if {int(r["i"]), int(r["j"])} == {i, j} and int(r["step"]) in steps
+        ]
+    if not rows:
+        return math.inf, -1, math.inf
+    closest = min(rows, key=lambda r: float(r["distance_m"]))
+    verticals = [float(r["vertical_m"]) for r in rows if r.get("vertical_m")]
+    return float(closest["distance_m"]), int(closest["step"]), min(verticals, default=math.inf)
