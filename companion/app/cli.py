@@ -43,6 +43,10 @@ from companion.node.lifeline import end_with_launcher
 FUZZ_NEEDS = (
     "error: uavsearch fuzz needs Hypothesis, which a plain install leaves out: pip install 'uavsearch[fuzz]'"
 )
+CLUSTER_NEEDS = (
+    "error: uavsearch cluster-bench needs Dask distributed, which a plain install leaves out: "
+    "pip install 'uavsearch[cluster]'"
+)
 ACROSS_MAX = 20_000.0  # m: a generated region's grid (40 m cells) within the mission files' MAX_GRID_CELLS
 
 if TYPE_CHECKING:
@@ -239,7 +243,13 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _cluster_bench(args: argparse.Namespace) -> int:
-    from companion.bench.cluster_bench import cluster_bench, format_cluster_bench
+    try:
+        from companion.bench.cluster_bench import cluster_bench, format_cluster_bench
+    except ImportError as exc:
+        if exc.name not in ("distributed", "dask"):
+            raise
+        print(CLUSTER_NEEDS, file=sys.stderr)
+        return 1
 
     missions = [load_mission(m) for m in args.missions]
     try:
