@@ -436,7 +436,8 @@ class Commitments:
         (`SafetyPlan.near`) that is not taken as gone (its last position may be stale), so that the
         two UAVs' failsafe regions, each reaching `failsafe_reach` + `failsafe_stray` about its
         loiter's centre, open apart; else the region's centroid, which keeps loiters inside.
-        `SIDE_RANGE` is the range measured on the paper's scenarios (results.md, "The loiter side")."""
+        `SIDE_RANGE` is the range measured on the paper's scenarios (git show e1523f9:docs/results.md,
+        "The loiter side")."""
         nearest, at = math.inf, (x, y)
         for j, s in self.latest.items():
             d = math.hypot(x - s.x, y - s.y)

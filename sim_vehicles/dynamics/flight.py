@@ -20,20 +20,9 @@ positive. The flight models turn that into motion:
 All tick at `substeps` physics ticks per step, so step boundaries fall exactly on ticks.
 
 Altitude (`Flight._climb`, every model): a small kinematic stand-in for ArduPlane's energy
-controller (TECS), not a copy of it. The height demand moves towards the commanded altitude at a
-rate (target - demand) / DEMAND_TCONST, clipped to CLIMB_MAX up and SINK_MAX down (ArduPlane's
-TECS_CLMB_MAX and TECS_SINK_MAX, 5 m/s in plane.parm); the climb rate follows the demand's rate
-plus (demand - altitude) / HEIGHT_TCONST with a lag of CLIMB_TCONST, a second-order loop with a
-period of about 11 s and a damping of 0.3, as ArduPlane SITL's height swings back. In a steady
-banked turn ArduPlane holds its altitude (TECS_RLL2THR and its pitch compensation): measured, the
-error there is a few tens of centimetres. What moves it is the load factor n = 1 / cos(roll)
-changing: rolling into a turn it climbs above the layer (0.4-0.5 m into a 39 degree bank,
-1.5-2 m into the 50-60 degrees loiters are entered with), rolling out it sinks below, and a
-reversal (n falls, then rises again) nearly cancels. The error grows with the bank faster than
-n^2 - 1 (what ArduPlane's roll compensation, TECS_RLL2THR, acts on): fitted, as n^4 - 1. In the
-banked model a change d(n^4) adds ROLL_KICK * d(n^4) m/s to the climb rate, which the height
-loop then takes out (the kinematic and grid models turn without a roll's dynamics and fly altitude without
-it). Figures and commands: docs/companion.md, "Altitude keeping" (`uavsearch altitude-bench`).
+controller, flown to the commanded altitude within ArduPlane's climb and sink limits, with the
+climb a change of bank gives in the banked model (docs/simulator.md, "Dynamics"; the figures:
+docs/companion.md, "Altitude keeping").
 """
 
 from __future__ import annotations
