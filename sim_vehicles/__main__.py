@@ -1,5 +1,5 @@
 """`python -m sim_vehicles --mission FILE ...`"""
 
-from companion.app.entry import interruptible
+from companion.contracts.entry import interruptible
 
 raise SystemExit(interruptible("sim_vehicles.cli"))

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.app.arguments import HelpFormatter
+from companion.contracts.arguments import HelpFormatter
 
 DEFAULT_MISSION = Path(__file__).resolve().parents[1] / "mission_files" / "scenario1.toml"
 REAL_TIME = 0.95  # achieved / requested simulated time that counts as keeping up

@@ -13,13 +13,13 @@ from typing import Any
 
 import numpy as np
 
+from companion.contracts import detections
+from companion.contracts.frames import LocalFrame
+from companion.contracts.keys import SwarmKeys
+from companion.contracts.mission import Mission
 from companion.core.geometry import Grid
 from companion.core.prior import draw_targets
 from companion.core.world import Stream, build_grid, build_prior, instance_rng
-from companion.mission import Mission
-from companion.node import detections
-from companion.node.frames import LocalFrame
-from companion.node.keys import SwarmKeys
 
 LOOPBACK_PREFIXES = (
     "tcp/127.0.0.1:",
@@ -120,7 +120,7 @@ class CameraBus:
         """`keys`: the camera's own (`keys.for_mission(mission, "camera")`) for a secured mesh."""
         import zenoh  # only simulations with a camera pay for it
 
-        from companion.node.zenoh_config import MeshSecurity, client_config, peer_config
+        from companion.contracts.zenoh_config import MeshSecurity, client_config, peer_config
 
         security = None if keys is None else MeshSecurity.of(keys, mission)
         connect_to = tuple(check_loopback(e) for e in connect)

@@ -13,9 +13,10 @@ from dataclasses import asdict
 from pathlib import Path
 from types import FrameType
 
-from companion.app.arguments import HelpFormatter, check_mission, mission_argument, natural, positive
-from companion.mission import MissionError, load_mission
-from companion.node.lifeline import end_with_launcher
+from companion.contracts.arguments import HelpFormatter, check_mission, mission_argument, natural, positive
+from companion.contracts.lifeline import end_with_launcher
+from companion.contracts.mission import MissionError
+from companion.core.feasibility import load_mission
 from sim_vehicles.host import Host, HostOptions
 
 

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.contracts.frames import LocalFrame
+from companion.contracts.keys import for_mission, mavlink_secrets
+from companion.contracts.mission import Mission
 from companion.core.kinematics import Kinematics
-from companion.mission import Mission
-from companion.node.frames import LocalFrame
-from companion.node.keys import for_mission, mavlink_secrets
 from sim_vehicles import camera as cam
 from sim_vehicles.approach import ApproachRecorder
 from sim_vehicles.clock import LockstepClock, RealTimeClock

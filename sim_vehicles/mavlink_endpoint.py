@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.node.vehicle_link import signing_timestamp
+from companion.contracts.mavlink_signing import signing_timestamp
 
 PEER_TIMEOUT = 30.0  # wall seconds without traffic before a peer is forgotten
 MAX_PEERS = 16

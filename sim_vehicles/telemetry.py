@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.node.frames import LocalFrame, heading_to_yaw
+from companion.contracts.frames import LocalFrame, heading_to_yaw
 from sim_vehicles.modes import Behaviour
 from sim_vehicles.vehicle import Vehicle
 

@@ -10,9 +10,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def uavsearch(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    """Run `uavsearch ARGS` (`python -m companion.app`) to completion, capturing its output."""
+    """Run `uavsearch ARGS` (`python -m companion.cli`) to completion, capturing its output."""
     return subprocess.run(
-        [sys.executable, "-m", "companion.app", *args],
+        [sys.executable, "-m", "companion.cli", *args],
         cwd=ROOT,
         capture_output=True,
         text=True,

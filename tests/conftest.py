@@ -52,6 +52,6 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     if hasattr(session.config, "workerinput"):
         return  # an xdist worker: the controller has done it
     from companion.batch.engine import warm_up
-    from companion.mission import load_mission
+    from companion.core.feasibility import load_mission
 
     warm_up(load_mission(Path(__file__).parents[1] / "mission_files" / "scenario1.toml"))

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from companion.batch.engine import RunResult, Scorer
+from companion.contracts.mission import Mission
 from companion.core.geometry import ConvexPolygon
 from companion.core.world import World
-from companion.mission import Mission
 from companion.node.fence import fence_margin, fence_polygon
 from companion.node.tracking import percentiles
 

@@ -46,9 +46,10 @@ import tomli_w
 from companion.app.evaluation import CompanionLogs, losses_3d, mission_rows, read_approach, read_vertical
 from companion.app.launcher import Children
 from companion.app.loopback import free_ports
-from companion.mission import Mission, NetworkFault, load_mission
+from companion.contracts.keys import RUN_ENV, new_run_id
+from companion.contracts.mission import Mission, NetworkFault
+from companion.core.feasibility import load_mission
 from companion.node.journal import Checkpoint, Delta, read_records
-from companion.node.keys import RUN_ENV, new_run_id
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
@@ -247,7 +248,7 @@ class Swarm:
 
     def companion(self, i: int) -> subprocess.Popen:
         argv = [
-            PY, "-m", "companion.app", "companion", "--mission", str(self.path), "--uav", str(i),
+            PY, "-m", "companion.cli", "companion", "--mission", str(self.path), "--uav", str(i),
             "--takeover", "--lockstep", "--out", str(self.out),
             "--journal", str(self.out / f"uav{i}.journal"),
         ]  # fmt: skip

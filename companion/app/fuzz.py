@@ -44,15 +44,16 @@ from hypothesis import strategies as st
 
 from companion.app.loopback import free_ports
 from companion.batch.engine import simulate
+from companion.contracts import detections
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission, MissionError
+from companion.contracts.zenoh_config import MeshConfig
 from companion.core.agent import Agent, Observation
+from companion.core.feasibility import load_mission
 from companion.core.messages import MessageError
 from companion.core.world import build_world
-from companion.mission import Mission, MissionError, load_mission
-from companion.node import detections
 from companion.node.camera_feed import CameraFeed
-from companion.node.frames import LocalFrame
 from companion.node.mesh import Bundle, Mesh, check_bundle, decode_bundle, encode_bundle, key_base
-from companion.node.zenoh_config import MeshConfig
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # isort: skip
@@ -397,7 +398,7 @@ def _to_simulator(sim: subprocess.Popen, port: int, datagrams: list[bytes], c: C
 # -- camera -----------------------------------------------------------------------------------------
 def fuzz_camera(count: int, seed: int) -> Campaign:
 
-    from companion.node.zenoh_config import open_session
+    from companion.contracts.zenoh_config import open_session
 
     c = Campaign("camera")
     mission = load_mission(SCENARIO)
@@ -532,7 +533,7 @@ ERROR_LINE = re.compile(r"^error: mission file (?P<file>\S+): (?P<field>[^:]+): 
 
 def _check_cli(path: Path, c: Campaign) -> None:
     """`uavsearch mc` on a bad file: exit 2, one error line naming the file, no traceback."""
-    argv = [sys.executable, "-m", "companion.app", "mc", "--mission", str(path), "--runs", "1"]
+    argv = [sys.executable, "-m", "companion.cli", "mc", "--mission", str(path), "--runs", "1"]
     try:
         r = subprocess.run(argv, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
     except subprocess.TimeoutExpired:

@@ -41,11 +41,8 @@ from companion.app.evaluation import (
 from companion.app.progress import Progress
 from companion.batch import plots, report
 from companion.batch.engine import warm_up
-from companion.core.world import build_world
-from companion.mission import Mission, load_mission
-from companion.node.airframe import Airframe, refusal
-from companion.node.frames import LocalFrame
-from companion.node.keys import (
+from companion.contracts.frames import LocalFrame
+from companion.contracts.keys import (
     ROLES,
     RUN_ENV,
     for_mission,
@@ -54,7 +51,11 @@ from companion.node.keys import (
     new_run_id,
     uav_identity,
 )
-from companion.node.lifeline import launcher_env
+from companion.contracts.lifeline import launcher_env
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
+from companion.core.world import build_world
+from companion.node.airframe import Airframe, refusal
 from sim_vehicles import camera as cam
 
 START_TIMEOUT_S = 120.0
@@ -193,7 +194,7 @@ def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | 
     argv = [
         sys.executable,
         "-m",
-        "companion.app",
+        "companion.cli",
         "companion",
         "--mission",
         str(opts.mission_file),
@@ -229,7 +230,7 @@ def _start_camera(
         [
             sys.executable,
             "-m",
-            "companion.app",
+            "companion.cli",
             "camera",
             "--mission",
             str(opts.mission_file),
@@ -389,7 +390,7 @@ def run_mission(opts: RunOptions) -> int:
         if mission.mesh.mode == "client":
             children.start(
                 "router",
-                [sys.executable, "-m", "companion.app", "router", "--mission", str(opts.mission_file)],
+                [sys.executable, "-m", "companion.cli", "router", "--mission", str(opts.mission_file)],
                 out / "router.log",
             )
             children.wait_for_line("router", "router listening")
@@ -407,7 +408,7 @@ def run_mission(opts: RunOptions) -> int:
                 frame = LocalFrame(mission.region.origin)
                 cam.write_truth(out / "truth.json", cam.truth_record(mission, seed, grid, targets, frame))
         if opts.view:
-            argv = [sys.executable, "-m", "companion.app", "view", "--mission", str(opts.mission_file)]
+            argv = [sys.executable, "-m", "companion.cli", "view", "--mission", str(opts.mission_file)]
             argv += ["--seed", str(seed), "--port", str(opts.view_port)]
             children.start("view", argv, out / "view.log")
             line = children.wait_for_line("view", "view at ")

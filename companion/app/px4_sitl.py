@@ -39,8 +39,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.mission import Mission
-from companion.node.frames import LocalFrame
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
 
 ENV = "PX4_SITL_DIR"
 ROOT = Path(__file__).resolve().parents[2]

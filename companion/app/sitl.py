@@ -20,8 +20,8 @@ import signal
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.mission import Mission
-from companion.node.frames import LocalFrame, heading_to_yaw
+from companion.contracts.frames import LocalFrame, heading_to_yaw
+from companion.contracts.mission import Mission
 
 ENV = "ARDUPLANE_SITL"
 STOP_SIGNAL = signal.SIGTERM  # what SITL exits cleanly on (AP_HAL_SITL's exit_signal_handler)

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from companion.batch.stats import Interval, mean_ci
+from companion.core.feasibility import load_mission
 from companion.core.world import build_grid
-from companion.mission import load_mission
 
 DEFAULT_EDGES = (0.0, 400.0, 800.0, 1200.0, 1600.0, 1e9)
 COLUMNS = (

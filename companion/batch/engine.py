@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from companion.batch.dead_vehicle import DeadVehicle
+from companion.contracts.mission import Mission
 from companion.core.agent import Agent, Observation
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance, pairwise_distances
 from companion.core.messages import Message, decode, encode
@@ -23,7 +24,6 @@ from companion.core.prior import draw_targets
 from companion.core.trajectory import segment_clearance, step_pose
 from companion.core.uncertainty import global_average_uncertainty, mark_seen
 from companion.core.world import Stream, World, build_world, instance_rng
-from companion.mission import Mission
 
 
 @dataclass

@@ -16,8 +16,8 @@ from companion.batch.executors import LocalPool, RunExecutor
 from companion.batch.montecarlo import RunSpec, execute, run_specs, specs_for, summarize
 from companion.batch.progress import run_progress
 from companion.batch.starts import random_start
+from companion.contracts.mission import ALGORITHMS, Mission
 from companion.core.world import build_world
-from companion.mission import ALGORITHMS, Mission
 
 
 def run_all(specs: list[RunSpec], executor: RunExecutor, progress: bool, label: str) -> list[RunResult]:

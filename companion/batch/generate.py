@@ -21,8 +21,9 @@ import tomli_w
 from scipy.spatial import ConvexHull
 
 from companion.batch.starts import start_layout
+from companion.contracts.mission import Mission, MissionError
+from companion.core.feasibility import parse_mission
 from companion.core.geometry import ConvexPolygon
-from companion.mission import Mission, MissionError, parse_mission
 
 ATTEMPTS = 200  # draws per mission before giving up (a family too tight to satisfy)
 

@@ -22,7 +22,7 @@ from companion.batch import plots
 from companion.batch.executors import RunExecutor
 from companion.batch.paired import METRICS, measure, specs_grid, write_json
 from companion.batch.stats import mean_ci, wilson
-from companion.mission import ALGORITHMS, Mission
+from companion.contracts.mission import ALGORITHMS, Mission
 
 PROPOSED = "proposed"
 MIN_RUNS = 2  # a per-mission interval needs two paired runs

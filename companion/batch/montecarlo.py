@@ -14,7 +14,7 @@ import numpy as np
 
 from companion.batch.engine import RunResult, simulate
 from companion.batch.executors import LocalPool, RunExecutor, in_order
-from companion.mission import Mission
+from companion.contracts.mission import Mission
 
 
 @dataclass(frozen=True)

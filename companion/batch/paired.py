@@ -21,7 +21,8 @@ from companion.batch.engine import RunResult
 from companion.batch.executors import RunExecutor
 from companion.batch.montecarlo import RunSpec, run_specs
 from companion.batch.starts import random_start
-from companion.mission import Mission, MissionError, load_mission, validate
+from companion.contracts.mission import Mission, MissionError
+from companion.core.feasibility import load_mission, validate
 
 METRICS = ("target_time", "mean_uncertainty")
 

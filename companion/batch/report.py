@@ -13,7 +13,7 @@ import numpy as np
 
 from companion.batch.engine import RunResult
 from companion.batch.montecarlo import summarize
-from companion.mission import Mission
+from companion.contracts.mission import Mission
 
 TRAJECTORY_COLUMNS = ("algorithm", "run", "step", "uav", "x", "y", "heading", "task")
 STEP_COLUMNS = ("algorithm", "run", "step", "uncertainty", "found", "coverage", "lambda2", "min_distance")

@@ -14,7 +14,7 @@ from companion.batch.engine import RunResult
 from companion.batch.executors import RunExecutor
 from companion.batch.generate import Family, generate
 from companion.batch.montecarlo import RunSpec, run_specs
-from companion.mission import ALGORITHMS
+from companion.contracts.mission import ALGORITHMS
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,9 @@ import math
 import msgspec
 import numpy as np
 
+from companion.contracts.mission import Mission, MissionError, Vehicle
+from companion.core.feasibility import validate
 from companion.core.geometry import ConvexPolygon
-from companion.mission import Mission, MissionError, Vehicle, validate
 
 LAYOUTS = ("edge", "clustered")
 ATTEMPTS = 200  # draws per run before giving up (a region too small for the swarm)

@@ -34,7 +34,7 @@ from companion.batch import plots
 from companion.batch.executors import RunExecutor, open_executor
 from companion.batch.paired import METRICS, apply_weights, measure, specs_grid, write_json
 from companion.batch.stats import Interval, mean_ci
-from companion.mission import ALGORITHMS, Mission, MissionError
+from companion.contracts.mission import ALGORITHMS, Mission, MissionError
 
 SIGNIFICANT = 4  # candidates are rounded to this many significant digits before they are flown
 OBJECTIVE = (

@@ -54,16 +54,17 @@ import numpy as np
 from pymavlink import mavutil
 
 from companion.app import px4_sitl, sitl
-from companion.app.arguments import natural, positive, weight
 from companion.app.launcher import Children
 from companion.app.loopback import free_blocks
+from companion.contracts.arguments import natural, positive, weight
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
 from companion.core.agent import Command
+from companion.core.feasibility import load_mission
 from companion.core.kinematics import wrap_angle
 from companion.core.trajectory import Trajectory
 from companion.core.world import build_world
-from companion.mission import Mission, load_mission
 from companion.node.failsafe import FailsafeLoiter, arm_failsafe, hand_over
-from companion.node.frames import LocalFrame
 from companion.node.guidance import Guidance
 from companion.node.takeover import take_off, take_off_px4, take_over
 from companion.node.vehicle_link import (

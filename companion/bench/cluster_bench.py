@@ -19,7 +19,7 @@ from pathlib import Path
 from companion.batch.executors import DaskCluster, LocalPool, RunExecutor
 from companion.batch.montecarlo import RunSpec, execute
 from companion.bench.loopback_cluster import LoopbackCluster
-from companion.mission import ALGORITHMS, Mission
+from companion.contracts.mission import ALGORITHMS, Mission
 
 
 def study_mix(missions: Sequence[Mission], study_runs: int, steps: int, seed: int) -> list[RunSpec]:

@@ -47,8 +47,9 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from companion.app.arguments import HelpFormatter
-from companion.mission import Mission, Vehicle, load_mission
+from companion.contracts.arguments import HelpFormatter
+from companion.contracts.mission import Mission, Vehicle
+from companion.core.feasibility import load_mission
 
 DEFAULT_MISSION = Path(__file__).resolve().parents[2] / "mission_files" / "scenario1.toml"
 # Fewer Zenoh runtime threads per process: many sessions share 2 cores (../shared/notes/zenoh.md).
@@ -214,9 +215,9 @@ def signing_cost(mission: Mission, steps: int = 60) -> dict[str, float]:
     each receiver keeping its checked signatures, as the mesh does): the mission's agents step
     together in one process, everyone hearing everyone, and every outbox is sealed by its sender
     and checked by every other UAV. `mission` must name a key directory."""
+    from companion.contracts.keys import for_mission, uav_identity
     from companion.core.agent import Agent, Observation
     from companion.core.world import build_world
-    from companion.node.keys import for_mission, uav_identity
     from companion.node.mesh import Bundle, encode_bundle, key_base
     from companion.node.signing import Authenticator, decode_envelope
 
@@ -299,7 +300,7 @@ def _reply(**fields: object) -> None:
 
 def worker_main(argv: Sequence[str] | None = None) -> int:
     """A pool worker: JSON commands on stdin (open, go, close), replies on stdout; exits on EOF."""
-    from companion.node.keys import for_mission, uav_identity
+    from companion.contracts.keys import for_mission, uav_identity
     from companion.node.mesh import Mesh
 
     _reply(op="hello", pid=os.getpid())
@@ -343,8 +344,8 @@ def viewer_main(argv: Sequence[str]) -> int:
     prints its URL as a protocol line, serves until SIGINT/SIGTERM."""
     from companion.app.view.main import warm_kernels
     from companion.app.view.server import LiveSource, serve
+    from companion.contracts.keys import for_mission
     from companion.core.world import build_world
-    from companion.node.keys import for_mission
 
     mission = msgspec.json.decode(Path(argv[0]).read_bytes(), type=Mission)
     warm_kernels()
@@ -873,7 +874,7 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
                     )
                     report["latency_with_viewer"] = s
                 if args.secured:
-                    from companion.node.keys import generate
+                    from companion.contracts.keys import generate
 
                     keys = Path(tmp) / "keys"
                     generate(keys, base.n_uavs)

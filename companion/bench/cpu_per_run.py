@@ -24,7 +24,7 @@ from pathlib import Path
 def main() -> None:
     import companion
     from companion.batch.engine import simulate
-    from companion.mission import load_mission
+    from companion.core.feasibility import load_mission
 
     root = Path(companion.__file__).resolve().parents[1]  # the checkout timed, its own mission files
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -60,7 +60,7 @@ def measure(mission_path: Path, algorithm: str, runs: int, steps: int, seed: int
     """Time `runs` batch runs of `steps` steps, with every kernel call from Python timed. Patches
     the core modules' kernels for the rest of this process: run it in a process of its own."""
     from companion.batch.engine import simulate
-    from companion.mission import load_mission
+    from companion.core.feasibility import load_mission
 
     mission = load_mission(mission_path).with_algorithm(algorithm)
     simulate(mission, seed, runs, steps=min(steps, 200))  # every kernel compiled or loaded

@@ -28,7 +28,7 @@ ALGORITHMS = ("proposed", "no-ta", "pheromone")
 def main() -> None:
     import companion
     from companion.batch.engine import simulate
-    from companion.mission import load_mission
+    from companion.core.feasibility import load_mission
 
     root = Path(companion.__file__).resolve().parents[1]  # the checkout hashed, its own mission files
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -12,8 +12,8 @@ import math
 
 import msgspec
 
+from companion.contracts.wire import MsgpackCodec
 from companion.core.trajectory import Trajectory
-from companion.core.wire import MsgpackCodec
 
 PROTOCOL_VERSION = 5
 MAX_PLAN = 16

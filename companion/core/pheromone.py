@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from companion.contracts.mission import Pheromone
 from companion.core.geometry import FloatArray, Grid, IntArray
-from companion.mission import Pheromone
 
 
 @njit(cache=True)

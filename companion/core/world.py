@@ -12,6 +12,7 @@ from enum import IntEnum
 
 import numpy as np
 
+from companion.contracts.mission import Mission
 from companion.core.cvt import Tessellation, lloyd_cvt
 from companion.core.geometry import BoolArray, ConvexPolygon, FloatArray, Grid
 from companion.core.kinematics import Kinematics, PathTree
@@ -19,7 +20,6 @@ from companion.core.prior import prior_map
 from companion.core.safety import Limits, initial_trajectories, tether_tree
 from companion.core.tasks import CostWeights
 from companion.core.trajectory import Trajectory
-from companion.mission import Mission
 
 
 class Stream(IntEnum):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from companion.mission import Kinematics, Mission
+from companion.contracts.mission import Kinematics, Mission
 
 GRAVITY = 9.80665
 GUIDED_P = 50.0  # ArduPlane's GUIDED_P default: 5000 centidegrees of bank per radian of heading error

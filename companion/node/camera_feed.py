@@ -1,7 +1,7 @@
 """The companion's view of its own camera: CameraFrames from the vehicle's Zenoh key.
 
 Frames come from the bundled simulator's camera or from a real detector publishing the same
-message (`companion.node.detections`). Malformed frames, and frames of another vehicle, are dropped and
+message (`companion.contracts.detections`). Malformed frames, and frames of another vehicle, are dropped and
 counted. The companion learns about targets only from here, never from ground truth.
 """
 
@@ -12,8 +12,8 @@ from collections import deque
 
 import zenoh
 
-from companion.node import detections
-from companion.node.frames import LocalFrame
+from companion.contracts import detections
+from companion.contracts.frames import LocalFrame
 
 
 class CameraFeed:

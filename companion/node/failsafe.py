@@ -42,10 +42,10 @@ import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
 from companion.core.trajectory import Trajectory
 from companion.core.world import World
-from companion.mission import Mission
-from companion.node.frames import LocalFrame
 from companion.node.mission_upload import Item, upload
 from companion.node.vehicle_link import ARDUPILOT_AUTO, VehicleLink
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from companion.contracts.mission import Mission
 from companion.core.messages import Message
-from companion.mission import Mission
 
 
 class InjectedFaults:

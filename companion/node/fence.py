@@ -20,9 +20,9 @@ import time
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
 from companion.core.geometry import ConvexPolygon, FloatArray
-from companion.mission import Mission
-from companion.node.frames import LocalFrame
 from companion.node.mission_upload import Item, upload
 from companion.node.vehicle_link import VehicleLink
 

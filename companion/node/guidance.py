@@ -18,11 +18,11 @@ import math
 
 import numpy as np
 
+from companion.contracts.frames import LocalFrame, heading_to_yaw
+from companion.contracts.mission import Mission
 from companion.core.agent import Command
 from companion.core.geometry import ConvexPolygon
-from companion.mission import Mission
 from companion.node.airframe import heading_lead, turn_accel
-from companion.node.frames import LocalFrame, heading_to_yaw
 from companion.node.vehicle_link import VehicleLink
 
 COMMAND_MODES = ("turn-rate", "heading", "reposition", "position-target")

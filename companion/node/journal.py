@@ -30,8 +30,8 @@ from pathlib import Path
 
 import msgspec
 
+from companion.contracts.mission import Mission
 from companion.core.agent import Agent, AgentSnapshot, StepDelta
-from companion.mission import Mission
 
 JOURNAL_VERSION = 1
 CHECKPOINT_STEPS = 100

@@ -12,12 +12,8 @@ from pathlib import Path
 
 import zenoh
 
-from companion.core.world import Stream, build_world, instance_rng
-from companion.mission import load_mission
-from companion.node.camera_feed import CameraFeed
-from companion.node.frames import LocalFrame
-from companion.node.journal import JournalError, journal_run
-from companion.node.keys import (
+from companion.contracts.frames import LocalFrame
+from companion.contracts.keys import (
     RUN_ENV,
     KeyDirectoryError,
     for_mission,
@@ -26,6 +22,10 @@ from companion.node.keys import (
     uav_identity,
     warn_if_insecure,
 )
+from companion.core.feasibility import load_mission
+from companion.core.world import Stream, build_world, instance_rng
+from companion.node.camera_feed import CameraFeed
+from companion.node.journal import JournalError, journal_run
 from companion.node.mesh import Mesh
 from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
 from companion.node.vehicle_link import COMPANION_SYSTEM, VEHICLE_WAIT_S, LinkError, LinkNotOpen, open_link

@@ -29,13 +29,10 @@ import msgspec
 import numpy as np
 import zenoh
 
-from companion.core.messages import PROTOCOL_VERSION, Message, MessageError, check
-from companion.core.wire import MsgpackCodec
-from companion.mission import Mission, MissionError, load_mission
-from companion.node.keys import KeyDirectoryError, SwarmKeys, for_mission, uav_identity, warn_if_insecure
-from companion.node.refusals import Refusals
-from companion.node.signing import Authenticator, Forged, Unauthenticated, decode_envelope
-from companion.node.zenoh_config import (
+from companion.contracts.keys import KeyDirectoryError, SwarmKeys, for_mission, uav_identity, warn_if_insecure
+from companion.contracts.mission import Mission, MissionError
+from companion.contracts.wire import MsgpackCodec
+from companion.contracts.zenoh_config import (
     MeshConfig,
     MeshSecurity,
     key_base,
@@ -43,6 +40,10 @@ from companion.node.zenoh_config import (
     router_config,
     secured_endpoint,
 )
+from companion.core.feasibility import load_mission
+from companion.core.messages import PROTOCOL_VERSION, Message, MessageError, check
+from companion.node.refusals import Refusals
+from companion.node.signing import Authenticator, Forged, Unauthenticated, decode_envelope
 
 MAX_BUNDLE_MESSAGES = 32
 HELD_STAMPS = 8  # bundles kept per sender (bounds memory whatever peers send)

@@ -38,19 +38,19 @@ from typing import Any, TextIO
 import numpy as np
 
 from companion.batch.engine import warm_up
+from companion.contracts.detections import camera_key
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
 from companion.core.agent import Agent, Command, Observation
 from companion.core.geometry import ConvexPolygon
 from companion.core.kinematics import arc_advance
 from companion.core.world import Stream, build_world, instance_rng
-from companion.mission import Mission
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.camera_feed import CameraFeed
 from companion.node.departures import Departures
-from companion.node.detections import camera_key
 from companion.node.failsafe import FailsafeLoiter, arm_failsafe, fired_by_our_silence, hand_over
 from companion.node.faults import InjectedFaults
 from companion.node.fence import fence_margin, fence_polygon, upload_fence
-from companion.node.frames import LocalFrame
 from companion.node.guidance import Guidance
 from companion.node.journal import Journal, Recovered, header_of
 from companion.node.mesh import Mesh

@@ -27,8 +27,8 @@ import msgspec
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
+from companion.contracts.wire import MsgpackCodec
 from companion.core.messages import ClaimsMsg, Message, MessageError, StateMsg, UavState
-from companion.core.wire import MsgpackCodec
 
 SIGNATURE_BYTES = 64
 KEPT_PER_UAV = 16  # checked state signatures kept per UAV (a relay needs only the latest few)

@@ -51,7 +51,8 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.node.frames import LocalFrame, yaw_to_heading
+from companion.contracts.frames import LocalFrame, yaw_to_heading
+from companion.contracts.mavlink_signing import keep_stream_timestamps, signing_timestamp
 from companion.node.refusals import Refusals
 
 log = logging.getLogger("companion.link")
@@ -93,31 +94,6 @@ STREAMS_HZ = {
 }
 UNSIGNED_ALLOWED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLINK_MSG_ID_RADIO})
 REPLIES = frozenset({"COMMAND_ACK", "PARAM_VALUE", "MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK"})
-
-
-def signing_timestamp(now: float | None = None) -> int:
-    """A MAVLink signing timestamp: 10 us units since 2015-01-01 UTC."""
-    return int(((time.time() if now is None else now) - 1420070400) * 1e5)
-
-
-def keep_stream_timestamps(mav: mavlink.MAVLink) -> None:
-    """Make `mav` put a stream's timestamp back when a frame's signature fails (pymavlink sets it
-    before checking, so one forged frame stamped far ahead would lock the genuine stream out)."""
-    check = mav.check_signature
-
-    def checked(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
-        stream = (msgbuf[-13], src_system, src_component)
-        timestamps = mav.signing.stream_timestamps
-        before = timestamps.get(stream)
-        if check(msgbuf, src_system, src_component):
-            return True
-        if before is None:
-            timestamps.pop(stream, None)
-        else:
-            timestamps[stream] = before
-        return False
-
-    mav.check_signature = checked
 
 
 def frame_sender(data: bytes) -> tuple[str, str]:

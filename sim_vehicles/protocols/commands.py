@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.node.frames import yaw_to_heading
+from companion.contracts.frames import yaw_to_heading
 from sim_vehicles.telemetry import DEFAULT_RATES_HZ
 
 if TYPE_CHECKING:

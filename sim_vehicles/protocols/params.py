@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mission import Mission
+from companion.contracts.mission import Mission
 
 if TYPE_CHECKING:
     from sim_vehicles.host import HostedVehicle

@@ -1,5 +1,5 @@
 """The command line refuses a bad number before anything starts: argparse's exit 2 naming the option
-and the reason (`companion.app.arguments`), never a traceback or a run of nothing."""
+and the reason (`companion.contracts.arguments`), never a traceback or a run of nothing."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from companion.app import arguments
-from companion.app.cli import build_parser, main
-from companion.mission import MAX_STEPS
+from companion.cli.main import build_parser, main
+from companion.contracts import arguments
+from companion.contracts.mission import MAX_STEPS
 
 MC = ["mc", "--mission", "m.toml"]
 GEN = ["generate", "--count", "1", "--seed", "1", "--out", "o"]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.app.cli import build_parser, main
+from companion.cli.main import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMANDS = sorted(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
@@ -78,7 +78,7 @@ def test_a_mistake_prints_the_subcommands_own_usage() -> None:
         (["mc", "m.toml", "--algorithms", "propsed"], "choose from proposed, no-ta, pheromone"),
     ):
         proc = subprocess.run(
-            [sys.executable, "-m", "companion.app.cli", *argv],
+            [sys.executable, "-m", "companion.cli", *argv],
             capture_output=True,
             text=True,
             cwd=ROOT,

@@ -16,7 +16,7 @@ PLAIN = """
 import contextlib, io, json, sys
 for name in ("hypothesis", "distributed", "dask"):
     sys.modules[name] = None
-from companion.app.cli import build_parser, main
+from companion.cli.main import build_parser, main
 helped = {}
 for command in sorted(build_parser()._subparsers._group_actions[0].choices):
     out = io.StringIO()
@@ -49,7 +49,7 @@ def test_every_subcommand_helps_without_the_extras(tmp_path: Path) -> None:
 
 def test_a_command_that_needs_an_extra_names_it_in_one_line(tmp_path: Path) -> None:
     run = "import sys\nfor n in ('hypothesis', 'distributed', 'dask'):\n    sys.modules[n] = None\n"
-    run += "from companion.app.cli import main\nsys.exit(main(sys.argv[1:]))"
+    run += "from companion.cli.main import main\nsys.exit(main(sys.argv[1:]))"
     for argv, extra in NEEDS.items():
         proc = _plain(run, *argv, cwd=tmp_path)
         what = f"uavsearch {' '.join(argv)}"

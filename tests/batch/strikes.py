@@ -6,7 +6,7 @@ from __future__ import annotations
 from hypothesis import strategies as st
 
 from companion.batch.generate import Family, generate
-from companion.mission import ALGORITHMS, Mission
+from companion.contracts.mission import ALGORITHMS, Mission
 
 MISSION_ARGS = {
     "seed": st.integers(0, 2**31 - 1),

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from companion.batch.by_distance import targets_by_distance
+from companion.core.feasibility import load_mission
 from companion.core.world import build_grid
-from companion.mission import load_mission
 from tests.cli import uavsearch
 
 ROOT = Path(__file__).resolve().parents[2]

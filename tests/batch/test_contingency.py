@@ -18,8 +18,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from companion.batch.engine import simulate
+from companion.contracts.mission import Layers, Mission
+from companion.core.feasibility import load_mission
 from companion.core.world import build_world
-from companion.mission import Layers, Mission, load_mission
 from tests.batch.contingency import clause_probe, clear_pairs
 from tests.batch.strikes import MISSION_ARGS, struck_mission
 

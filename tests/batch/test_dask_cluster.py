@@ -18,7 +18,7 @@ from companion.batch.engine import RunResult
 from companion.batch.executors import ClusterError, DaskCluster
 from companion.batch.montecarlo import execute, run_specs, specs_for, summarize
 from companion.bench.loopback_cluster import LoopbackCluster, stop
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 from tests.cli import uavsearch
 
 ROOT = Path(__file__).resolve().parents[2]

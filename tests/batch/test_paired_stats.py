@@ -14,7 +14,7 @@ from companion.batch.heldout import paired_table
 from companion.batch.paired import specs_grid
 from companion.batch.stats import mean_ci, wilson
 from companion.batch.tune import score
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 T3 = 3.182446305  # Student t, 0.975 quantile, 3 degrees of freedom

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from companion.batch.generate import Family
 from companion.batch.montecarlo import execute
 from companion.batch.soak import row_of, soak_specs
-from companion.mission import ALGORITHMS
+from companion.contracts.mission import ALGORITHMS
 
 STEPS = 1000
 

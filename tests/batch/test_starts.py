@@ -16,9 +16,10 @@ import pytest
 from companion.batch.generate import Family, generate
 from companion.batch.montecarlo import specs_for
 from companion.batch.starts import LAYOUTS, parse_layouts, random_start
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission, validate
 from companion.core.geometry import ConvexPolygon
 from companion.core.world import build_grid
-from companion.mission import Mission, load_mission, validate
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = [load_mission(ROOT / f"mission_files/scenario{s}.toml") for s in (1, 2, 3)]
@@ -119,7 +120,7 @@ def test_unknown_layout_is_an_error() -> None:
 def _mc(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     args = ["--mission", "mission_files/scenario3.toml", "--runs", "3", "--steps", "12", "--seed", "9"]
     return subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", "mc", *args, "--out", str(out), "--quiet", *extra],
+        [sys.executable, "-m", "companion.cli", "mc", *args, "--out", str(out), "--quiet", *extra],
         capture_output=True,
         text=True,
         cwd=ROOT,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from companion.batch.montecarlo import SUMMARY_KEYS, run_specs, specs_for, summarize
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 from tests.cli import uavsearch
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -198,7 +198,7 @@ def test_sigterm_stops_a_study_and_its_workers(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "companion.app.cli",
+            "companion.cli",
             "mc",
             "--mission",
             "mission_files/scenario1.toml",

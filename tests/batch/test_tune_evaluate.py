@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.app.cli import main
 from companion.batch.executors import LocalPool
 from companion.batch.generate import Family, generate
 from companion.batch.montecarlo import RunSpec, run_specs
@@ -31,7 +30,9 @@ from companion.batch.tune import (
     tune,
     weights_table,
 )
-from companion.mission import Algorithm, MissionError, load_mission
+from companion.cli.main import main
+from companion.contracts.mission import Algorithm, MissionError
+from companion.core.feasibility import load_mission
 from tests.cli import uavsearch
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -20,7 +20,7 @@ from numba.core.registry import CPUDispatcher
 
 import companion.core
 from companion.batch.engine import simulate, warm_up
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -26,7 +26,7 @@ def test_tiny_run_prints_and_writes_a_row_per_executor(tmp_path: Path) -> None:
         "30",
     ]
     proc = subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", "cluster-bench", *tiny, "--json", str(out_json)],
+        [sys.executable, "-m", "companion.cli", "cluster-bench", *tiny, "--json", str(out_json)],
         capture_output=True,
         text=True,
         cwd=ROOT,

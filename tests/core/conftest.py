@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.mission import Mission, load_mission
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSIONS = ROOT / "mission_files"

@@ -16,11 +16,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from companion.batch.engine import Radio, initial_poses
+from companion.contracts.mission import Layers
 from companion.core.agent import Agent, Observation
+from companion.core.feasibility import load_mission
 from companion.core.messages import StateMsg
 from companion.core.safety import expand_with_centres
 from companion.core.world import FAILSAFE_WIDE, Stream, build_world, instance_rng
-from companion.mission import Layers, load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSIONS = {

@@ -8,10 +8,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from companion.core.commitment import Commitments
+from companion.core.feasibility import load_mission
 from companion.core.messages import UavState
 from companion.core.trajectory import Trajectory
 from companion.core.world import build_world
-from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -11,7 +11,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from companion.mission import assign_layers, load_mission, parse_mission
+from companion.contracts.mission import assign_layers
+from companion.core.feasibility import load_mission, parse_mission
 
 from .conftest import MISSIONS
 from .test_mission import BASE, bad

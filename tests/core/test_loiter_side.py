@@ -12,11 +12,12 @@ import msgspec
 import numpy as np
 import pytest
 
+from companion.contracts.mission import Layers
 from companion.core.commitment import SIDE_RANGE, Commitments
+from companion.core.feasibility import load_mission
 from companion.core.messages import UavState
 from companion.core.trajectory import Trajectory
 from companion.core.world import build_world
-from companion.mission import Layers, load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.mission import MissionError, load_mission, parse_mission
+from companion.contracts.mission import MissionError
+from companion.core.feasibility import load_mission, parse_mission
 
 from .conftest import MISSIONS
 
@@ -101,7 +102,7 @@ def test_non_convex_polygon() -> None:
 
 
 def test_self_intersecting_star_is_not_convex() -> None:
-    """BUG (companion/mission.py, _validate): the convexity check only compares the signs of
+    """BUG (companion/contracts/mission.py, _validate): the convexity check only compares the signs of
     consecutive cross products. A pentagram turns the same way at every vertex (its turns add
     up to 720 degrees, not 360), so it passes as "convex" and ConvexPolygon then silently uses the
     inner pentagon's half-planes. Fix: also require the exterior angles to sum to 2 pi, or check
@@ -155,7 +156,7 @@ def test_load_names_the_file(tmp_path: Path) -> None:
 
 
 def test_quoted_number_is_a_wrong_type() -> None:
-    """BUG (companion/mission.py, parse_mission): `msgspec.convert(raw, Mission, strict=False)`
+    """BUG (companion/contracts/mission.py, parse_mission): `msgspec.convert(raw, Mission, strict=False)`
     coerces strings, so `x = "-220.0"` (a TOML string) or `require_connected = "false"` is accepted
     as a number / bool. TOML is typed: convert with strict=True (the three scenario files still load).
     """
@@ -168,8 +169,9 @@ def test_quoted_number_is_a_wrong_type() -> None:
     [(r"x = -450\.0", "x = nan", "prior.centres[0].x"), (r"^sigma = 250\.0", "sigma = inf", "prior.sigma")],
 )
 def test_non_finite_numbers_are_rejected(pattern: str, repl: str, field: str) -> None:
-    """BUG (companion/mission.py): TOML allows nan and inf. An unconstrained float (a centre's x) takes
-    nan, and a `gt=0` bound lets inf through (sigma = inf), which makes the prior nan or all zero.
+    """BUG (companion/contracts/mission.py): TOML allows nan and inf. An unconstrained float (a
+    centre's x) takes nan, and a `gt=0` bound lets inf through (sigma = inf), which makes the prior
+    nan or all zero.
     Fix: reject non-finite floats anywhere in the mission (a check in _validate, naming the field).
     """
     err = bad(sub(pattern, repl))

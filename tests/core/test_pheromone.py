@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from companion.contracts.mission import Pheromone
 from companion.core import pheromone
 from companion.core.geometry import ConvexPolygon, Grid
-from companion.mission import Pheromone
 
 
 def step_field(

@@ -16,9 +16,9 @@ from hypothesis import strategies as st
 
 from companion.batch.engine import Radio, initial_poses
 from companion.core.agent import Agent, Observation
+from companion.core.feasibility import load_mission
 from companion.core.trajectory import Trajectory
 from companion.core.world import Stream, build_world, instance_rng
-from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 RECOVER_STEPS = 20  # generous: at most 6 steps measured (2 missions x 15 seeds x 3 steps)

@@ -10,6 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from companion.contracts.mission import MissionError
+from companion.core.feasibility import parse_mission
 from companion.core.geometry import ConvexPolygon
 from companion.core.kinematics import Kinematics, arc_advance
 from companion.core.safety import (
@@ -29,7 +31,6 @@ from companion.core.trajectory import (
     segment_clearance,
     step_pose,
 )
-from companion.mission import MissionError, parse_mission
 
 GRID = Kinematics("grid", 20.0, 2.0, math.pi / 4, 40.0)
 CONT = Kinematics("continuous", 20.0, 2.0, math.pi / 4, 40.0)

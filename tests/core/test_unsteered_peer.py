@@ -11,10 +11,10 @@ import pytest
 
 from companion.core.agent import Agent, Observation
 from companion.core.commitment import Commitments
+from companion.core.feasibility import load_mission
 from companion.core.messages import MessageError, StateMsg, UavState, check
 from companion.core.trajectory import Trajectory
 from companion.core.world import FAILSAFE_WIDE, build_world
-from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 WORLD = build_world(load_mission(ROOT / "mission_files" / "scenario1.toml"))

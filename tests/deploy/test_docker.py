@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from companion.app.cli import build_parser
-from companion.mission import load_mission
+from companion.cli.main import build_parser
+from companion.core.feasibility import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 BASE, CLIENT = ROOT / "docker/compose.yaml", ROOT / "docker/compose.client.yaml"

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from companion.app import px4_sitl, sitl
-from companion.app.cli import build_parser
+from companion.cli.main import build_parser
 from tests.deploy.readme import clean_copy, progress_steps, readme_commands, summary_steps
 
 ROOT = Path(__file__).resolve().parents[2]

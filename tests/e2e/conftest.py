@@ -33,7 +33,8 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from companion.app.loopback import free_ports
-from companion.mission import Mission, load_mission
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from tests.thread_signal import signal_another_thread
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -261,7 +262,7 @@ class Procs:
         argv = [
             PY,
             "-m",
-            "companion.app.cli",
+            "companion.cli",
             "companion",
             "--mission",
             str(mission.path),

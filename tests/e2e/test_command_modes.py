@@ -48,7 +48,7 @@ def test_command_mode_flies_the_vehicle(
         [
             PY,
             "-m",
-            "companion.app.cli",
+            "companion.cli",
             "run",
             str(mission.path),
             "--command-mode",

@@ -1,6 +1,6 @@
 """A SIGINT while a process's modules load (a Ctrl-C in its first second, or the launcher stopping
 a child it has just started) ends it with exit code 130 and no traceback, as it does once they are
-loaded (`companion.app.entry`, `sim_vehicles.__main__`).
+loaded (`companion.contracts.entry`, `sim_vehicles.__main__`).
 
 The process sends the signal to itself from an import hook as numpy starts loading (a
 `sitecustomize` on its PYTHONPATH): a real SIGINT at a known point of the start-up, not at a
@@ -36,10 +36,10 @@ sys.meta_path.insert(0, InterruptOnNumpy())
 '''
 COMMANDS = {
     "uavsearch": [str(Path(PY).with_name("uavsearch")), "run", "{mission}", "--out", "{out}"],
-    "python -m companion.app": [
+    "python -m companion.cli": [
         PY,
         "-m",
-        "companion.app",
+        "companion.cli",
         "companion",
         "--mission",
         "{mission}",

@@ -23,8 +23,8 @@ import os
 import signal
 from pathlib import Path
 
+from companion.contracts.frames import LocalFrame
 from companion.core.world import FAILSAFE_WIDE, build_world
-from companion.node.frames import LocalFrame
 from tests.e2e.conftest import PY, Procs, companion_pid, read_csv, wait_rows, wait_vehicles
 from tests.sim.conftest import fit_circle
 
@@ -45,7 +45,7 @@ def test_kill_one_companion_mid_mission(make_mission, procs: Procs, ground, tmp_
         [
             PY,
             "-m",
-            "companion.app.cli",
+            "companion.cli",
             "run",
             str(mission.path),
             "--speedup",

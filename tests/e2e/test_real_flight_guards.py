@@ -20,10 +20,10 @@ from pathlib import Path
 import zenoh
 from pymavlink import mavutil
 
+from companion.contracts.frames import LocalFrame
+from companion.contracts.zenoh_config import peer_config
 from companion.core.messages import StateMsg, UavState
-from companion.node.frames import LocalFrame
 from companion.node.mesh import decode_bundle, key_base
-from companion.node.zenoh_config import peer_config
 from tests.e2e.conftest import Procs, wait_rows
 
 M = mavutil.mavlink

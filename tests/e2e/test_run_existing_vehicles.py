@@ -18,7 +18,7 @@ def test_run_attaches_to_existing_vehicles(make_mission, procs: Procs, tmp_path:
     procs.sim(mission, "--speedup", "5", "--truth", str(tmp_path / "sim-truth.json"))
     links = ",".join(f"udpout:127.0.0.1:{port}" for port in mission.ports)
     out = tmp_path / "out"
-    argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--vehicles", links]
+    argv = [PY, "-m", "companion.cli", "run", str(mission.path), "--vehicles", links]
     argv += [
         "--command-mode",
         "turn-rate",

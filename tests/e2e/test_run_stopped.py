@@ -1,7 +1,7 @@
 """`uavsearch run` stopped by a signal while it starts its children: it stops waiting for them at
 once, stops every child by PID and says it was stopped (not "error: no step was flown"). Killed
 outright (SIGKILL, which it cannot handle), it still leaves no process behind: each child asks the
-kernel for SIGTERM when its launcher dies (`companion.node.lifeline`)."""
+kernel for SIGTERM when its launcher dies (`companion.contracts.lifeline`)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ def test_run_stopped_while_starting_stops_its_children_and_says_so(
     out = tmp_path / "out"
     out.mkdir()
     (out / "truth.json").write_text('{"an earlier run": true}')  # not this run's: never scored
-    argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--steps", "40", "--out", str(out)]
+    argv = [PY, "-m", "companion.cli", "run", str(mission.path), "--steps", "40", "--out", str(out)]
     run = procs.start("run", argv)
     deadline = time.monotonic() + STARTUP_S
     # the companions are started (after the kernels are loaded and the handlers set), and the
@@ -44,7 +44,7 @@ def test_run_stopped_while_starting_stops_its_children_and_says_so(
 def test_run_killed_leaves_no_process_behind(make_mission, procs: Procs, tmp_path: Path) -> None:
     mission = make_mission(n=2)
     out = tmp_path / "out"
-    argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--steps", "1000", "--out", str(out)]
+    argv = [PY, "-m", "companion.cli", "run", str(mission.path), "--steps", "1000", "--out", str(out)]
     run = procs.start("run", argv)
     for i in range(mission.n):  # flying
         wait_rows(out / f"uav{i}.csv", 1, run)

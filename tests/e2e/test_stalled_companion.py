@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 
 from companion.app.evaluation import losses_3d, read_approach
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
 from companion.core.world import FAILSAFE_WIDE, build_world
-from companion.mission import Mission
-from companion.node.frames import LocalFrame
 from companion.node.vehicle_link import PX4_HOLD, PX4_OFFBOARD
 from tests.e2e.conftest import GUIDED, PY, Procs, companion_pid, read_csv, wait_rows, wait_vehicles
 from tests.sim.conftest import fit_circle
@@ -47,7 +47,7 @@ def test_stalled_companion_takes_back_its_aircraft_and_a_piloted_one_stays_put(
     out = tmp_path / "out"
     run = procs.start(
         "run",
-        [PY, "-m", "companion.app.cli", "run", str(mission.path), "--speedup", str(SPEEDUP),
+        [PY, "-m", "companion.cli", "run", str(mission.path), "--speedup", str(SPEEDUP),
          "--steps", str(STEPS), "--out", str(out), "--quiet", "--keep-going"],
     )  # fmt: skip
     stalled_pid = companion_pid(run, STALLED)
@@ -122,7 +122,7 @@ def test_stalled_companion_takes_its_px4_aircraft_back_from_the_offboard_loss_ho
     out = tmp_path / "out"
     run = procs.start(
         "run",
-        [PY, "-m", "companion.app.cli", "run", str(mission.path), "--speedup", str(SPEEDUP),
+        [PY, "-m", "companion.cli", "run", str(mission.path), "--speedup", str(SPEEDUP),
          "--steps", str(STEPS), "--out", str(out), "--quiet", "--keep-going", "--flavour", "px4",
          "--command-mode", "position-target"],
     )  # fmt: skip

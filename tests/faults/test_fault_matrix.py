@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from companion.app.faults import ROWS, Plan, run_row
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 from tests.e2e.conftest import SCENARIO1, searched
 
 PLAN = Plan(steps=40, at=12, outage=8, victim=1)

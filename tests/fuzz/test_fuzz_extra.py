@@ -12,7 +12,7 @@ from tests.cli import ROOT
 # only the package's own dependencies are installed.
 WITHOUT_HYPOTHESIS = (
     "import sys; sys.modules['hypothesis'] = None; sys.argv = ['uavsearch', *sys.argv[1:]]; "
-    "from companion.app.entry import main; sys.exit(main())"
+    "from companion.cli.entry import main; sys.exit(main())"
 )
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from mesh_helpers import N_CELLS, N_TASKS
 
-from companion.mission import Mission
+from companion.contracts.mission import Mission
 from companion.node.mesh import Mesh
 
 HERE = Path(__file__).resolve().parent

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import msgspec
 
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from companion.core.messages import BidsMsg, CoverageMsg, Message, StateMsg, UavState
-from companion.mission import Mission, load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 N_CELLS, N_TASKS = 2500, 4

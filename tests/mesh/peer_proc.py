@@ -14,7 +14,7 @@ from pathlib import Path
 import msgspec
 from mesh_helpers import N_CELLS, N_TASKS, outbox
 
-from companion.mission import Mission
+from companion.contracts.mission import Mission
 from companion.node.mesh import Mesh
 
 

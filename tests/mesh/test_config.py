@@ -8,8 +8,8 @@ import msgspec
 import pytest
 from mesh_helpers import make_mission
 
+from companion.contracts.zenoh_config import MeshConfig, client_config, peer_config, router_config
 from companion.node.mesh import key_base
-from companion.node.zenoh_config import MeshConfig, client_config, peer_config, router_config
 
 
 def _get(config: object, key: str) -> object:

@@ -14,10 +14,10 @@ import zenoh
 from mesh_helpers import N_CELLS, make_mission, outbox, until
 
 from companion.batch.engine import Radio
+from companion.contracts.mission import Mission
+from companion.contracts.zenoh_config import peer_config
 from companion.core.messages import PROTOCOL_VERSION, ClaimsMsg, CoverageMsg, Message, UavState
-from companion.mission import Mission
 from companion.node.mesh import Bundle, Mesh, encode_bundle, key_base
-from companion.node.zenoh_config import peer_config
 
 pytestmark = pytest.mark.timeout(60)
 OpenMesh = Callable[..., Mesh]

@@ -15,7 +15,8 @@ import msgspec
 import pytest
 from mesh_helpers import ROOT, make_mission, outbox, until
 
-from companion.mission import Mission, load_mission
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from companion.node.mesh import Mesh, router_main, run_router
 from tests.thread_signal import signal_another_thread
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from companion.app.evaluation import CompanionLogs, evaluate, failed_criteria
+from companion.core.feasibility import load_mission
 from companion.core.world import build_world
-from companion.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.mission import MissionError, load_mission
+from companion.contracts.mission import MissionError
+from companion.core.feasibility import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 BASE = (ROOT / "mission_files" / "scenario1.toml").read_text(encoding="utf-8")
@@ -47,7 +48,7 @@ def test_command_line_error_format(tmp_path: Path, command: list[str]) -> None:
     path = tmp_path / "tiny_cells.toml"
     path.write_text(BASE.replace("cell_size = 40.0", "cell_size = 0.001", 1), encoding="utf-8")
     r = subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", *command, str(path)],
+        [sys.executable, "-m", "companion.cli", *command, str(path)],
         capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
     )  # fmt: skip
     assert r.returncode == 2, r.stderr
@@ -90,7 +91,7 @@ def test_the_turn_limit_crash_is_one_line_from_the_command_line(tmp_path: Path) 
     text = CONTINUOUS.replace("turn_limit_deg = 45.0", "turn_limit_deg = 0.001", 1)
     path.write_text(text, encoding="utf-8")
     r = subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", "mc", "--runs", "1", "--mission", str(path)],
+        [sys.executable, "-m", "companion.cli", "mc", "--runs", "1", "--mission", str(path)],
         capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
     )  # fmt: skip
     assert r.returncode == 2, r.stderr

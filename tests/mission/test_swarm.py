@@ -17,7 +17,7 @@ from pymavlink import mavutil
 from companion.app.evaluation import read_approach
 from companion.batch.engine import simulate
 from companion.batch.montecarlo import SUMMARY_KEYS
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO1 = ROOT / "mission_files/scenario1.toml"
@@ -38,7 +38,7 @@ def _run(
     mission: Path, out: Path, *extra: str, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "companion.app.cli", "run", str(mission), "--out", str(out), *extra],
+        [sys.executable, "-m", "companion.cli", "run", str(mission), "--out", str(out), *extra],
         capture_output=True,
         text=True,
         cwd=ROOT,

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from companion.core.feasibility import load_mission
 from companion.core.geometry import ConvexPolygon
-from companion.mission import load_mission
 from companion.node.airframe import (
     GRAVITY,
     Airframe,

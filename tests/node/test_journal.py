@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from companion.core.agent import Agent, Observation
+from companion.core.feasibility import load_mission
 from companion.core.world import build_world
-from companion.mission import load_mission
 from companion.node.journal import CHECKPOINT_STEPS, Journal, JournalError, header_of, read_records
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,8 +10,8 @@ import threading
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mission import Origin
-from companion.node.frames import LocalFrame
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Origin
 from companion.node.vehicle_link import LinkError, LinkNotOpen, open_link
 
 FRAME = LocalFrame(Origin(lat=47.0, lon=8.0, alt=500.0))

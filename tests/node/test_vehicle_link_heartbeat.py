@@ -14,8 +14,8 @@ import socket
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mission import Origin
-from companion.node.frames import LocalFrame
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Origin
 from companion.node.vehicle_link import HEARTBEAT_VEHICLE_S, VehicleLink
 
 COMPANION = 200

@@ -27,8 +27,9 @@ from pathlib import Path
 import pytest
 
 from companion.app import px4_sitl
-from companion.mission import Mission, load_mission
-from companion.node.frames import LocalFrame
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from companion.node.takeover import take_off_px4
 from companion.node.vehicle_link import PX4_HOLD, VehicleLink
 from tests.e2e.conftest import ROOT, Proc

@@ -48,7 +48,7 @@ SHAPE_TOLERANCES = {"hold_extent_m": 25.0, "leg_course_deg": 6.0, "circle_radius
 
 def _companion(airborne: Px4Airborne, out: Path, *args: str) -> Proc:
     ports = airborne.mission.ports(0)
-    argv = [PY, "-m", "companion.app.cli", "companion", "--mission", str(airborne.mission.path)]
+    argv = [PY, "-m", "companion.cli", "companion", "--mission", str(airborne.mission.path)]
     argv += ["--uav", "0", "--vehicle", ports.url(ports.companion), "--out", str(out), *args]
     out.mkdir(parents=True, exist_ok=True)
     return Proc("companion", argv, out / "companion.log")
@@ -96,7 +96,7 @@ def test_what_px4_cannot_fly_is_refused(px4_airborne: Px4Airborne, tmp_path: Pat
     grid = tmp_path / "grid.toml"
     text = px4_airborne.mission.path.read_text()
     grid.write_text(text.replace('mode = "continuous"', 'mode = "grid"'))
-    argv = [PY, "-m", "companion.app.cli", "run", str(grid), "--autopilot", "px4-sitl"]
+    argv = [PY, "-m", "companion.cli", "run", str(grid), "--autopilot", "px4-sitl"]
     argv += ["--out", str(tmp_path / "run")]
     run = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert run.returncode == 2 and 'use kinematics.mode = "continuous"' in run.stderr, run.stderr

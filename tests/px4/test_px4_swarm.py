@@ -48,7 +48,7 @@ def test_swarm_on_px4_sitl(px4_build: Px4Build, tmp_path: Path) -> None:
     m = mission.mission
     out = tmp_path / "out"
     procs = Procs(tmp_path)
-    argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--autopilot", "px4-sitl"]
+    argv = [PY, "-m", "companion.cli", "run", str(mission.path), "--autopilot", "px4-sitl"]
     argv += ["--speedup", f"{SWARM_SPEEDUP:g}", "--steps", str(MAX_STEPS), "--out", str(out), "--quiet"]
     argv += ["--keep-going", "--sitl-instance", str(first_instance())]
     try:

@@ -23,7 +23,7 @@ def test_camera_exits_0_when_sigterm_reaches_one_of_its_other_threads(
     path, ports, _ = write_mission(tmp_path, n=2)
     start_sim(path, "--no-camera", n=2)
     links = ",".join(f"udpout:127.0.0.1:{p}" for p in ports)
-    argv = [sys.executable, "-m", "companion.app.cli", "camera", "--mission", str(path), "--vehicles", links]
+    argv = [sys.executable, "-m", "companion.cli", "camera", "--mission", str(path), "--vehicles", links]
     camera = Proc("camera", argv, tmp_path / "camera.log", stop_signal=signal.SIGTERM)
     try:
         camera.wait_for_text("camera: vehicle 1 up")

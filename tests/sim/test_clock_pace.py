@@ -10,7 +10,7 @@ from pathlib import Path
 from hypothesis import given
 from hypothesis import strategies as st
 
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 from sim_vehicles.clock import RealTimeClock
 from sim_vehicles.modes import FLAVOURS
 from sim_vehicles.protocols.params import ParamStore, param_specs

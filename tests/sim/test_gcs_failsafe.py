@@ -22,11 +22,12 @@ from pathlib import Path
 
 import pytest
 
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from companion.core.trajectory import Trajectory
 from companion.core.world import FAILSAFE_WIDE, build_world
-from companion.mission import Mission, load_mission
 from companion.node.failsafe import FailsafeLoiter, arm_failsafe
-from companion.node.frames import LocalFrame
 from companion.node.vehicle_link import COMPANION_SYSTEM, HEARTBEAT_VEHICLE_S, VehicleLink
 from tests.sim.conftest import M, Mav, SimProcess, fit_circle, write_mission
 

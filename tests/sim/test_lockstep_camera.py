@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from companion.contracts import detections
+from companion.core.feasibility import load_mission
 from companion.core.kinematics import Kinematics
-from companion.mission import load_mission
-from companion.node import detections
 from sim_vehicles.camera import draw_truth
 from tests.sim.conftest import M, Mav, free_tcp_port, write_mission
 
@@ -111,7 +111,7 @@ def test_lockstep_grid_and_camera(tmp_path: Path, start_sim) -> None:
 
 
 def _local_of(mission, frame: detections.CameraFrame) -> tuple[float, float]:
-    from companion.node.frames import LocalFrame
+    from companion.contracts.frames import LocalFrame
 
     x, y = LocalFrame(mission.region.origin).to_local(frame.lat, frame.lon)
     return round(x / 20) * 20, round(y / 20) * 20  # on the grid at every step boundary

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 from sim_vehicles.protocols.params import param_specs
 from tests.sim.conftest import ARRIVED_M, Mav, distance_m, offset, write_mission
 

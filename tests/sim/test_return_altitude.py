@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.mission import load_mission
-from companion.node.frames import LocalFrame
+from companion.contracts.frames import LocalFrame
+from companion.core.feasibility import load_mission
 from companion.node.return_altitude import set_return_altitude
 from companion.node.vehicle_link import VehicleLink
 from tests.sim.conftest import SimProcess, write_mission

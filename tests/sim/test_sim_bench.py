@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from companion.mission import parse_mission
+from companion.core.feasibility import parse_mission
 from sim_vehicles.bench import DEFAULT_MISSION, _mission_text, measure
 
 

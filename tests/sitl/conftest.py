@@ -22,8 +22,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.app import sitl
 from companion.app.loopback import free_blocks
-from companion.mission import Mission, load_mission
-from companion.node.frames import LocalFrame
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from companion.node.takeover import take_off
 from companion.node.vehicle_link import ARDUPILOT_GUIDED, LinkError, VehicleLink, open_link
 from tests.e2e.conftest import ROOT, Proc

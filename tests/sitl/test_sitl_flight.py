@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from companion.contracts.mission import Mission
 from companion.core.trajectory import Trajectory
 from companion.core.world import build_world
-from companion.mission import Mission
 from companion.node.failsafe import FailsafeLoiter, arm_failsafe
 from companion.node.guidance import Guidance
 from companion.node.takeover import take_over
@@ -71,7 +71,7 @@ AUTO = 10
 
 def _companion(airborne: Airborne, out: Path, *args: str, mission: Path | None = None) -> Proc:
     ports = airborne.mission.ports(0)
-    argv = [PY, "-m", "companion.app.cli", "companion", "--mission", str(mission or airborne.mission.path)]
+    argv = [PY, "-m", "companion.cli", "companion", "--mission", str(mission or airborne.mission.path)]
     argv += ["--uav", "0", "--vehicle", ports.url(ports.serial1), "--out", str(out), *args]
     out.mkdir(parents=True, exist_ok=True)
     return Proc("companion", argv, out / "companion.log")
@@ -131,7 +131,7 @@ def test_what_arduplane_cannot_fly_is_refused(airborne: Airborne, tmp_path: Path
         [
             PY,
             "-m",
-            "companion.app.cli",
+            "companion.cli",
             "run",
             str(grid),
             "--autopilot",

@@ -28,8 +28,8 @@ import statistics
 from pathlib import Path
 
 from companion.app.evaluation import losses_3d
+from companion.contracts.frames import LocalFrame
 from companion.core.world import FAILSAFE_WIDE, build_world
-from companion.node.frames import LocalFrame
 from companion.node.vehicle_link import VehicleLink
 from tests.e2e.conftest import PY, Procs, companion_pid, read_csv, wait_rows
 from tests.sim.conftest import fit_circle
@@ -56,7 +56,7 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
     assert abs(m.altitude_of(VICTIM) - m.altitude_of(NEIGHBOUR)) == m.layers.separation  # adjacent
     out = tmp_path / "out"
     procs = Procs(tmp_path)
-    argv = [PY, "-m", "companion.app.cli", "run", str(mission.path), "--autopilot", "ardupilot-sitl"]
+    argv = [PY, "-m", "companion.cli", "run", str(mission.path), "--autopilot", "ardupilot-sitl"]
     argv += ["--speedup", "4", "--steps", "1000", "--out", str(out), "--quiet", "--keep-going"]
     try:
         run = procs.start("run", argv)

@@ -12,8 +12,9 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from companion.mission import Mission, load_mission
-from companion.node import keys
+from companion.contracts import keys
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from tests.e2e.conftest import MissionFile, make_mission, procs, write_mission  # noqa: F401 (fixtures)
 from tests.sim.conftest import start_sim  # noqa: F401 (fixture)
 from tests.sitl.conftest import sitl_binary  # noqa: F401 (fixture)

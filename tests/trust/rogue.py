@@ -34,12 +34,13 @@ import zenoh
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from pymavlink import mavutil
 
+from companion.contracts import keys
+from companion.contracts.mission import Mission
+from companion.contracts.zenoh_config import MeshSecurity, peer_config
+from companion.core.feasibility import load_mission
 from companion.core.messages import ClaimsMsg, CoverageMsg, Message, StateMsg, UavState
-from companion.mission import Mission, load_mission
-from companion.node import keys
 from companion.node.mesh import Bundle, encode_bundle, key_base, mission_authenticator
 from companion.node.signing import Authenticator
-from companion.node.zenoh_config import MeshSecurity, peer_config
 
 STAMP = 1_000_000  # far beyond any step the swarm flies: nothing here could pass for a real bundle
 ALIVE_S = 240.0

@@ -19,8 +19,8 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.node import keys
-from companion.node.vehicle_link import signing_timestamp
+from companion.contracts import keys
+from companion.contracts.mavlink_signing import signing_timestamp
 from tests.e2e.conftest import Procs, read_csv, wait_rows, write_mission
 from tests.trust.conftest import secure_file
 

@@ -13,9 +13,10 @@ import pytest
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
-from companion.app.cli import main
-from companion.mission import MissionError, load_mission
-from companion.node import keys
+from companion.cli.main import main
+from companion.contracts import keys
+from companion.contracts.mission import MissionError
+from companion.core.feasibility import load_mission
 from tests.trust.conftest import secured
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -79,7 +80,7 @@ def test_an_insecure_mission_says_so_loudly(tmp_path: Path) -> None:
         port = taken.getsockname()[1]
         mission.write_text(SCENARIO1.read_text() + f'\n[mesh]\nrouter = "tcp/127.0.0.1:{port}"\n')
         proc = subprocess.run(
-            [sys.executable, "-m", "companion.app.cli", "router", "--mission", str(mission)],
+            [sys.executable, "-m", "companion.cli", "router", "--mission", str(mission)],
             capture_output=True,
             text=True,
             timeout=120,

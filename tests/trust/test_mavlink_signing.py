@@ -22,9 +22,9 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from companion.mission import load_mission
-from companion.node import keys
-from companion.node.frames import LocalFrame
+from companion.contracts import keys
+from companion.contracts.frames import LocalFrame
+from companion.core.feasibility import load_mission
 from companion.node.vehicle_link import LinkError, VehicleLink
 from tests.sim.conftest import SimProcess, write_mission
 

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from companion.batch.engine import simulate
-from companion.node import keys
+from companion.contracts import keys
 from tests.e2e.conftest import PY, STARTUP_S, Procs, read_csv, wait_rows
 from tests.trust.conftest import secure_file
 
@@ -60,7 +60,7 @@ def test_rogue_peers_fail_to_inject_into_a_secured_swarm(make_mission, procs: Pr
     swarm_run = {keys.RUN_ENV: "rogue-test"}  # the insider, a member, knows the run (it is no secret)
     run = procs.start(
         "run",
-        [PY, "-m", "companion.app.cli", "run", str(mission.path), "--lockstep", "--steps", str(MAX_STEPS),
+        [PY, "-m", "companion.cli", "run", str(mission.path), "--lockstep", "--steps", str(MAX_STEPS),
          "--seed", str(SEED), "--keep-going", "--quiet", "--out", str(out)],
         env=swarm_run,
     )  # fmt: skip

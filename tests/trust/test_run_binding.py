@@ -21,13 +21,13 @@ import msgspec
 import pytest
 
 from companion.app.view.live import MeshListener
+from companion.contracts import keys
+from companion.contracts.mission import Mission
+from companion.contracts.zenoh_config import MeshConfig, MeshSecurity
 from companion.core.messages import ClaimsMsg, Message, StateMsg, UavState
 from companion.core.world import build_world
-from companion.mission import Mission
-from companion.node import keys
 from companion.node.mesh import Bundle, Mesh, encode_bundle, key_base, mission_authenticator
 from companion.node.signing import Authenticator, decode_envelope
-from companion.node.zenoh_config import MeshConfig, MeshSecurity
 from tests.trust.test_secure_mesh import N_CELLS, N_TASKS, _mission, _outbox, _session, _until
 
 pytestmark = pytest.mark.timeout(120)

@@ -21,13 +21,14 @@ import pytest
 import zenoh
 
 from companion.app.view.live import MeshListener
+from companion.contracts import keys
+from companion.contracts.keys import TlsFiles
+from companion.contracts.mission import Mission
+from companion.contracts.zenoh_config import MeshConfig, MeshSecurity, peer_config
+from companion.core.feasibility import load_mission
 from companion.core.messages import CoverageMsg, Message, StateMsg, UavState
 from companion.core.world import build_world
-from companion.mission import Mission, load_mission
-from companion.node import keys
-from companion.node.keys import TlsFiles
 from companion.node.mesh import Bundle, Mesh, encode_bundle, key_base, mission_authenticator
-from companion.node.zenoh_config import MeshConfig, MeshSecurity, peer_config
 from tests.trust.conftest import secured
 
 pytestmark = pytest.mark.timeout(120)

@@ -13,8 +13,8 @@ import msgspec
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
+from companion.contracts import keys
 from companion.core.messages import ClaimsMsg, CoverageMsg, Message, StateMsg, UavState
-from companion.node import keys
 from companion.node.signing import Authenticator, Forged, Unauthenticated, decode_envelope
 
 BASE = "uavsearch/test"

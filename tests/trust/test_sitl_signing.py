@@ -17,7 +17,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from companion.node.frames import LocalFrame
+from companion.contracts.frames import LocalFrame
 from companion.node.vehicle_link import VehicleLink, open_link
 from tests.sitl.conftest import GCS_COMPONENT, start_sitl, write_mission
 

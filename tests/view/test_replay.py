@@ -17,7 +17,7 @@ import pytest
 from companion.app.view.replay import ReplayError, load_replay
 from companion.batch.experiments import compare
 from companion.batch.report import copy_mission
-from companion.mission import load_mission
+from companion.core.feasibility import load_mission
 from tests.e2e.conftest import STARTUP_S, Procs
 from tests.view.conftest import ROOT, SCENARIO1
 
@@ -82,7 +82,7 @@ def test_what_cannot_be_replayed_is_named(mc_out: Path, tmp_path: Path) -> None:
 
 
 def _view(*args: str) -> subprocess.CompletedProcess[str]:
-    argv = [sys.executable, "-m", "companion.app.cli", "view", *args]
+    argv = [sys.executable, "-m", "companion.cli", "view", *args]
     return subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=STARTUP_S)
 
 
@@ -101,7 +101,7 @@ def test_the_view_command_names_bad_input(mc_out: Path, tmp_path: Path, procs: P
         proc = _view("--replay", str(mc_out), "--port", str(taken.getsockname()[1]))
     assert proc.returncode == 1 and "cannot serve on 127.0.0.1" in proc.stderr
 
-    view = procs.start("view", [sys.executable, "-m", "companion.app.cli", "view", "--replay", str(mc_out),
+    view = procs.start("view", [sys.executable, "-m", "companion.cli", "view", "--replay", str(mc_out),
                                 "--port", "0"])  # fmt: skip
     view.wait_for_text("view at ")
     url = view.text().split("view at ", 1)[1].split()[0]

@@ -11,11 +11,12 @@ import pytest
 
 from companion.app.view.swarm_model import Report, SwarmModel
 from companion.batch.engine import Radio, Scorer, initial_poses
+from companion.contracts.mission import Mission
 from companion.core.agent import Agent, Observation
+from companion.core.feasibility import load_mission
 from companion.core.prior import draw_targets
 from companion.core.uncertainty import global_average_uncertainty
 from companion.core.world import Stream, build_world, instance_rng
-from companion.mission import Mission, load_mission
 from companion.node.mesh import Bundle, check_bundle, decode_bundle, encode_bundle
 from tests.view.conftest import SCENARIO1
 

@@ -30,8 +30,8 @@ import zenoh
 from PIL import Image
 from playwright.sync_api import BrowserContext, Page
 
+from companion.contracts.zenoh_config import peer_config
 from companion.node.mesh import Bundle, encode_bundle, key_base
-from companion.node.zenoh_config import peer_config
 from tests.e2e.conftest import PY, STARTUP_S, MissionFile, Proc, Procs
 
 STEPS = 300
@@ -41,7 +41,7 @@ WAIT_MS = 1000 * STARTUP_S
 
 
 def _view(procs: Procs, name: str, *args: str) -> tuple[Proc, str]:
-    proc = procs.start(name, [PY, "-m", "companion.app.cli", "view", *args, "--port", "0"])
+    proc = procs.start(name, [PY, "-m", "companion.cli", "view", *args, "--port", "0"])
     proc.wait_for_text("view at ")
     return proc, proc.text().split("view at ", 1)[1].split()[0]
 
@@ -142,7 +142,7 @@ def test_live_map_of_a_flying_swarm_and_its_replay(
 
         run = procs.start(
             "run",
-            [PY, "-m", "companion.app.cli", "run", str(mission.path), "--lockstep", "--steps", str(STEPS),
+            [PY, "-m", "companion.cli", "run", str(mission.path), "--lockstep", "--steps", str(STEPS),
              "--keep-going", "--view", "--quiet", "--out", str(out)],
         )  # fmt: skip
         second = browser.new_page()

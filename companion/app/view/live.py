@@ -23,12 +23,12 @@ import msgspec
 import zenoh
 
 from companion.app.view.swarm_model import Report, SwarmModel
+from companion.contracts.keys import SwarmKeys
+from companion.contracts.zenoh_config import MeshConfig, open_session
 from companion.core.world import World
-from companion.node.keys import SwarmKeys
 from companion.node.mesh import Spoofed, key_base, mission_authenticator, received_bundle
 from companion.node.refusals import Refusals
 from companion.node.signing import Forged, Unauthenticated
-from companion.node.zenoh_config import MeshConfig, open_session
 
 RING_PER_UAV = 64  # samples buffered per UAV before the oldest are dropped
 RETRY_S = 1.0  # between attempts to open the session (a client waiting for its router)

@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.app.arguments import mission_argument, natural, port
 from companion.app.view.frames import links
 from companion.app.view.server import Address, LiveSource, ReplaySource, Source, serve
+from companion.contracts.arguments import mission_argument, natural, port
+from companion.contracts.keys import for_mission, warn_if_insecure
+from companion.core.feasibility import load_mission
 from companion.core.uncertainty import apply_looks
 from companion.core.world import build_world
-from companion.mission import load_mission
-from companion.node.keys import for_mission, warn_if_insecure
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765

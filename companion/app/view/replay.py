@@ -21,8 +21,9 @@ import numpy as np
 from companion.app.evaluation import CompanionLogs, logged_span
 from companion.app.view.frames import Figures, UavPose, frame_json, links
 from companion.app.view.scene import scene_json
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from companion.core.world import World, build_world
-from companion.mission import Mission, load_mission
 
 NEEDED = ("summary.json", "trajectories.csv", "steps.csv", "targets.csv")
 

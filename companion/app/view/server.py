@@ -25,8 +25,8 @@ from aiohttp import WSCloseCode, web
 from companion.app.view.live import MeshListener
 from companion.app.view.replay import Replay, ReplayError, load_replay
 from companion.app.view.scene import scene_json
+from companion.contracts.keys import SwarmKeys
 from companion.core.world import World
-from companion.node.keys import SwarmKeys
 
 STATIC = Path(str(resources.files("companion.app.view") / "static"))
 PUSH_S = 0.2  # how often live clients get the new frames

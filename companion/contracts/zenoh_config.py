@@ -25,8 +25,8 @@ from typing import Any, Literal
 
 import zenoh
 
-from companion.mission import Mission
-from companion.node.keys import ROLES, SwarmKeys, TlsFiles, uav_identity
+from companion.contracts.keys import ROLES, SwarmKeys, TlsFiles, uav_identity
+from companion.contracts.mission import Mission
 
 _SCOUTING_OFF = {"multicast": {"enabled": False}}
 _SCOUTING_GOSSIP = {"multicast": {"enabled": False}, "gossip": {"enabled": True, "multihop": False}}

@@ -12,14 +12,10 @@ import re
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal, get_args
+from typing import Annotated, Literal, get_args
 
 import msgspec
 import msgspec.inspect
-import numpy as np
-
-if TYPE_CHECKING:
-    from companion.core.geometry import ConvexPolygon
 
 ALGORITHMS = ("proposed", "no-ta", "pheromone")
 
@@ -497,12 +493,6 @@ def _validate(m: Mission, source: str) -> None:
         fail("vehicles", "at least one vehicle is required")
     if not m.prior.centres:
         fail("prior.centres", "at least one distribution centre is required")
-    from companion.core.geometry import ConvexPolygon  # local: keep module import light
-
-    region = ConvexPolygon.from_vertices(poly)
-    for i, v in enumerate(m.vehicles):
-        if not region.contains(v.x, v.y):
-            fail(f"vehicles[{i}]", f"start position ({v.x}, {v.y}) is outside region.polygon")
     _validate_layers(m, fail)
     if m.kinematics.mode == "grid" and m.kinematics.turn_limit_deg < 45:
         fail("kinematics.turn_limit_deg", "grid mode turns in 45 degree steps: the limit must be >= 45")
@@ -516,7 +506,6 @@ def _validate(m: Mission, source: str) -> None:
     if math.isclose(m.region.cell_size, 0):
         fail("region.cell_size", "must be positive")
     _validate_bounds(m, fail)
-    _validate_sizes(m, region, fail)
     for i, f in enumerate(m.faults.network):
         where = f"faults.network[{i}]"
         if f.end <= f.start:
@@ -524,7 +513,6 @@ def _validate(m: Mission, source: str) -> None:
         members = [u for g in f.groups for u in g]
         if any(u >= m.n_uavs for u in members) or len(set(members)) != len(members):
             fail(f"{where}.groups", f"UAVs 0..{m.n_uavs - 1}, each in at most one group")
-    _validate_start(m, fail)
 
 
 def _validate_layers(m: Mission, fail: Callable[[str, str], None]) -> None:
@@ -559,44 +547,6 @@ def _validate_layers(m: Mission, fail: Callable[[str, str], None]) -> None:
                 f"vehicles[{i}].layer",
                 f"layer {v.layer} is outside the band: it holds layers 0..{count - 1}",
             )
-
-
-def _validate_sizes(m: Mission, region: ConvexPolygon, fail: Callable[[str, str], None]) -> None:
-    """The grid, the sensor footprint, the CVT and the targets within the limits above (checked
-    before anything of that size is built)."""
-    from companion.core.geometry import Grid  # local: keep module import light
-
-    bx0, by0, bx1, by1 = region.bounds
-    cell = m.region.cell_size
-    across = max(bx1 - bx0, by1 - by0) / cell  # first alone: a tiny cell overflows the product
-    lattice = across * across
-    if across <= MAX_GRID_CELLS:
-        lattice = math.ceil((bx1 - bx0) / cell) * math.ceil((by1 - by0) / cell)
-    if lattice > MAX_GRID_CELLS:
-        fail(
-            "region.cell_size",
-            f"{cell:g} m makes a grid of about {lattice:.3g} cells over the region; at most "
-            f"{MAX_GRID_CELLS:,} are allowed (a larger cell size)",
-        )
-    stencil = (2 * math.ceil(m.sensor.radius / cell + 0.5) + 1) ** 2
-    if stencil > MAX_FOV_CELLS:
-        fail(
-            "sensor.radius",
-            f"{m.sensor.radius:g} m covers about {stencil:,} cells of {cell:g} m; at most "
-            f"{MAX_FOV_CELLS:,} are allowed",
-        )
-    if lattice * stencil > MAX_FOV_TABLE:
-        fail("sensor.radius", f"grid cells x FOV cells = {lattice * stencil:,}, over {MAX_FOV_TABLE:,}")
-    n_cells = Grid.build(region, cell, m.sensor.radius).n_cells
-    if n_cells == 0:
-        fail("region.cell_size", f"no cell of {cell:g} m has its centre inside region.polygon")
-    if m.prior.targets > n_cells:
-        fail("prior.targets", f"{m.prior.targets} targets, more than the grid's {n_cells} cells (one a cell)")
-    a = m.algorithm
-    if a.name == "proposed" and a.n_g > n_cells:
-        fail("algorithm.n_g", f"{a.n_g} tasks, more than the grid's {n_cells} cells")
-    if a.name == "proposed" and n_cells * a.n_g > MAX_CVT_WORK:
-        fail("algorithm.n_g", f"grid cells x n_g = {n_cells * a.n_g:,}, over {MAX_CVT_WORK:,}")
 
 
 def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
@@ -640,49 +590,10 @@ def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
         fail("steps", f"{m.steps:,} steps x {m.n_uavs} vehicles = {poses:,} poses, over {MAX_PATH_POINTS:,}")
 
 
-def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
-    """The safety layer's preconditions: a margin the UAVs can turn back in, and a start layout
-    that is separated, connected and admits a contingency for every UAV (core.safety)."""
-    from companion.core import safety  # local: keep module import light
-    from companion.core.world import build_grid, build_kinematics, build_safety
-
-    kin = build_kinematics(m)
-    horizon = m.algorithm.horizon
-    need = safety.minimum_margin(kin, horizon)
-    if m.safety.margin < need:
-        fail(
-            "safety.margin",
-            f"{m.safety.margin:g} m is too small: a UAV at the region's edge needs {need:.1f} m beyond it "
-            f"to turn back (turn limit {m.kinematics.turn_limit_deg:g} deg per {m.kinematics.step:g} s step)",
-        )
-    c, buffer = m.comms, m.safety.buffer
-    poses = [(v.x, v.y) for v in m.vehicles]
-    for i in range(len(poses)):
-        for j in range(i + 1, len(poses)):
-            d = math.dist(poses[i], poses[j])
-            if d <= c.safety + buffer:
-                fail(
-                    "vehicles",
-                    f"vehicles {i} and {j} start {d:.1f} m apart, within the safety distance "
-                    f"R_s + safety.buffer = {c.safety + buffer:g} m",
-                )
-    link = c.range - buffer
-    _, parents = safety.tether_tree(np.array(poses, dtype=float), link)
-    apart = [i for i, p in enumerate(parents) if p < 0 and i > 0]
-    if apart:
-        fail(
-            "vehicles",
-            f"the start layout is not connected: vehicles {apart} (and any linked to them) are not within "
-            f"R_c - safety.buffer = {link:g} m of the others",
-        )
-    try:
-        build_safety(m, kin, build_grid(m).region, kin.turn_sequences(horizon)[:0])
-    except ValueError as exc:
-        fail("vehicles", f"the start layout admits no safe start: {exc}")
-
-
-def parse_mission(text: str, source: str = "<mission>") -> Mission:
-    """Parse and validate mission TOML text; `source` names it in errors."""
+def parse_schema(text: str, source: str = "<mission>") -> Mission:
+    """Mission TOML text checked against the format and for consistency; `source` names it in
+    errors. What needs the core's geometry (the grid's size, a safe start) is checked by
+    `companion.core.feasibility.parse_mission`."""
     if len(text) > MAX_FILE_BYTES:
         raise MissionError(source, "(file)", f"{len(text):,} characters; at most {MAX_FILE_BYTES:,}")
     try:
@@ -713,9 +624,9 @@ def _refuse_replaced(raw: dict, source: str) -> None:
         )
 
 
-def validate(mission: Mission | dict, source: str = "<mission>") -> Mission:
-    """Check a mission built in code (a copy with other start poses or weights, say; as a Mission or
-    as the tables of a mission file) exactly as a mission file is checked; returns it."""
+def convert_schema(mission: Mission | dict, source: str = "<mission>") -> Mission:
+    """A mission built in code (a Mission, or the tables of a mission file) checked as
+    `parse_schema` checks a file's text; returns it."""
     raw = mission if isinstance(mission, dict) else msgspec.to_builtins(mission)
     try:
         checked = msgspec.convert(raw, Mission)
@@ -726,8 +637,8 @@ def validate(mission: Mission | dict, source: str = "<mission>") -> Mission:
     return checked
 
 
-def load_mission(path: str | Path) -> Mission:
-    """Read and validate a mission file."""
+def read_schema(path: str | Path) -> Mission:
+    """A mission file read and checked by `parse_schema`; a relative key directory made absolute."""
     p = Path(path)
     try:
         if p.stat().st_size > MAX_FILE_BYTES:
@@ -738,7 +649,7 @@ def load_mission(path: str | Path) -> Mission:
     except UnicodeDecodeError as exc:
         reason = f"not UTF-8 text: byte 0x{exc.object[exc.start]:02x} at offset {exc.start}"
         raise MissionError(str(p), "(file)", reason) from None
-    mission = parse_mission(text, str(p))
+    mission = parse_schema(text, str(p))
     keys = mission.security.keys
     if keys and not Path(keys).is_absolute():  # relative to the mission file, wherever it is read from
         security = msgspec.structs.replace(mission.security, keys=str((p.parent / keys).absolute()))

@@ -7,7 +7,7 @@ import argparse
 import math
 from collections.abc import Callable, Sequence
 
-from companion.mission import MAX_STEPS
+from companion.contracts.mission import MAX_STEPS
 
 
 def _integer(text: str, least: int, most: int | None = None) -> int:

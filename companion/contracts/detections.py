@@ -12,7 +12,7 @@ import math
 
 import msgspec
 
-from companion.core.wire import MsgpackCodec
+from companion.contracts.wire import MsgpackCodec
 
 FRAME_VERSION = 1
 MAX_DETECTIONS = 4096

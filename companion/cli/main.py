@@ -10,7 +10,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from companion.app.arguments import (
+from companion.batch.executors import ClusterError
+from companion.batch.starts import LAYOUTS
+from companion.contracts.arguments import (
     HelpFormatter,
     check_mission,
     count,
@@ -25,10 +27,9 @@ from companion.app.arguments import (
     weight,
     whole_span,
 )
-from companion.app.entry import INTERRUPTED
-from companion.batch.executors import ClusterError
-from companion.batch.starts import LAYOUTS
-from companion.mission import (
+from companion.contracts.entry import INTERRUPTED
+from companion.contracts.lifeline import end_with_launcher
+from companion.contracts.mission import (
     ALGORITHMS,
     MAX_CENTRES,
     MAX_GRID_CELLS,
@@ -36,9 +37,8 @@ from companion.mission import (
     MODES,
     Mission,
     MissionError,
-    load_mission,
 )
-from companion.node.lifeline import end_with_launcher
+from companion.core.feasibility import load_mission
 
 FUZZ_NEEDS = (
     "error: uavsearch fuzz needs Hypothesis, which a plain install leaves out: pip install 'uavsearch[fuzz]'"
@@ -547,7 +547,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _keys(args: argparse.Namespace) -> int:
-    from companion.node.keys import KeyDirectoryError, generate, rotate
+    from companion.contracts.keys import KeyDirectoryError, generate, rotate
 
     mission = load_mission(args.mission) if args.mission else None
     n_uavs = mission.n_uavs if mission else args.uavs
@@ -604,7 +604,7 @@ def _sim(args: argparse.Namespace) -> int:
 
 
 def _camera(args: argparse.Namespace) -> int:
-    from sim_vehicles.camera_node import run
+    from companion.app.camera_node import run
 
     return run(args)
 
@@ -1067,7 +1067,7 @@ def build_parser() -> argparse.ArgumentParser:
     si = sub.add_parser("sim", help="the MAVLink fixed-wing simulator (all the mission's vehicles)")
     add_arguments(si)
     si.set_defaults(func=_sim)
-    from sim_vehicles import camera_node
+    from companion.app import camera_node
 
     ca = sub.add_parser(
         "camera", help="a stand-alone simulated camera for external vehicles (e.g. ArduPlane SITL)"

@@ -41,7 +41,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from companion.mission import Mission
+from companion.contracts.mission import Mission
 
 SWARM_FILE = "swarm.json"
 FORMAT = 1

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pymap3d
 
-from companion.mission import Origin
+from companion.contracts.mission import Origin
 
 
 def heading_to_yaw(heading: float) -> float:

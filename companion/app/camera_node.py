@@ -28,10 +28,11 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.app.arguments import mission_argument, natural
-from companion.mission import Mission, load_mission
-from companion.node.frames import LocalFrame
-from companion.node.keys import for_mission, mavlink_secrets
+from companion.contracts.arguments import mission_argument, natural
+from companion.contracts.frames import LocalFrame
+from companion.contracts.keys import for_mission, mavlink_secrets
+from companion.contracts.mission import Mission
+from companion.core.feasibility import load_mission
 from companion.node.vehicle_link import LinkError, VehicleLink, open_link
 from sim_vehicles import camera as cam
 from sim_vehicles.approach import ApproachRecorder
