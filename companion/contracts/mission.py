@@ -86,8 +86,11 @@ class Region(_Base, kw_only=True):
 
 
 class Centre(_Base, kw_only=True):
-    """A distribution centre of eq. 1; `peak` is Pr_{p,z} at the centre (K_z / (sqrt(2 pi) sigma));
-    `sigma` is this centre's spread (default: the prior's `sigma`)."""
+    """A distribution centre of eq. 1: its position, its peak probability and its spread.
+
+    `peak` is Pr_{p,z} at the centre (K_z / (sqrt(2 pi) sigma)); `sigma` is this centre's spread
+    (default: the prior's `sigma`).
+    """
 
     x: float
     y: float
@@ -190,9 +193,11 @@ class Pheromone(_Base, kw_only=True):
 
 
 class Algorithm(_Base, kw_only=True):
-    """Algorithm name and every weight of eqs. 16-29 and Algorithm 1. The weights the paper does not
-    give are those `uavsearch tune` chose on 12 training missions (docs/results.md, "Held-out
-    missions"; the pheromone's stayed: no candidate beat them)."""
+    """Algorithm name and every weight of eqs. 16-29 and Algorithm 1.
+
+    The weights the paper does not give are those `uavsearch tune` chose on 12 training missions
+    (docs/results.md, "Held-out missions"; the pheromone's stayed: no candidate beat them).
+    """
 
     name: Literal["proposed", "no-ta", "pheromone"] = "proposed"
     n_g: Annotated[int, msgspec.Meta(ge=1)] = 50
@@ -254,9 +259,12 @@ class Mesh(_Base, kw_only=True):
 
 
 class NetworkFault(_Base, kw_only=True):
-    """Injected mesh faults over the steps [start, end): the companions drop the messages between
-    UAVs of different `groups` (a partition: UAVs in no group hear only themselves), and any other
-    message with probability `loss` (docs/reliability.md, "Fault matrix")."""
+    """Injected mesh faults over the steps [start, end): a partition into `groups`, and message loss.
+
+    The companions drop the messages between UAVs of different `groups` (a partition: UAVs in no
+    group hear only themselves), and any other message with probability `loss` (docs/reliability.md,
+    "Fault matrix").
+    """
 
     start: Annotated[int, msgspec.Meta(ge=0)]
     end: Annotated[int, msgspec.Meta(ge=1)]
@@ -274,10 +282,13 @@ class Faults(_Base, kw_only=True):
 
 
 class Security(_Base, kw_only=True):
-    """Authentication (docs/reliability.md): `keys` is the key directory written by `uavsearch keys`
-    (relative to the mission file); empty, the default, runs an insecure mesh and MAVLink link, and
-    every process says so. `mavlink_signing`: with keys, sign the companion-autopilot link with each
-    vehicle's secret (the bundled simulator then rejects unsigned commands)."""
+    """Authentication (docs/reliability.md): the key directory, and whether MAVLink is signed.
+
+    `keys` is the key directory written by `uavsearch keys` (relative to the mission file); empty, the
+    default, runs an insecure mesh and MAVLink link, and every process says so. `mavlink_signing`:
+    with keys, sign the companion-autopilot link with each vehicle's secret (the bundled simulator
+    then rejects unsigned commands).
+    """
 
     keys: str = ""
     mavlink_signing: bool = True
@@ -340,14 +351,19 @@ class Mission(_Base, kw_only=True):
 
     @property
     def vertical_floor(self) -> float:
-        """The vertical distance two aircraft on layers `layers.separation` apart keep in flight,
-        each within `ALTITUDE_KEEPING` of its layer: below it, a pair horizontally within R_s has
-        lost separation in three dimensions."""
+        """The vertical distance two aircraft on layers `layers.separation` apart keep in flight.
+
+        Each is within `ALTITUDE_KEEPING` of its layer. Below it, a pair horizontally within R_s has lost
+        separation in three dimensions.
+        """
         return self.layers.separation - 2 * ALTITUDE_KEEPING
 
     def near_layers(self) -> list[list[bool]]:
-        """Whether each pair of vehicles flies layers closer than `layers.separation` (a UAV is near
-        itself): only such pairs can meet, so only they guard against each other's failures."""
+        """Whether each pair of vehicles flies layers closer than `layers.separation`.
+
+        A UAV is near itself. Only such pairs can meet, so only they guard against each other's
+        failures.
+        """
         alts = [self.layer_altitude(layer) for layer in self.layer_assignment()]
         gap = self.layers.separation - 1e-6
         return [[abs(a - b) < gap for b in alts] for a in alts]
@@ -382,9 +398,12 @@ class Mission(_Base, kw_only=True):
 def assign_layers(
     starts: list[tuple[float, float]], pinned: list[int | None], count: int
 ) -> tuple[int, ...]:
-    """Each UAV's layer: a pinned one keeps its own; the others, in id order, take the layer whose
-    nearest UAV at the start is farthest away (an empty layer first, then the fewest UAVs, then the
-    lowest), so that UAVs sharing a layer start as far apart as the greedy choice makes them."""
+    """Each UAV's altitude layer: a pinned one keeps its own; the others are spread greedily.
+
+    The others, in id order, take the layer whose nearest UAV at the start is farthest away (an empty
+    layer first, then the fewest UAVs, then the lowest), so that UAVs sharing a layer start as far
+    apart as the greedy choice makes them.
+    """
     layers: list[int] = [p if p is not None else -1 for p in pinned]
     for i, p in enumerate(pinned):
         if p is not None:
@@ -403,8 +422,10 @@ _PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
 
 
 def _field_from_msgspec(message: str) -> tuple[str, str]:
-    """Split msgspec's 'reason - at `$.a.b[0]`' into ('a.b[0]', 'reason'); a value not among a
-    field's choices gets the valid ones listed."""
+    """Split msgspec's 'reason - at `$.a.b[0]`' into ('a.b[0]', 'reason').
+
+    A value not among a field's choices gets the valid ones listed.
+    """
     match = _PATH_RE.search(message)
     if not match:
         return "(document)", message
@@ -550,8 +571,10 @@ def _validate_layers(m: Mission, fail: Callable[[str, str], None]) -> None:
 
 
 def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
-    """What the kinematics, the safety layer and the simulator imply, within the limits above
-    (checked before anything is expanded or allocated; one line naming the field)."""
+    """What the kinematics, the safety layer and the simulator imply, within the limits above.
+
+    Checked before anything is expanded or allocated; an error is one line naming the field.
+    """
     k, cell = m.kinematics, m.region.cell_size
     if k.speed > MAX_SPEED:
         fail("kinematics.speed", f"{k.speed:g} m/s; at most {MAX_SPEED:g}")
@@ -591,9 +614,11 @@ def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
 
 
 def parse_schema(text: str, source: str = "<mission>") -> Mission:
-    """Mission TOML text checked against the format and for consistency; `source` names it in
-    errors. What needs the core's geometry (the grid's size, a safe start) is checked by
-    `companion.core.feasibility.parse_mission`."""
+    """Mission TOML text checked against the format and for consistency; `source` names it in errors.
+
+    What needs the core's geometry (the grid's size, a safe start) is checked by
+    `companion.core.feasibility.parse_mission`.
+    """
     if len(text) > MAX_FILE_BYTES:
         raise MissionError(source, "(file)", f"{len(text):,} characters; at most {MAX_FILE_BYTES:,}")
     try:
@@ -625,8 +650,10 @@ def _refuse_replaced(raw: dict, source: str) -> None:
 
 
 def convert_schema(mission: Mission | dict, source: str = "<mission>") -> Mission:
-    """A mission built in code (a Mission, or the tables of a mission file) checked as
-    `parse_schema` checks a file's text; returns it."""
+    """A mission built in code, checked as `parse_schema` checks a file's text; returns it.
+
+    The mission is a Mission, or the tables of a mission file.
+    """
     raw = mission if isinstance(mission, dict) else msgspec.to_builtins(mission)
     try:
         checked = msgspec.convert(raw, Mission)

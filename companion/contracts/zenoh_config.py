@@ -78,8 +78,11 @@ class MeshConfig:
         connect: tuple[str, ...] | None = None,
         keys: SwarmKeys | None = None,
     ) -> MeshConfig:
-        """The mission's mesh settings; explicit `listen`/`connect` (peer mode) disable seed claiming;
-        `keys` (this process's, from the mission's key directory) secure it."""
+        """The mission's mesh settings, secured with `keys` when they are given.
+
+        Explicit `listen`/`connect` (peer mode) disable seed claiming; `keys` (this process's, from the
+        mission's key directory) secure it.
+        """
         m = mission.mesh
         sec = None if keys is None else MeshSecurity.of(keys, mission)
         if m.mode == "client":
@@ -195,7 +198,9 @@ def _rule(rule_id: str, flow: str, messages: list[str], keys: list[str]) -> dict
 
 
 def _config(tree: dict[str, Any], security: MeshSecurity | None = None) -> zenoh.Config:
-    """Shared memory off: large payloads would otherwise go through SHM segments between local
+    """The Zenoh configuration of `tree` with shared memory off and, with `security`, TLS and access control.
+
+    Shared memory off: large payloads would otherwise go through SHM segments between local
     processes, with two watchdog threads per process polling them (measured: a tenth of a core
     across 50 companions); the mesh's bundles are a few kilobytes and radio links have no SHM.
 

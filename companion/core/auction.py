@@ -34,10 +34,12 @@ def local_auction(
 
 @njit(cache=True)
 def _auction_rounds(r: FloatArray) -> IntArray:
-    """The rounds of Algorithm 2 over rewards `r` (rows by ascending UAV id, -inf where a bidder
-    may not take a task): each task goes to its highest open bidder (the first row among equals),
-    each winner keeps the best task it won (the first among equals), and its row and task leave
-    the auction. Returns each row's task, -1 for none."""
+    """The rounds of Algorithm 2 over rewards `r` (eq. 15); returns each row's task, -1 for none.
+
+    Rows are by ascending UAV id, -inf where a bidder may not take a task. Each task goes to its
+    highest open bidder (the first row among equals), each winner keeps the best task it won (the
+    first among equals), and its row and task leave the auction.
+    """
     n, m = r.shape
     task = np.full(n, -1, dtype=np.int64)
     winner = np.empty(m, dtype=np.int64)
