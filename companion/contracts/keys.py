@@ -1,24 +1,11 @@
 """A swarm's key directory: written by `uavsearch keys`, read by every process that joins the mesh.
 
-```
-DIR/swarm.json          public: the swarm's size and every UAV's Ed25519 signing keys (hex; a list
-                        of the keys accepted for it while one is rotated)
-DIR/ca.pem              public: the swarm's certificate authority (trust anchor of the TLS mesh)
-DIR/ca.key              the CA's private key: only to issue certificates, keep it off the aircraft
-DIR/uav-{i}/            what UAV i carries: tls.pem + tls.key (its mesh certificate, CN uav-{i}),
-                        sign.key (its Ed25519 signing key), mavlink.key (its MAVLink2 signing secret)
-DIR/camera/, view/, router/   the simulated camera's, the live view's and the router's certificates
-```
-
-Every certificate is issued by the CA, carries its identity as the common name (Zenoh's access
-control matches on it) and is valid for client and server use; private keys are written 0600.
-An aircraft needs `swarm.json`, `ca.pem` and its own folder. See docs/reliability.md.
-
-A run identity (`run_id`: `uavsearch run` issues one, an operator passes `--run` or sets
-UAVSEARCH_RUN) is bound into everything signed: the mesh's signed texts name it, and each vehicle's
-MAVLink2 signing key for the run is derived from its secret and the run (`run_secret`), so nothing
-signed in one run is accepted in another. `rotate` gives one UAV a new signing key while its old one
-stays accepted; peers read swarm.json again when a signature does not check with the keys they hold.
+It holds `swarm.json` (every UAV's Ed25519 signing keys), the CA (`ca.pem`, `ca.key`), a folder
+`uav-{i}/` per UAV (mesh certificate, signing key, MAVLink2 secret) and the camera's, view's and
+router's certificates; an aircraft needs `swarm.json`, `ca.pem` and its own folder. A run identity
+(`run_id`) is bound into everything signed (`run_secret`: each vehicle's MAVLink2 key for the run),
+and `rotate` gives one UAV a new signing key while its old one stays accepted. The layout and the
+reasoning: docs/reliability.md, "Keys", "Run identity" and "Key rotation".
 """
 
 from __future__ import annotations
