@@ -43,8 +43,8 @@ class Progress:
         line would repeat the last one; with `final` (the run is over) the line is given anyway, once
         every companion has logged.
         """
-        for rows in new.values():  # targets in view of the search's rows (not the closing steps)
-            flown = [r for r in rows if not r.get("closing")]
+        for new_rows in new.values():  # targets in view of the search's rows (not the closing steps)
+            flown = [r for r in new_rows if not r.get("closing")]
             if flown:
                 p = np.array([(r["x"], r["y"]) for r in flown])
                 d2 = np.sum((p[:, None, :] - self.xy[None, :, :]) ** 2, axis=-1)

@@ -69,7 +69,7 @@ class _Base(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
     pass
 
 
-class Origin(_Base, kw_only=True):
+class Origin(_Base, frozen=True, kw_only=True):
     """Geodetic origin of the local frame (x east, y north, metres)."""
 
     lat: Annotated[float, msgspec.Meta(ge=-90, le=90)]
@@ -77,7 +77,7 @@ class Origin(_Base, kw_only=True):
     alt: float = 0.0
 
 
-class Region(_Base, kw_only=True):
+class Region(_Base, frozen=True, kw_only=True):
     """Convex search polygon in local metres and the cell size of the search grid."""
 
     polygon: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_VERTICES)]
@@ -85,7 +85,7 @@ class Region(_Base, kw_only=True):
     origin: Origin
 
 
-class Centre(_Base, kw_only=True):
+class Centre(_Base, frozen=True, kw_only=True):
     """A distribution centre of eq. 1: its position, its peak probability and its spread.
 
     `peak` is Pr_{p,z} at the centre (K_z / (sqrt(2 pi) sigma)); `sigma` is this centre's spread
@@ -98,13 +98,13 @@ class Centre(_Base, kw_only=True):
     sigma: Positive | None = None
 
 
-class Prior(_Base, kw_only=True):
+class Prior(_Base, frozen=True, kw_only=True):
     sigma: Positive
     centres: Annotated[list[Centre], msgspec.Meta(max_length=MAX_CENTRES)]
     targets: Annotated[int, msgspec.Meta(ge=0)]
 
 
-class Sensor(_Base, kw_only=True):
+class Sensor(_Base, frozen=True, kw_only=True):
     """Downward camera: FOV radius R_A (eq. 3) and detector error rates (simulator only)."""
 
     radius: Positive
@@ -112,7 +112,7 @@ class Sensor(_Base, kw_only=True):
     miss: Probability = 0.0
 
 
-class Kinematics(_Base, kw_only=True):
+class Kinematics(_Base, frozen=True, kw_only=True):
     """Eq. 2: constant speed, turn limited to turn_limit_deg per sampling step dT.
 
     `altitude`: the lowest altitude layer, metres above the origin (`Layers` adds the others).
@@ -125,7 +125,7 @@ class Kinematics(_Base, kw_only=True):
     altitude: float = 100.0
 
 
-class Layers(_Base, kw_only=True):
+class Layers(_Base, frozen=True, kw_only=True):
     """Altitude layers (docs/algorithm.md, "Separation in three dimensions").
 
     The layers lie in the band [kinematics.altitude, kinematics.altitude + `band`], evenly spaced
@@ -140,7 +140,7 @@ class Layers(_Base, kw_only=True):
     count: Annotated[int, msgspec.Meta(ge=1, le=MAX_VEHICLES)] | None = None
 
 
-class Comms(_Base, kw_only=True):
+class Comms(_Base, frozen=True, kw_only=True):
     """Ranges of eqs. 5, 17, 28: R_s < R'_s < R'_c < R_c."""
 
     range: Positive
@@ -151,7 +151,7 @@ class Comms(_Base, kw_only=True):
     peer_timeout_steps: Annotated[int, msgspec.Meta(ge=1)] = 5
 
 
-class Safety(_Base, kw_only=True):
+class Safety(_Base, frozen=True, kw_only=True):
     """The safety layer (docs/algorithm.md, "Safety layer").
 
     `margin`: the operating margin (m): the fence is the region with every edge pushed out by it;
@@ -176,14 +176,14 @@ class Safety(_Base, kw_only=True):
     contingency: bool = True
 
 
-class Uncertainty(_Base, kw_only=True):
+class Uncertainty(_Base, frozen=True, kw_only=True):
     """Eqs. 10-11: initial uncertainty eta_0 and decay gamma per look."""
 
     eta0: Annotated[float, msgspec.Meta(gt=0, le=1)] = 1.0
     gamma: Annotated[float, msgspec.Meta(ge=0, lt=1)] = 0.1
 
 
-class Pheromone(_Base, kw_only=True):
+class Pheromone(_Base, frozen=True, kw_only=True):
     """Pheromone baseline: deposit from importance, evaporation, diffusion, attraction weight."""
 
     deposit: NonNegative = 1.0
@@ -192,7 +192,7 @@ class Pheromone(_Base, kw_only=True):
     weight: NonNegative = 1.0
 
 
-class Algorithm(_Base, kw_only=True):
+class Algorithm(_Base, frozen=True, kw_only=True):
     """Algorithm name and every weight of eqs. 16-29 and Algorithm 1.
 
     The weights the paper does not give are those `uavsearch tune` chose on 12 training missions
@@ -214,7 +214,7 @@ class Algorithm(_Base, kw_only=True):
     pheromone: Pheromone = Pheromone()
 
 
-class Vehicle(_Base, kw_only=True):
+class Vehicle(_Base, frozen=True, kw_only=True):
     """Start pose (heading counter-clockwise from east, degrees) and MAVLink UDP port."""
 
     x: float
@@ -224,7 +224,7 @@ class Vehicle(_Base, kw_only=True):
     layer: Annotated[int, msgspec.Meta(ge=0)] | None = None  # its altitude layer (default: `assign_layers`)
 
 
-class Sim(_Base, kw_only=True):
+class Sim(_Base, frozen=True, kw_only=True):
     """Simulator options: autopilot flavour, flight model, base UDP port, integration and camera rates.
 
     `dynamics` (continuous kinematics only; grid mode always flies eq. 2 exactly): "arduplane",
@@ -241,7 +241,7 @@ class Sim(_Base, kw_only=True):
     guided_timeout: Positive = 3.0
 
 
-class Mesh(_Base, kw_only=True):
+class Mesh(_Base, frozen=True, kw_only=True):
     """Zenoh mesh: mode, key prefix and loopback endpoints (see docs/mesh.md).
 
     `listen` is where a peer that could not claim `seed_endpoint` listens (port 0: the OS picks);
@@ -258,7 +258,7 @@ class Mesh(_Base, kw_only=True):
     max_bundle_bytes: Annotated[int, msgspec.Meta(ge=1024)] = 1 << 20
 
 
-class NetworkFault(_Base, kw_only=True):
+class NetworkFault(_Base, frozen=True, kw_only=True):
     """Injected mesh faults over the steps [start, end): a partition into `groups`, and message loss.
 
     The companions drop the messages between UAVs of different `groups` (a partition: UAVs in no
@@ -275,13 +275,13 @@ class NetworkFault(_Base, kw_only=True):
     loss: Probability = 0.0
 
 
-class Faults(_Base, kw_only=True):
+class Faults(_Base, frozen=True, kw_only=True):
     """Faults the companions inject into themselves (for the fault matrix)."""
 
     network: Annotated[list[NetworkFault], msgspec.Meta(max_length=1_000)] = []
 
 
-class Security(_Base, kw_only=True):
+class Security(_Base, frozen=True, kw_only=True):
     """Authentication (docs/reliability.md): the key directory, and whether MAVLink is signed.
 
     `keys` is the key directory written by `uavsearch keys` (relative to the mission file); empty, the
@@ -294,7 +294,7 @@ class Security(_Base, kw_only=True):
     mavlink_signing: bool = True
 
 
-class PassCriteria(_Base, kw_only=True):
+class PassCriteria(_Base, frozen=True, kw_only=True):
     """What a scripted mission must achieve to pass."""
 
     min_targets_found: Annotated[int, msgspec.Meta(ge=0)] = 0
@@ -302,7 +302,7 @@ class PassCriteria(_Base, kw_only=True):
     require_safe_distance: bool = True
 
 
-class Mission(_Base, kw_only=True):
+class Mission(_Base, frozen=True, kw_only=True):
     name: str
     seed: int = 1
     steps: Annotated[int, msgspec.Meta(ge=1, le=MAX_STEPS)] = 1000

@@ -92,4 +92,4 @@ def describe(
     radii = np.zeros(n)
     np.maximum.at(radii, labels, dist)
     radii[radii == 0] = np.sqrt(cell_area / 2.0)
-    return Tessellation(generators, labels, counts, counts * cell_area, radii, iterations)
+    return Tessellation(generators, labels, counts, counts * np.float64(cell_area), radii, iterations)

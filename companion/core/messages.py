@@ -55,7 +55,7 @@ class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
     y: float
 
 
-class StateMsg(_Header, tag="state"):
+class StateMsg(_Header, frozen=True, tag="state"):
     """The sender's own state, the UAVs it heard first-hand, and the UAVs it is tethered to.
 
     `state`: its pose, plan, task and commitments. `heard`: the UAVs whose StateMsg it received at its
@@ -68,7 +68,7 @@ class StateMsg(_Header, tag="state"):
     parents: tuple[int, ...] = ()
 
 
-class CoverageMsg(_Header, tag="coverage"):
+class CoverageMsg(_Header, frozen=True, tag="coverage"):
     """Cells in the sender's FOV at `stamp` (eq. 11 looks) and every target cell it knows of.
 
     The target cells are its camera's detections and those it heard of: each step re-announces them
@@ -79,13 +79,13 @@ class CoverageMsg(_Header, tag="coverage"):
     detections: tuple[int, ...] = ()
 
 
-class BidsMsg(_Header, tag="bids"):
+class BidsMsg(_Header, frozen=True, tag="bids"):
     """The sender's rewards R_ij for every task (eq. 15): its bids for the next local auction."""
 
     rewards: tuple[float, ...]
 
 
-class ClaimsMsg(_Header, tag="claims"):
+class ClaimsMsg(_Header, frozen=True, tag="claims"):
     """The latest state the sender knows of other UAVs: multi-hop relay of positions and claims."""
 
     known: tuple[UavState, ...]
