@@ -20,7 +20,7 @@ from companion.core.geometry import FloatArray, IntArray
 def local_auction(
     bidders: Sequence[int], bids: FloatArray, available: np.ndarray
 ) -> dict[int, tuple[int, float]]:
-    """Allocate tasks to `bidders` (UAV ids, one row of `bids` each).
+    """Algorithm 2: allocate tasks to `bidders` (UAV ids, one row of `bids` each) by local auction.
 
     `available[j]` is False for tasks already held outside the auction. Returns
     {uav: (task, reward)}; a bidder is left out only when no task with a positive reward remains.

@@ -53,7 +53,7 @@ def mass_centroids(
 def initial_generators(
     centres: FloatArray, density: FloatArray, n_g: int, rng: np.random.Generator
 ) -> FloatArray:
-    """Distinct cell centres drawn with probability proportional to the density (Pr_p)."""
+    """Algorithm 1's initial generators: distinct cell centres drawn in proportion to the density (Pr_p)."""
     n_g = min(n_g, centres.shape[0])
     p = density / density.sum()
     return centres[rng.choice(centres.shape[0], size=n_g, replace=False, p=p)].copy()
