@@ -47,12 +47,15 @@ SIGNAL_POLL_S = 0.2
 
 
 class LatestPositions:
-    """Every vehicle's latest position (and height above home), fed by the per-vehicle threads; each sample
-    updates the closest-approach record with all of them, once every vehicle has a position.
+    """Every vehicle's latest position (and height above home), fed by the per-vehicle threads.
+
+    Each sample updates the closest-approach record with all of them, once every vehicle has a
+    position.
 
     The vehicles' clocks (separate autopilots) need not agree: the record's steps follow the newest
     vehicle time seen, and a pair's distance is that of the two latest samples, which are at most
-    1 / POSITION_HZ apart (plus the links' latencies)."""
+    1 / POSITION_HZ apart (plus the links' latencies).
+    """
 
     def __init__(self, recorder: ApproachRecorder, n: int) -> None:
         self.recorder = recorder
@@ -61,8 +64,10 @@ class LatestPositions:
         self._lock = threading.Lock()
 
     def sample(self, uav: int, t: float, x: float, y: float, z: float = math.nan) -> None:
-        """Vehicle `uav`'s position at its time `t`: local x, y and height above home z (m; homes are
-        at the origin's altitude, so heights compare)."""
+        """Vehicle `uav`'s position at its time `t`: local x, y and height above home z (m).
+
+        Homes are at the origin's altitude, so heights compare.
+        """
         with self._lock:
             self.x[uav], self.y[uav], self.z[uav], self.t = x, y, z, max(self.t, t)
             if np.isfinite(self.x).all():
@@ -82,9 +87,12 @@ class CameraNode:
         signing_secrets: list[bytes] | None = None,
         positions: LatestPositions | None = None,
     ) -> None:
-        """`signing_secrets`: give each vehicle its MAVLink signing secret once connected
-        (`--setup-signing`: SITL on loopback, whose SERIAL0 is its USB port); `positions`: where
-        the position streams go for the separation record."""
+        """The camera for `mission`'s vehicles at `urls`, with its own seeded truth and detector.
+
+        `signing_secrets`: give each vehicle its MAVLink signing secret once connected
+        (`--setup-signing`: SITL on loopback, whose SERIAL0 is its USB port); `positions`: where the
+        position streams go for the separation record.
+        """
         if len(urls) != mission.n_uavs:
             raise ValueError(f"--vehicles: {len(urls)} links for the mission's {mission.n_uavs} vehicles")
         self.mission, self.urls, self.bus = mission, urls, bus

@@ -37,9 +37,11 @@ def _free(port: int) -> bool:
 
 
 def free_blocks(n: int, width: int = 1, spacing: int = 10) -> list[int]:
-    """`n` base ports P, multiples of `spacing`, each with P..P+width-1 free on 127.0.0.1 for TCP
-    and UDP, below the ephemeral range where it leaves room (else above 30000); the search starts
-    at a random point, so parallel test workers rarely try the same blocks."""
+    """`n` base ports P, multiples of `spacing`, each with P..P+width-1 free on 127.0.0.1.
+
+    Free for TCP and UDP, below the ephemeral range where it leaves room (else above 30000); the
+    search starts at a random point, so parallel test workers rarely try the same blocks.
+    """
     low = ephemeral_low()
     first, last = (LOWEST, low - width) if low - LOWEST >= 2000 else (30000, 65535 - width)
     span = (last - first) // spacing

@@ -37,11 +37,14 @@ class Progress:
         now: float,
         final: bool = False,
     ) -> str | None:
-        """The line for the companions' logs `logs` (with `new` the rows since the last call) at
-        time `now` (the clock `started` is on), or None when it would repeat the last one (`final`:
-        the run is over, the line is given anyway once every companion has logged)."""
-        for rows in new.values():  # targets in view of the search's rows (not the closing steps)
-            flown = [r for r in rows if not r.get("closing")]
+        """The progress line for the companions' logs `logs` at time `now`, or None when it would repeat.
+
+        `new` holds the rows since the last call; `now` is on the clock `started` is on. None when the
+        line would repeat the last one; with `final` (the run is over) the line is given anyway, once
+        every companion has logged.
+        """
+        for new_rows in new.values():  # targets in view of the search's rows (not the closing steps)
+            flown = [r for r in new_rows if not r.get("closing")]
             if flown:
                 p = np.array([(r["x"], r["y"]) for r in flown])
                 d2 = np.sum((p[:, None, :] - self.xy[None, :, :]) ** 2, axis=-1)

@@ -1,5 +1,8 @@
-"""The command line's number types: argparse refuses a bad number before anything starts, naming the
-option and the reason (`uavsearch mc: error: argument --runs: must be >= 1, got 0`, exit 2)."""
+"""The command line's number types: argparse refuses a bad number before anything starts.
+
+The error names the option and the reason (`uavsearch mc: error: argument --runs: must be >= 1,
+got 0`, exit 2).
+"""
 
 from __future__ import annotations
 
@@ -110,8 +113,11 @@ def names(allowed: Sequence[str]) -> Callable[[str], tuple[str, ...]]:
 
 
 class HelpFormatter(argparse.HelpFormatter):
-    """Every option's help with its default: appended as "(default: X)" unless the text already
-    says it, or there is none to say (a flag, a required option, a default of None)."""
+    """Every option's help with its default, appended as "(default: X)".
+
+    Nothing is appended when the text already says it, or when there is none to say (a flag, a
+    required option, a default of None).
+    """
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
@@ -133,8 +139,10 @@ class HelpFormatter(argparse.HelpFormatter):
 
 
 class _MissionPositional(argparse.Action):
-    """The mission as a positional argument: the same destination as `--mission`; a second,
-    different file is an error."""
+    """The mission as a positional argument, with the same destination as `--mission`.
+
+    A second, different file is an error.
+    """
 
     def __call__(
         self,

@@ -1,6 +1,8 @@
-"""Process entry: a command line imported inside `interruptible`, so that a SIGINT while its
-modules load (a Ctrl-C in the first second) ends the process with exit code 130 and no traceback,
-as it does once they are loaded."""
+"""Process entry: a command line imported inside `interruptible`, so that an early Ctrl-C ends it quietly.
+
+A SIGINT while its modules load (a Ctrl-C in the first second) ends the process with exit code 130
+and no traceback, as it does once they are loaded.
+"""
 
 from __future__ import annotations
 

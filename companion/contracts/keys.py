@@ -1,24 +1,11 @@
 """A swarm's key directory: written by `uavsearch keys`, read by every process that joins the mesh.
 
-```
-DIR/swarm.json          public: the swarm's size and every UAV's Ed25519 signing keys (hex; a list
-                        of the keys accepted for it while one is rotated)
-DIR/ca.pem              public: the swarm's certificate authority (trust anchor of the TLS mesh)
-DIR/ca.key              the CA's private key: only to issue certificates, keep it off the aircraft
-DIR/uav-{i}/            what UAV i carries: tls.pem + tls.key (its mesh certificate, CN uav-{i}),
-                        sign.key (its Ed25519 signing key), mavlink.key (its MAVLink2 signing secret)
-DIR/camera/, view/, router/   the simulated camera's, the live view's and the router's certificates
-```
-
-Every certificate is issued by the CA, carries its identity as the common name (Zenoh's access
-control matches on it) and is valid for client and server use; private keys are written 0600.
-An aircraft needs `swarm.json`, `ca.pem` and its own folder. See docs/reliability.md.
-
-A run identity (`run_id`: `uavsearch run` issues one, an operator passes `--run` or sets
-UAVSEARCH_RUN) is bound into everything signed: the mesh's signed texts name it, and each vehicle's
-MAVLink2 signing key for the run is derived from its secret and the run (`run_secret`), so nothing
-signed in one run is accepted in another. `rotate` gives one UAV a new signing key while its old one
-stays accepted; peers read swarm.json again when a signature does not check with the keys they hold.
+It holds `swarm.json` (every UAV's Ed25519 signing keys), the CA (`ca.pem`, `ca.key`), a folder
+`uav-{i}/` per UAV (mesh certificate, signing key, MAVLink2 secret) and the camera's, view's and
+router's certificates; an aircraft needs `swarm.json`, `ca.pem` and its own folder. A run identity
+(`run_id`) is bound into everything signed (`run_secret`: each vehicle's MAVLink2 key for the run),
+and `rotate` gives one UAV a new signing key while its old one stays accepted. The layout and the
+reasoning: docs/reliability.md, "Keys", "Run identity" and "Key rotation".
 """
 
 from __future__ import annotations
@@ -71,8 +58,10 @@ class TlsFiles:
 
 @dataclass(frozen=True)
 class SwarmKeys:
-    """What one identity loads from a key directory: its TLS files, the swarm's signing keys and,
-    for a UAV, its own signing key and MAVLink secret."""
+    """What one identity loads from a key directory.
+
+    Its TLS files, the swarm's signing keys and, for a UAV, its own signing key and MAVLink secret.
+    """
 
     directory: Path
     identity: str
@@ -92,8 +81,11 @@ class SwarmKeys:
 
 
 def run_id(explicit: str | None = None) -> str:
-    """This process's run identity: `explicit` (`--run`), else $UAVSEARCH_RUN, else "" (none: what
-    it signs is bound to no run). KeyDirectoryError for one that is not 0-64 of [A-Za-z0-9._-]."""
+    """This process's run identity: `explicit` (`--run`), else $UAVSEARCH_RUN, else "".
+
+    "" is none: what it signs is bound to no run. KeyDirectoryError for one that is not 0-64 of
+    [A-Za-z0-9._-].
+    """
     run = explicit if explicit is not None else os.environ.get(RUN_ENV, "")
     if not RUN_RE.fullmatch(run):
         raise KeyDirectoryError(f"run id {run[:80]!r}: at most 64 letters, digits, '.', '_' or '-'")
@@ -106,8 +98,10 @@ def new_run_id() -> str:
 
 
 def run_secret(secret: bytes, run: str) -> bytes:
-    """The MAVLink2 signing key of one run: HMAC-SHA256 of the run under the vehicle's secret
-    (the secret itself when no run is named)."""
+    """The MAVLink2 signing key of one run: HMAC-SHA256 of the run under the vehicle's secret.
+
+    The secret itself when no run is named.
+    """
     if not run:
         return secret
     return hmac.new(secret, b"uavsearch mavlink run\0" + run.encode(), hashlib.sha256).digest()
@@ -146,9 +140,12 @@ def generate(directory: Path, n_uavs: int, valid_days: int = VALID_DAYS) -> None
 
 
 def rotate(directory: Path, uav: int, keep: int = 2) -> None:
-    """Give UAV `uav` a new signing key (its sign.key) and list it first in swarm.json with the
-    `keep` - 1 latest of its older keys, which stay accepted: peers take the new key once they read
-    swarm.json again, with no restart; only UAV `uav`'s companion restarts (on its journal)."""
+    """Give UAV `uav` a new signing key while its `keep` - 1 latest older keys stay accepted.
+
+    Writes its sign.key and lists the new key first in swarm.json, followed by the `keep` - 1 latest
+    of its older keys: peers take the new key once they read swarm.json again, with no restart; only
+    UAV `uav`'s companion restarts (on its journal).
+    """
     path = directory / SWARM_FILE
     public = _public_keys(path)
     if not 0 <= uav < len(public):
@@ -187,8 +184,7 @@ def load(directory: str | Path, identity: str, run: str = "") -> SwarmKeys:
 
 
 def for_mission(mission: Mission, identity: str, run: str | None = None) -> SwarmKeys | None:
-    """`identity`'s keys from the mission's key directory for the run `run_id(run)`, or None for an
-    insecure mission."""
+    """`identity`'s keys from the mission's key directory for the run `run_id(run)`; None if insecure."""
     if not mission.secured:
         return None
     keys = load(mission.security.keys, identity, run_id(run))
@@ -200,8 +196,10 @@ def for_mission(mission: Mission, identity: str, run: str | None = None) -> Swar
 
 
 def mavlink_secrets(mission: Mission, run: str | None = None) -> list[bytes] | None:
-    """Every vehicle's MAVLink signing key for the run `run_id(run)` (what the autopilots hold), or
-    None when the mission does not sign its MAVLink links."""
+    """Every vehicle's MAVLink signing key for the run `run_id(run)` (what the autopilots hold).
+
+    None when the mission does not sign its MAVLink links.
+    """
     if not (mission.secured and mission.security.mavlink_signing):
         return None
     directory, name = Path(mission.security.keys), run_id(run)

@@ -1,7 +1,9 @@
-"""A child of `uavsearch run` ends with its launcher. The launcher names itself in
-`UAVSEARCH_LAUNCHER_PID`; the child asks the kernel for SIGTERM when its parent dies (Linux's
-prctl PR_SET_PDEATHSIG) and so takes its own clean-shutdown path, even when the launcher is
-SIGKILLed (a CI job's timeout, the OOM killer) and could stop nothing itself."""
+"""A child of `uavsearch run` ends with its launcher, even one that is SIGKILLed.
+
+The launcher names itself in `UAVSEARCH_LAUNCHER_PID`; the child asks the kernel for SIGTERM when
+its parent dies (Linux's prctl PR_SET_PDEATHSIG) and so takes its own clean-shutdown path, even
+when the launcher is SIGKILLed (a CI job's timeout, the OOM killer) and could stop nothing itself.
+"""
 
 from __future__ import annotations
 
@@ -19,8 +21,10 @@ def launcher_env() -> dict[str, str]:
 
 
 def end_with_launcher() -> None:
-    """If a launcher started this process: SIGTERM when the launcher dies; exit now if it already
-    has (this process was reparented before it could ask)."""
+    """If a launcher started this process: ask for SIGTERM when the launcher dies.
+
+    Exits now if the launcher already has died (this process was reparented before it could ask).
+    """
     value = os.environ.get(LAUNCHER_ENV, "")
     if not value.isdigit():
         return

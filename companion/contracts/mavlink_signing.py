@@ -13,8 +13,11 @@ def signing_timestamp(now: float | None = None) -> int:
 
 
 def keep_stream_timestamps(mav: mavlink.MAVLink) -> None:
-    """Make `mav` put a stream's timestamp back when a frame's signature fails (pymavlink sets it
-    before checking, so one forged frame stamped far ahead would lock the genuine stream out)."""
+    """Make `mav` put a stream's timestamp back when a frame's signature fails.
+
+    pymavlink sets it before checking, so one forged frame stamped far ahead would lock the genuine
+    stream out.
+    """
     check = mav.check_signature
 
     def checked(msgbuf: bytearray, src_system: int, src_component: int) -> bool:

@@ -69,7 +69,7 @@ class _Base(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
     pass
 
 
-class Origin(_Base, kw_only=True):
+class Origin(_Base, frozen=True, kw_only=True):
     """Geodetic origin of the local frame (x east, y north, metres)."""
 
     lat: Annotated[float, msgspec.Meta(ge=-90, le=90)]
@@ -77,7 +77,7 @@ class Origin(_Base, kw_only=True):
     alt: float = 0.0
 
 
-class Region(_Base, kw_only=True):
+class Region(_Base, frozen=True, kw_only=True):
     """Convex search polygon in local metres and the cell size of the search grid."""
 
     polygon: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_VERTICES)]
@@ -85,9 +85,12 @@ class Region(_Base, kw_only=True):
     origin: Origin
 
 
-class Centre(_Base, kw_only=True):
-    """A distribution centre of eq. 1; `peak` is Pr_{p,z} at the centre (K_z / (sqrt(2 pi) sigma));
-    `sigma` is this centre's spread (default: the prior's `sigma`)."""
+class Centre(_Base, frozen=True, kw_only=True):
+    """A distribution centre of eq. 1: its position, its peak probability and its spread.
+
+    `peak` is Pr_{p,z} at the centre (K_z / (sqrt(2 pi) sigma)); `sigma` is this centre's spread
+    (default: the prior's `sigma`).
+    """
 
     x: float
     y: float
@@ -95,13 +98,13 @@ class Centre(_Base, kw_only=True):
     sigma: Positive | None = None
 
 
-class Prior(_Base, kw_only=True):
+class Prior(_Base, frozen=True, kw_only=True):
     sigma: Positive
     centres: Annotated[list[Centre], msgspec.Meta(max_length=MAX_CENTRES)]
     targets: Annotated[int, msgspec.Meta(ge=0)]
 
 
-class Sensor(_Base, kw_only=True):
+class Sensor(_Base, frozen=True, kw_only=True):
     """Downward camera: FOV radius R_A (eq. 3) and detector error rates (simulator only)."""
 
     radius: Positive
@@ -109,7 +112,7 @@ class Sensor(_Base, kw_only=True):
     miss: Probability = 0.0
 
 
-class Kinematics(_Base, kw_only=True):
+class Kinematics(_Base, frozen=True, kw_only=True):
     """Eq. 2: constant speed, turn limited to turn_limit_deg per sampling step dT.
 
     `altitude`: the lowest altitude layer, metres above the origin (`Layers` adds the others).
@@ -122,7 +125,7 @@ class Kinematics(_Base, kw_only=True):
     altitude: float = 100.0
 
 
-class Layers(_Base, kw_only=True):
+class Layers(_Base, frozen=True, kw_only=True):
     """Altitude layers (docs/algorithm.md, "Separation in three dimensions").
 
     The layers lie in the band [kinematics.altitude, kinematics.altitude + `band`], evenly spaced
@@ -137,7 +140,7 @@ class Layers(_Base, kw_only=True):
     count: Annotated[int, msgspec.Meta(ge=1, le=MAX_VEHICLES)] | None = None
 
 
-class Comms(_Base, kw_only=True):
+class Comms(_Base, frozen=True, kw_only=True):
     """Ranges of eqs. 5, 17, 28: R_s < R'_s < R'_c < R_c."""
 
     range: Positive
@@ -148,7 +151,7 @@ class Comms(_Base, kw_only=True):
     peer_timeout_steps: Annotated[int, msgspec.Meta(ge=1)] = 5
 
 
-class Safety(_Base, kw_only=True):
+class Safety(_Base, frozen=True, kw_only=True):
     """The safety layer (docs/algorithm.md, "Safety layer").
 
     `margin`: the operating margin (m): the fence is the region with every edge pushed out by it;
@@ -173,14 +176,14 @@ class Safety(_Base, kw_only=True):
     contingency: bool = True
 
 
-class Uncertainty(_Base, kw_only=True):
+class Uncertainty(_Base, frozen=True, kw_only=True):
     """Eqs. 10-11: initial uncertainty eta_0 and decay gamma per look."""
 
     eta0: Annotated[float, msgspec.Meta(gt=0, le=1)] = 1.0
     gamma: Annotated[float, msgspec.Meta(ge=0, lt=1)] = 0.1
 
 
-class Pheromone(_Base, kw_only=True):
+class Pheromone(_Base, frozen=True, kw_only=True):
     """Pheromone baseline: deposit from importance, evaporation, diffusion, attraction weight."""
 
     deposit: NonNegative = 1.0
@@ -189,10 +192,12 @@ class Pheromone(_Base, kw_only=True):
     weight: NonNegative = 1.0
 
 
-class Algorithm(_Base, kw_only=True):
-    """Algorithm name and every weight of eqs. 16-29 and Algorithm 1. The weights the paper does not
-    give are those `uavsearch tune` chose on 12 training missions (docs/results.md, "Held-out
-    missions"; the pheromone's stayed: no candidate beat them)."""
+class Algorithm(_Base, frozen=True, kw_only=True):
+    """Algorithm name and every weight of eqs. 16-29 and Algorithm 1.
+
+    The weights the paper does not give are those `uavsearch tune` chose on 12 training missions
+    (docs/results.md, "Held-out missions"; the pheromone's stayed: no candidate beat them).
+    """
 
     name: Literal["proposed", "no-ta", "pheromone"] = "proposed"
     n_g: Annotated[int, msgspec.Meta(ge=1)] = 50
@@ -209,7 +214,7 @@ class Algorithm(_Base, kw_only=True):
     pheromone: Pheromone = Pheromone()
 
 
-class Vehicle(_Base, kw_only=True):
+class Vehicle(_Base, frozen=True, kw_only=True):
     """Start pose (heading counter-clockwise from east, degrees) and MAVLink UDP port."""
 
     x: float
@@ -219,7 +224,7 @@ class Vehicle(_Base, kw_only=True):
     layer: Annotated[int, msgspec.Meta(ge=0)] | None = None  # its altitude layer (default: `assign_layers`)
 
 
-class Sim(_Base, kw_only=True):
+class Sim(_Base, frozen=True, kw_only=True):
     """Simulator options: autopilot flavour, flight model, base UDP port, integration and camera rates.
 
     `dynamics` (continuous kinematics only; grid mode always flies eq. 2 exactly): "arduplane",
@@ -236,7 +241,7 @@ class Sim(_Base, kw_only=True):
     guided_timeout: Positive = 3.0
 
 
-class Mesh(_Base, kw_only=True):
+class Mesh(_Base, frozen=True, kw_only=True):
     """Zenoh mesh: mode, key prefix and loopback endpoints (see docs/mesh.md).
 
     `listen` is where a peer that could not claim `seed_endpoint` listens (port 0: the OS picks);
@@ -253,10 +258,13 @@ class Mesh(_Base, kw_only=True):
     max_bundle_bytes: Annotated[int, msgspec.Meta(ge=1024)] = 1 << 20
 
 
-class NetworkFault(_Base, kw_only=True):
-    """Injected mesh faults over the steps [start, end): the companions drop the messages between
-    UAVs of different `groups` (a partition: UAVs in no group hear only themselves), and any other
-    message with probability `loss` (docs/reliability.md, "Fault matrix")."""
+class NetworkFault(_Base, frozen=True, kw_only=True):
+    """Injected mesh faults over the steps [start, end): a partition into `groups`, and message loss.
+
+    The companions drop the messages between UAVs of different `groups` (a partition: UAVs in no
+    group hear only themselves), and any other message with probability `loss` (docs/reliability.md,
+    "Fault matrix").
+    """
 
     start: Annotated[int, msgspec.Meta(ge=0)]
     end: Annotated[int, msgspec.Meta(ge=1)]
@@ -267,23 +275,26 @@ class NetworkFault(_Base, kw_only=True):
     loss: Probability = 0.0
 
 
-class Faults(_Base, kw_only=True):
+class Faults(_Base, frozen=True, kw_only=True):
     """Faults the companions inject into themselves (for the fault matrix)."""
 
     network: Annotated[list[NetworkFault], msgspec.Meta(max_length=1_000)] = []
 
 
-class Security(_Base, kw_only=True):
-    """Authentication (docs/reliability.md): `keys` is the key directory written by `uavsearch keys`
-    (relative to the mission file); empty, the default, runs an insecure mesh and MAVLink link, and
-    every process says so. `mavlink_signing`: with keys, sign the companion-autopilot link with each
-    vehicle's secret (the bundled simulator then rejects unsigned commands)."""
+class Security(_Base, frozen=True, kw_only=True):
+    """Authentication (docs/reliability.md): the key directory, and whether MAVLink is signed.
+
+    `keys` is the key directory written by `uavsearch keys` (relative to the mission file); empty, the
+    default, runs an insecure mesh and MAVLink link, and every process says so. `mavlink_signing`:
+    with keys, sign the companion-autopilot link with each vehicle's secret (the bundled simulator
+    then rejects unsigned commands).
+    """
 
     keys: str = ""
     mavlink_signing: bool = True
 
 
-class PassCriteria(_Base, kw_only=True):
+class PassCriteria(_Base, frozen=True, kw_only=True):
     """What a scripted mission must achieve to pass."""
 
     min_targets_found: Annotated[int, msgspec.Meta(ge=0)] = 0
@@ -291,7 +302,7 @@ class PassCriteria(_Base, kw_only=True):
     require_safe_distance: bool = True
 
 
-class Mission(_Base, kw_only=True):
+class Mission(_Base, frozen=True, kw_only=True):
     name: str
     seed: int = 1
     steps: Annotated[int, msgspec.Meta(ge=1, le=MAX_STEPS)] = 1000
@@ -340,14 +351,19 @@ class Mission(_Base, kw_only=True):
 
     @property
     def vertical_floor(self) -> float:
-        """The vertical distance two aircraft on layers `layers.separation` apart keep in flight,
-        each within `ALTITUDE_KEEPING` of its layer: below it, a pair horizontally within R_s has
-        lost separation in three dimensions."""
+        """The vertical distance two aircraft on layers `layers.separation` apart keep in flight.
+
+        Each is within `ALTITUDE_KEEPING` of its layer. Below it, a pair horizontally within R_s has lost
+        separation in three dimensions.
+        """
         return self.layers.separation - 2 * ALTITUDE_KEEPING
 
     def near_layers(self) -> list[list[bool]]:
-        """Whether each pair of vehicles flies layers closer than `layers.separation` (a UAV is near
-        itself): only such pairs can meet, so only they guard against each other's failures."""
+        """Whether each pair of vehicles flies layers closer than `layers.separation`.
+
+        A UAV is near itself. Only such pairs can meet, so only they guard against each other's
+        failures.
+        """
         alts = [self.layer_altitude(layer) for layer in self.layer_assignment()]
         gap = self.layers.separation - 1e-6
         return [[abs(a - b) < gap for b in alts] for a in alts]
@@ -382,9 +398,12 @@ class Mission(_Base, kw_only=True):
 def assign_layers(
     starts: list[tuple[float, float]], pinned: list[int | None], count: int
 ) -> tuple[int, ...]:
-    """Each UAV's layer: a pinned one keeps its own; the others, in id order, take the layer whose
-    nearest UAV at the start is farthest away (an empty layer first, then the fewest UAVs, then the
-    lowest), so that UAVs sharing a layer start as far apart as the greedy choice makes them."""
+    """Each UAV's altitude layer: a pinned one keeps its own; the others are spread greedily.
+
+    The others, in id order, take the layer whose nearest UAV at the start is farthest away (an empty
+    layer first, then the fewest UAVs, then the lowest), so that UAVs sharing a layer start as far
+    apart as the greedy choice makes them.
+    """
     layers: list[int] = [p if p is not None else -1 for p in pinned]
     for i, p in enumerate(pinned):
         if p is not None:
@@ -403,8 +422,10 @@ _PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
 
 
 def _field_from_msgspec(message: str) -> tuple[str, str]:
-    """Split msgspec's 'reason - at `$.a.b[0]`' into ('a.b[0]', 'reason'); a value not among a
-    field's choices gets the valid ones listed."""
+    """Split msgspec's 'reason - at `$.a.b[0]`' into ('a.b[0]', 'reason').
+
+    A value not among a field's choices gets the valid ones listed.
+    """
     match = _PATH_RE.search(message)
     if not match:
         return "(document)", message
@@ -550,8 +571,10 @@ def _validate_layers(m: Mission, fail: Callable[[str, str], None]) -> None:
 
 
 def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
-    """What the kinematics, the safety layer and the simulator imply, within the limits above
-    (checked before anything is expanded or allocated; one line naming the field)."""
+    """What the kinematics, the safety layer and the simulator imply, within the limits above.
+
+    Checked before anything is expanded or allocated; an error is one line naming the field.
+    """
     k, cell = m.kinematics, m.region.cell_size
     if k.speed > MAX_SPEED:
         fail("kinematics.speed", f"{k.speed:g} m/s; at most {MAX_SPEED:g}")
@@ -591,9 +614,11 @@ def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
 
 
 def parse_schema(text: str, source: str = "<mission>") -> Mission:
-    """Mission TOML text checked against the format and for consistency; `source` names it in
-    errors. What needs the core's geometry (the grid's size, a safe start) is checked by
-    `companion.core.feasibility.parse_mission`."""
+    """Mission TOML text checked against the format and for consistency; `source` names it in errors.
+
+    What needs the core's geometry (the grid's size, a safe start) is checked by
+    `companion.core.feasibility.parse_mission`.
+    """
     if len(text) > MAX_FILE_BYTES:
         raise MissionError(source, "(file)", f"{len(text):,} characters; at most {MAX_FILE_BYTES:,}")
     try:
@@ -625,8 +650,10 @@ def _refuse_replaced(raw: dict, source: str) -> None:
 
 
 def convert_schema(mission: Mission | dict, source: str = "<mission>") -> Mission:
-    """A mission built in code (a Mission, or the tables of a mission file) checked as
-    `parse_schema` checks a file's text; returns it."""
+    """A mission built in code, checked as `parse_schema` checks a file's text; returns it.
+
+    The mission is a Mission, or the tables of a mission file.
+    """
     raw = mission if isinstance(mission, dict) else msgspec.to_builtins(mission)
     try:
         checked = msgspec.convert(raw, Mission)

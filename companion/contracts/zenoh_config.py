@@ -1,20 +1,10 @@
 """Zenoh session configuration for the mesh: peer, client and router modes, loopback by default.
 
-Every configuration built here turns multicast scouting off (never join 224.0.0.224) and, for
-peers, turns gossip scouting on so that peers that only know one seed endpoint find each other.
-
-Peer discovery without a launcher ("claim the seed"): every peer first tries to listen on the
-mission's seed endpoint itself; the first one to bind it is the seed. A peer that finds the port
-taken listens on `mission.mesh.listen` (port 0 by default) and connects to the seed instead;
-gossip then forms the full mesh. Any subset of peers started in any order finds each other, and
-when the seed's holder dies, the next peer to start claims the port and the others reconnect to
-it (Zenoh retries configured connect endpoints). A launcher that prefers fixed endpoints passes
-`listen`/`connect` explicitly, and then nobody claims the seed.
-
-A secured mesh (`MeshSecurity`, from the mission's key directory) runs every link over TLS with
-mutual authentication (`tcp/` endpoints become `tls/`; only certificates issued by the swarm's CA
-are accepted) and Zenoh access control: a UAV may put only on its own keys, the camera only on
-camera keys, the live view on none; anything else is denied (docs/reliability.md).
+Multicast scouting is always off; peers gossip and, unless a launcher passes `listen`/`connect`,
+claim the mission's seed endpoint (the first to bind it is the seed, the others connect to it).
+A secured mesh (`MeshSecurity`, from the mission's key directory) runs every link over mutual TLS
+with Zenoh access control. The configurations and the reasoning: docs/mesh.md, "Peer mode",
+"Client mode and the router" and "Secured mesh"; docs/reliability.md, "The mesh".
 """
 
 from __future__ import annotations
@@ -78,8 +68,11 @@ class MeshConfig:
         connect: tuple[str, ...] | None = None,
         keys: SwarmKeys | None = None,
     ) -> MeshConfig:
-        """The mission's mesh settings; explicit `listen`/`connect` (peer mode) disable seed claiming;
-        `keys` (this process's, from the mission's key directory) secure it."""
+        """The mission's mesh settings, secured with `keys` when they are given.
+
+        Explicit `listen`/`connect` (peer mode) disable seed claiming; `keys` (this process's, from the
+        mission's key directory) secure it.
+        """
         m = mission.mesh
         sec = None if keys is None else MeshSecurity.of(keys, mission)
         if m.mode == "client":
@@ -195,7 +188,9 @@ def _rule(rule_id: str, flow: str, messages: list[str], keys: list[str]) -> dict
 
 
 def _config(tree: dict[str, Any], security: MeshSecurity | None = None) -> zenoh.Config:
-    """Shared memory off: large payloads would otherwise go through SHM segments between local
+    """The Zenoh configuration of `tree` with shared memory off and, with `security`, TLS and access control.
+
+    Shared memory off: large payloads would otherwise go through SHM segments between local
     processes, with two watchdog threads per process polling them (measured: a tenth of a core
     across 50 companions); the mesh's bundles are a few kilobytes and radio links have no SHM.
 

@@ -20,7 +20,7 @@ from companion.core.geometry import FloatArray, IntArray
 def local_auction(
     bidders: Sequence[int], bids: FloatArray, available: np.ndarray
 ) -> dict[int, tuple[int, float]]:
-    """Allocate tasks to `bidders` (UAV ids, one row of `bids` each).
+    """Algorithm 2: allocate tasks to `bidders` (UAV ids, one row of `bids` each) by local auction.
 
     `available[j]` is False for tasks already held outside the auction. Returns
     {uav: (task, reward)}; a bidder is left out only when no task with a positive reward remains.
@@ -34,10 +34,12 @@ def local_auction(
 
 @njit(cache=True)
 def _auction_rounds(r: FloatArray) -> IntArray:
-    """The rounds of Algorithm 2 over rewards `r` (rows by ascending UAV id, -inf where a bidder
-    may not take a task): each task goes to its highest open bidder (the first row among equals),
-    each winner keeps the best task it won (the first among equals), and its row and task leave
-    the auction. Returns each row's task, -1 for none."""
+    """The rounds of Algorithm 2 over rewards `r` (eq. 15); returns each row's task, -1 for none.
+
+    Rows are by ascending UAV id, -inf where a bidder may not take a task. Each task goes to its
+    highest open bidder (the first row among equals), each winner keeps the best task it won (the
+    first among equals), and its row and task leave the auction.
+    """
     n, m = r.shape
     task = np.full(n, -1, dtype=np.int64)
     winner = np.empty(m, dtype=np.int64)

@@ -53,7 +53,7 @@ def mass_centroids(
 def initial_generators(
     centres: FloatArray, density: FloatArray, n_g: int, rng: np.random.Generator
 ) -> FloatArray:
-    """Distinct cell centres drawn with probability proportional to the density (Pr_p)."""
+    """Algorithm 1's initial generators: distinct cell centres drawn in proportion to the density (Pr_p)."""
     n_g = min(n_g, centres.shape[0])
     p = density / density.sum()
     return centres[rng.choice(centres.shape[0], size=n_g, replace=False, p=p)].copy()
@@ -92,4 +92,4 @@ def describe(
     radii = np.zeros(n)
     np.maximum.at(radii, labels, dist)
     radii[radii == 0] = np.sqrt(cell_area / 2.0)
-    return Tessellation(generators, labels, counts, counts * cell_area, radii, iterations)
+    return Tessellation(generators, labels, counts, counts * np.float64(cell_area), radii, iterations)

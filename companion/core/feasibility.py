@@ -1,6 +1,8 @@
-"""Whether a mission can be flown: what the mission schema cannot check without the core's
-geometry (starts inside the region, the grid's size, a safe start layout). Every mission the
-processes run is loaded through here."""
+"""Whether a mission can be flown: the checks that need the core's geometry.
+
+What the mission schema cannot check without it: starts inside the region, the grid's size, a
+safe start layout. Every mission the processes run is loaded through here.
+"""
 
 from __future__ import annotations
 
@@ -37,14 +39,19 @@ def parse_mission(text: str, source: str = "<mission>") -> Mission:
 
 
 def validate(mission: Mission | dict, source: str = "<mission>") -> Mission:
-    """A mission built in code (a copy with other start poses or weights, say; a Mission or the
-    tables of a mission file) checked exactly as a mission file is; returns it."""
+    """A mission built in code, checked exactly as a mission file is; returns it.
+
+    A copy with other start poses or weights, say; a Mission or the tables of a mission file.
+    """
     return check_feasible(convert_schema(mission, source), source)
 
 
 def check_feasible(m: Mission, source: str) -> Mission:
-    """`m` if its starts lie in the region, its sizes are within the limits and its start layout is
-    safe; else MissionError naming `source`, the field and the reason."""
+    """`m` if it can be flown; else MissionError naming `source`, the field and the reason.
+
+    It can if its starts lie in the region, its sizes are within the limits and its start layout is
+    safe.
+    """
 
     def fail(field: str, reason: str) -> None:
         raise MissionError(source, field, reason)
@@ -59,8 +66,10 @@ def check_feasible(m: Mission, source: str) -> Mission:
 
 
 def _validate_sizes(m: Mission, region: ConvexPolygon, fail: Callable[[str, str], None]) -> None:
-    """The grid, the sensor footprint, the CVT and the targets within the limits above (checked
-    before anything of that size is built)."""
+    """The grid, the sensor footprint, the CVT and the targets within the limits above.
+
+    Checked before anything of that size is built.
+    """
     bx0, by0, bx1, by1 = region.bounds
     cell = m.region.cell_size
     across = max(bx1 - bx0, by1 - by0) / cell  # first alone: a tiny cell overflows the product
@@ -96,8 +105,11 @@ def _validate_sizes(m: Mission, region: ConvexPolygon, fail: Callable[[str, str]
 
 
 def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
-    """The safety layer's preconditions: a margin the UAVs can turn back in, and a start layout
-    that is separated, connected and admits a contingency for every UAV (core.safety)."""
+    """The safety layer's preconditions on the start (core.safety).
+
+    A margin the UAVs can turn back in, and a start layout that is separated, connected and admits a
+    contingency for every UAV.
+    """
     kin = build_kinematics(m)
     horizon = m.algorithm.horizon
     need = safety.minimum_margin(kin, horizon)

@@ -24,11 +24,14 @@ class MessageError(ValueError):
 
 
 class UavState(msgspec.Struct, frozen=True, array_like=True):
-    """What a UAV tells about itself: pose at `stamp`, its planned path (points and the heading at
-    each), its task claim, and the safety layer's commitments: the trajectory in force from `stamp`
-    on and the proposal it asks to switch to at `stamp + 1` (core.commitment). A UAV whose vehicle
-    its companion does not steer (a pilot or the autopilot's own mode flies it) is `steered=False`
-    and commits to nothing: the others keep clear of a disk about where it is."""
+    """What a UAV tells about itself: pose, planned path, task claim and safety commitments.
+
+    The pose is at `stamp`; the planned path is its points and the heading at each; the safety
+    layer's commitments are the trajectory in force from `stamp` on and the proposal it asks to
+    switch to at `stamp + 1` (core.commitment). A UAV whose vehicle its companion does not steer (a
+    pilot or the autopilot's own mode flies it) is `steered=False` and commits to nothing: the others
+    keep clear of a disk about where it is.
+    """
 
     uav: int
     stamp: int
@@ -52,32 +55,37 @@ class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
     y: float
 
 
-class StateMsg(_Header, tag="state"):
-    """The sender's own state (pose, plan, task, commitments), the UAVs whose StateMsg it received at
-    its previous step (its first-hand neighbours: what the others need not relay to it), and the
-    UAVs it is tethered to (its parents in the tree of links that must hold)."""
+class StateMsg(_Header, frozen=True, tag="state"):
+    """The sender's own state, the UAVs it heard first-hand, and the UAVs it is tethered to.
+
+    `state`: its pose, plan, task and commitments. `heard`: the UAVs whose StateMsg it received at its
+    previous step (its first-hand neighbours: what the others need not relay to it). `parents`: the
+    UAVs it is tethered to (its parents in the tree of links that must hold).
+    """
 
     state: UavState
     heard: tuple[int, ...] = ()
     parents: tuple[int, ...] = ()
 
 
-class CoverageMsg(_Header, tag="coverage"):
-    """Cells in the sender's FOV at `stamp` (eq. 11 looks) and every target cell it knows of (its camera's
-    detections and those it heard of): each step re-announces them all, so a UAV that joins or
-    restarts late learns every earlier detection from any neighbour."""
+class CoverageMsg(_Header, frozen=True, tag="coverage"):
+    """Cells in the sender's FOV at `stamp` (eq. 11 looks) and every target cell it knows of.
+
+    The target cells are its camera's detections and those it heard of: each step re-announces them
+    all, so a UAV that joins or restarts late learns every earlier detection from any neighbour.
+    """
 
     cells: tuple[int, ...]
     detections: tuple[int, ...] = ()
 
 
-class BidsMsg(_Header, tag="bids"):
+class BidsMsg(_Header, frozen=True, tag="bids"):
     """The sender's rewards R_ij for every task (eq. 15): its bids for the next local auction."""
 
     rewards: tuple[float, ...]
 
 
-class ClaimsMsg(_Header, tag="claims"):
+class ClaimsMsg(_Header, frozen=True, tag="claims"):
     """The latest state the sender knows of other UAVs: multi-hop relay of positions and claims."""
 
     known: tuple[UavState, ...]

@@ -52,9 +52,12 @@ def _step(
 def step_field(
     grid: Grid, phi: FloatArray, eta: FloatArray, prior: FloatArray, p: Pheromone, sensed: FloatArray
 ) -> FloatArray:
-    """One step of deposit (in proportion to s = eta * Pr, eq. 12), 4-neighbour diffusion (no flux
-    across the region edge) and evaporation; returns the new field and writes the map the RHC
-    senses, eta + weight * phi, into the first cells of `sensed`."""
+    """One step of the pheromone field: deposit, diffusion, evaporation; returns the new field.
+
+    The deposit is in proportion to s = eta * Pr (eq. 12); diffusion is 4-neighbour, with no flux
+    across the region edge. It also writes the map the RHC senses, eta + weight * phi, into the first
+    cells of `sensed`.
+    """
     return _step(
         grid.lattice_neighbours, phi, eta, prior, p.deposit, p.evaporation, p.diffusion, p.weight, sensed
     )

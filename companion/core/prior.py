@@ -9,6 +9,9 @@ import numpy as np
 
 from companion.core.geometry import FloatArray
 
+# A distribution centre of eq. 1: (x, y, peak), or (x, y, peak, sigma_z) with None for the common sigma
+CentreSpec = tuple[float, float, float] | tuple[float, float, float, float | None]
+
 
 def gain_for_peak(peak: float, sigma: float) -> float:
     """K_z such that the centre's own term of eq. 1 equals `peak` at the centre."""
@@ -22,7 +25,7 @@ def centre_probability(centres: FloatArray, centre: Sequence[float], gain: float
 
 
 def prior_map(
-    centres: FloatArray, distribution_centres: Sequence[tuple[float, ...]], sigma: float
+    centres: FloatArray, distribution_centres: Sequence[CentreSpec], sigma: float
 ) -> FloatArray:
     """Eq. 1, combined: Pr_p = 1 - prod_z (1 - Pr_{p,z}), the chance that cell p holds a target.
 

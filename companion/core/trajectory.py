@@ -39,8 +39,10 @@ class Trajectory(msgspec.Struct, frozen=True, array_like=True):
     loiter: int  # +1 counter-clockwise, -1 clockwise
 
     def fields(self, horizon: int) -> tuple[float, ...]:
-        """The kernel row; turns missing from a short plan are NaN (`expand` then takes the loiter
-        turn)."""
+        """The kernel row; turns missing from a short plan are NaN.
+
+        `expand` then takes the loiter turn.
+        """
         turns = self.turns[:horizon]
         row = (self.start, self.x, self.y, self.heading, self.loiter, *turns)
         return row if len(turns) == horizon else row + (math.nan,) * (horizon - len(turns))
@@ -51,8 +53,10 @@ class Trajectory(msgspec.Struct, frozen=True, array_like=True):
         return self.turns[i] if 0 <= i < len(self.turns) else self.loiter * loiter_turn
 
     def loiter_entry(self, loiter_turn: float) -> int:
-        """The step from which it only loiters: after its last turn that is not the loiter's
-        (`reanchored` pads with loiter turns; a plan ending in them is on the loiter circle already)."""
+        """The step from which it only loiters: after its last turn that is not the loiter's.
+
+        `reanchored` pads with loiter turns; a plan ending in them is on the loiter circle already.
+        """
         turn = self.loiter * loiter_turn
         planned = len(self.turns)
         while planned and abs(self.turns[planned - 1] - turn) < 1e-12:
@@ -60,8 +64,10 @@ class Trajectory(msgspec.Struct, frozen=True, array_like=True):
         return self.start + planned
 
     def reanchored(self, step: int, x: float, y: float, heading: float, loiter_turn: float) -> Trajectory:
-        """The same promise anchored at `step` at the pose (x, y, heading): the turns still ahead,
-        then loiter turns, so that every row keeps M turns."""
+        """The same promise anchored at `step` at the pose (x, y, heading).
+
+        The turns still ahead, then loiter turns, so that every row keeps M turns.
+        """
         i = max(step - self.start, 0)
         ahead = self.turns[i:] + (self.loiter * loiter_turn,) * min(i, len(self.turns))
         return Trajectory(step, x, y, heading, ahead, self.loiter)
@@ -71,8 +77,10 @@ class Trajectory(msgspec.Struct, frozen=True, array_like=True):
 def step_pose(
     x: float, y: float, h: float, turn: float, grid: bool, speed: float, dt: float, cell: float
 ) -> tuple[float, float, float]:
-    """Eq. 2 over one step: `Kinematics.advance` for one UAV (grid: `grid_advance`; continuous:
-    `arc_advance`'s chord form), heading wrapped to [-pi, pi)."""
+    """Eq. 2 over one step: `Kinematics.advance` for one UAV, heading wrapped to [-pi, pi).
+
+    Grid mode is `grid_advance`; continuous mode is `arc_advance`'s chord form.
+    """
     if grid:
         h1 = round((h + turn) / _EIGHTH) * _EIGHTH
         x1 = x + cell * round(math.cos(h1))
@@ -97,9 +105,12 @@ def expand(
     dt: float,
     cell: float,
 ) -> FloatArray:
-    """Positions of trajectory `row` at steps first..first+count (count + 1 points). Turns that are NaN
-    (past the plan) and steps beyond the plan take the loiter turn; steps before the anchor (never
-    asked for by the safety layer, which checks trajectories from their start on) hold the anchor."""
+    """Positions of trajectory `row` at steps first..first+count (count + 1 points).
+
+    Turns that are NaN (past the plan) and steps beyond the plan take the loiter turn; steps before
+    the anchor (never asked for by the safety layer, which checks trajectories from their start on)
+    hold the anchor.
+    """
     start = int(row[0])
     x, y, h = row[1], row[2], row[3]
     side = row[4]
@@ -126,8 +137,10 @@ def expand(
 
 @njit(cache=True)
 def segment_clearance(a: FloatArray, b: FloatArray) -> float:
-    """The closest approach of two UAVs moving uniformly along the chords a[t] -> a[t+1] and
-    b[t] -> b[t+1] over every step t (exact for straight motion)."""
+    """The closest approach of two UAVs moving uniformly along their chords, over every step.
+
+    The chords are a[t] -> a[t+1] and b[t] -> b[t+1] for every step t; exact for straight motion.
+    """
     best = math.inf
     for t in range(a.shape[0] - 1):
         rx, ry = a[t, 0] - b[t, 0], a[t, 1] - b[t, 1]
@@ -153,8 +166,11 @@ def point_clearance(a: FloatArray, cx: float, cy: float) -> float:
 
 
 def arc_chord_deviation(turn: float, speed: float, dt: float) -> float:
-    """The largest distance, at equal times, between a UAV on a circular arc turning `turn` in dt and
-    a point moving uniformly along the arc's chord: the sagitta R (1 - cos(turn / 2))."""
+    """The sagitta R (1 - cos(turn / 2)): how far an arc of eq. 2 strays from its chord.
+
+    It is the largest distance, at equal times, between a UAV on a circular arc turning `turn` in dt
+    and a point moving uniformly along the arc's chord.
+    """
     if turn == 0:
         return 0.0
     radius = speed * dt / abs(turn)

@@ -70,10 +70,12 @@ def build_kinematics(mission: Mission) -> Kinematics:
 
 @dataclass(frozen=True)
 class SafetyPlan:
-    """The safety layer's common knowledge (core.safety): what compatibility means, every UAV's
-    start contingency, the tether tree of the start layout, how far a silent UAV's aircraft may
-    stray from the centre of its committed loiter once its failsafe circles it, and from its path
-    before the failsafe fires."""
+    """The safety layer's common knowledge (core.safety).
+
+    What compatibility means, every UAV's start contingency, the tether tree of the start layout, how
+    far a silent UAV's aircraft may stray from the centre of its committed loiter once its failsafe
+    circles it, and from its path before the failsafe fires.
+    """
 
     limits: Limits
     start: tuple[Trajectory, ...]
@@ -95,11 +97,13 @@ FAILSAFE_WIDE = 1.4  # ArduPlane flies a loiter circle this much wider than aske
 
 
 def failsafe_reach(mission: Mission, limits: Limits) -> float:
-    """Default `safety.failsafe_reach`: how far from the centre of its committed loiter the aircraft
-    of a UAV whose companion fell silent can be once its failsafe circles that loiter
-    (companion.node.failsafe): the circle flown up to `FAILSAFE_WIDE` times wider than asked (ArduPlane
-    SITL flew 93 m for 76 m asked, 69 m for 51 m), plus a turn radius for arriving on it off its
-    tangent."""
+    """Default `safety.failsafe_reach`: how far a silent UAV's aircraft may be from its loiter's centre.
+
+    That is, how far from the centre of its committed loiter the aircraft of a UAV whose companion fell
+    silent can be once its failsafe circles that loiter (companion.node.failsafe): the circle flown up
+    to `FAILSAFE_WIDE` times wider than asked (ArduPlane SITL flew 93 m for 76 m asked, 69 m for 51
+    m), plus a turn radius for arriving on it off its tangent.
+    """
     k = mission.kinematics
     turn_radius = k.speed * k.step / math.radians(k.turn_limit_deg)
     radius = limits.loiter_circle(Trajectory(0, 0.0, 0.0, 0.0, (), 1))[2]
@@ -110,11 +114,14 @@ FAILSAFE_CHECK_S = 1 / 3  # ArduPlane checks its GCS failsafe at 3 Hz (ArduPlane
 
 
 def failsafe_stray(mission: Mission, limits: Limits) -> float:
-    """How far from its trajectory's path the aircraft of a UAV whose companion fell silent may be
-    when its failsafe fires: it holds its last command for up to tau = `Mission.failsafe_seconds`
-    plus one failsafe check instead of the plan's next turns. Two eq. 2 paths from one pose whose
-    turn rates differ by up to 2 omega_max part by at most 2 R (1 - cos omega_max tau) <= v omega_max
-    tau^2 (R = v / omega_max), and neither leaves v tau of that pose."""
+    """How far from its trajectory's path a silent UAV's aircraft may be when its failsafe fires.
+
+    The aircraft of a UAV whose companion fell silent holds its last command for up to tau =
+    `Mission.failsafe_seconds` plus one failsafe check instead of the plan's next turns. Two eq. 2
+    paths from one pose whose turn rates differ by up to 2 omega_max part by at most
+    2 R (1 - cos omega_max tau) <= v omega_max tau^2 (R = v / omega_max), and neither leaves v tau of
+    that pose.
+    """
     tau = mission.failsafe_seconds + FAILSAFE_CHECK_S
     dt = float(mission.kinematics.step)
     speed, rate = limits.reach.step / dt, limits.reach.loiter_turn / dt

@@ -45,12 +45,13 @@ def bank_for(k: Kinematics) -> float:
 
 
 def heading_lead(k: Kinematics, rate: float) -> float:
-    """How far (rad) past the heading the plan reaches at the step's end to command
-    GUIDED_CHANGE_HEADING so that ArduPlane, in a turn at the planned `rate` (rad/s), ends each step
-    on the plan's heading. ArduPlane banks GUIDED_P per radian of heading error; linearised, its
-    heading closes the error at c = g * GUIDED_P / v per second, so a command that moves on by
-    rate * dT each step leaves an error rate * dT * q / (1 - q), q = exp(-c * dT), at the step's
-    end: the lead."""
+    """How far (rad) past the plan's heading at the step's end to command GUIDED_CHANGE_HEADING.
+
+    With that lead ArduPlane, in a turn at the planned `rate` (rad/s), ends each step on the plan's
+    heading. ArduPlane banks GUIDED_P per radian of heading error; linearised, its heading closes the
+    error at c = g * GUIDED_P / v per second, so a command that moves on by rate * dT each step leaves
+    an error rate * dT * q / (1 - q), q = exp(-c * dT), at the step's end: the lead.
+    """
     q = math.exp(-GRAVITY * math.radians(GUIDED_P) * k.step / k.speed)
     return rate * k.step * q / (1.0 - q)
 

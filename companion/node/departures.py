@@ -1,5 +1,4 @@
-"""Which peers a companion forgets because their liveliness token vanished (docs/mesh.md,
-"Liveliness").
+"""Which peers a companion forgets because their liveliness token vanished (docs/mesh.md, "Liveliness").
 
 A peer whose token goes is forgotten at once, so that its task goes back to the auction without
 waiting for the agent's peer timeout, and again at every step while the token stays away: the
@@ -22,8 +21,11 @@ from companion.core.messages import UavState
 
 @dataclass(frozen=True)
 class DepartureUpdate:
-    """What changed at one step: peers whose token just vanished, peers heard of again without
-    their token (through relays), and the peers to forget now."""
+    """What changed at one step among the peers whose liveliness token vanished.
+
+    The peers whose token just vanished, the peers heard of again without their token (through
+    relays), and the peers to forget now.
+    """
 
     left: tuple[int, ...] = ()
     back: tuple[int, ...] = ()

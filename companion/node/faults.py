@@ -1,6 +1,6 @@
-"""Mesh faults a companion injects into its own inbox, by step (the mission's `[faults]`): partitions
-and message loss over windows of steps, for the fault matrix (docs/reliability.md).
+"""Mesh faults a companion injects into its own inbox, by step (the mission's `[faults]`).
 
+Partitions and message loss over windows of steps, for the fault matrix (docs/reliability.md).
 Deterministic: the windows are in steps, and the loss draws come from the companion's own seeded
 stream, one draw per message that survives the partition, in delivery order.
 """

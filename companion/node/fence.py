@@ -43,8 +43,10 @@ def fence_margin(mission: Mission) -> float:
 
 
 def offset_polygon(polygon: ConvexPolygon, distance: float) -> FloatArray:
-    """Vertices (counter-clockwise) of `polygon` with every edge moved `distance` outwards (inwards
-    if negative): vertex i is where the moved edges i-1 and i meet."""
+    """Vertices (counter-clockwise) of `polygon` with every edge moved `distance` outwards.
+
+    Inwards if `distance` is negative; vertex i is where the moved edges i-1 and i meet.
+    """
     n, o = polygon.normals, polygon.offsets + distance
     out = np.empty_like(polygon.vertices)
     for i in range(len(n)):
@@ -61,8 +63,10 @@ def fence_polygon(mission: Mission, margin: float | None = None) -> ConvexPolygo
 
 
 def nearest_inside(region: ConvexPolygon, x: float, y: float, depth: float) -> tuple[float, float]:
-    """The point nearest (x, y) at least `depth` metres inside `region` (its centroid when the
-    region is too small for that depth)."""
+    """The point nearest (x, y) at least `depth` metres inside `region`.
+
+    Its centroid when the region is too small for that depth.
+    """
     shrunk = offset_polygon(region, -depth)
     inner = ConvexPolygon.from_vertices(shrunk)
     if not np.all(region.normals @ shrunk.T <= region.offsets[:, None] - depth + 1e-6) or inner.area <= 0:

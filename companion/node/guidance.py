@@ -86,9 +86,11 @@ class Guidance:
             self.link.change_speed(self.speed)
 
     def go_to(self, x: float, y: float) -> None:
-        """Fly to local (x, y) at the UAV's altitude and circle there, instead of the plan: the position
-        target, streamed from now on, in `position-target` (PX4 OFFBOARD: a DO_REPOSITION would switch
-        to Hold); DO_REPOSITION in the other modes."""
+        """Fly to local (x, y) at the UAV's altitude and circle there, instead of the plan.
+
+        In PX4 OFFBOARD: the position target, streamed from now on, in `position-target` (a DO_REPOSITION
+        would switch to Hold); DO_REPOSITION in the other modes.
+        """
         self.last = None
         if self.mode == "position-target":
             self.point = (x, y)
@@ -100,8 +102,11 @@ class Guidance:
         self.last_send = self.link.state.time_s
 
     def hold_course(self, x: float, y: float, heading: float) -> None:
-        """Fly on along `heading` from (x, y) until the first step: the position target a lead ahead,
-        streamed from now on (what PX4 needs streamed before it accepts OFFBOARD, and after)."""
+        """Fly on along `heading` from (x, y) until the first step.
+
+        The position target a lead ahead, streamed from now on (what PX4 needs streamed before it accepts
+        OFFBOARD, and after).
+        """
         self.last = None
         self.point = (x + self.lead * math.cos(heading), y + self.lead * math.sin(heading))
         self.hold(*self.point)
@@ -148,8 +153,10 @@ def lead_point(
 
 
 def _exit_distance(fence: ConvexPolygon, x: float, y: float, c: float, s: float) -> float:
-    """How far from (x, y) along (c, s) the fence is left, less FENCE_CLEARANCE_M (inf if never;
-    the full lead from outside it: the region guard acts there)."""
+    """How far from (x, y) along (c, s) the fence is left, less FENCE_CLEARANCE_M.
+
+    Inf if never; from outside the fence, inf too (the full lead: the region guard acts there).
+    """
     along = fence.normals @ np.array([c, s])
     room = fence.offsets - fence.normals @ np.array([x, y])
     if np.any(room < 0):

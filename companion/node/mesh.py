@@ -96,9 +96,12 @@ def received_bundle(
     n_tasks: int,
     auth: Authenticator | None = None,
 ) -> Bundle:
-    """The bundle in a sample from `{base}/uav/{i}/msg`: size-checked, decoded, validated
-    (`check_bundle`), sent by UAV i and, with `auth`, signed by it (states by their originators).
-    Raises MessageError (a ValueError; `Spoofed`, `Unauthenticated`, `Forged` for what they say)."""
+    """The bundle in a sample from `{base}/uav/{i}/msg`, checked and authenticated.
+
+    Size-checked, decoded, validated (`check_bundle`), sent by UAV i and, with `auth`, signed by it
+    (states by their originators). Raises MessageError (a ValueError; `Spoofed`, `Unauthenticated`,
+    `Forged` for what they say).
+    """
     if len(sample.payload) > max_bytes:
         raise MessageError("oversized bundle")
     data = sample.payload.to_bytes()
@@ -120,8 +123,10 @@ def received_bundle(
 
 
 def mission_authenticator(mission: Mission, keys: SwarmKeys | None) -> Authenticator | None:
-    """What checks (and, with a UAV's keys, signs) bundles in this mission and run; None if
-    insecure. It takes a rotated key from the key directory's swarm.json when one appears."""
+    """What checks (and, with a UAV's keys, signs) bundles in this mission and run; None if insecure.
+
+    It takes a rotated key from the key directory's swarm.json when one appears.
+    """
     if keys is None:
         return None
     return Authenticator(keys.public, key_base(mission), keys.signing, keys.run, keys.reload_public)
@@ -129,12 +134,15 @@ def mission_authenticator(mission: Mission, keys: SwarmKeys | None) -> Authentic
 
 @dataclass
 class MeshStats:
-    """Receipt counters. Bundles: received (valid, from peers), malformed (dropped samples:
-    oversized, undecodable, wrong version or sender, failed validation), spoofed (put on another
-    UAV's key than the sender it names), unauthenticated (not signed by the sender it names),
-    forged (carrying a state not signed by its UAV), stale (too old for their step, or evicted),
-    duplicates (a second bundle for one sender and stamp).
-    Messages: out_of_range (sender beyond R_c), lost (simulated loss)."""
+    """Receipt counters of bundles and messages.
+
+    Bundles: received (valid, from peers), malformed (dropped samples: oversized, undecodable, wrong
+    version or sender, failed validation), spoofed (put on another UAV's key than the sender it
+    names), unauthenticated (not signed by the sender it names), forged (carrying a state not signed
+    by its UAV), stale (too old for their step, or evicted), duplicates (a second bundle for one
+    sender and stamp).
+    Messages: out_of_range (sender beyond R_c), lost (simulated loss).
+    """
 
     received: int = 0
     malformed: int = 0
@@ -148,8 +156,10 @@ class MeshStats:
 
     @property
     def samples(self) -> int:
-        """Samples taken or rejected: every sample that reached the subscriber is in one counter
-        (stale also counts evictions of held bundles)."""
+        """Samples taken or rejected: every sample that reached the subscriber is in one counter.
+
+        Stale also counts evictions of held bundles.
+        """
         return (
             self.received + self.malformed + self.spoofed + self.unauthenticated + self.forged
             + self.stale + self.duplicates
@@ -220,8 +230,10 @@ class Mesh:
             self._token = self._session.liveliness().declare_token(self._token_key)
 
     def leave(self) -> None:
-        """Withdraw the liveliness token (a companion that cannot steer): peers take this UAV as gone
-        until `join`; idempotent."""
+        """Withdraw the liveliness token (a companion that cannot steer); idempotent.
+
+        Peers take this UAV as gone until `join`.
+        """
         if self._token is not None:
             self._token.undeclare()
             self._token = None
@@ -360,9 +372,11 @@ class Mesh:
         return out
 
     def wait_for(self, step: int, peers: set[int], timeout: float) -> set[int]:
-        """Block until bundles stamped `step` from all `peers` are held (call it before
-        `inbox(step + 1)` takes them), or those missing have left, or `timeout` s pass; return the
-        peers still missing (and alive)."""
+        """Block until every peer's bundle stamped `step` is held; return the peers still missing.
+
+        Call it before `inbox(step + 1)` takes them. It returns early, too, once those missing have left,
+        or after `timeout` s; the peers it returns are those still missing (and alive).
+        """
         deadline = time.monotonic() + timeout
         with self._cond:
             while True:
@@ -410,8 +424,10 @@ def run_router(
     stop: threading.Event | None = None,
     security: MeshSecurity | None = None,
 ) -> None:
-    """Run a Zenoh router on `endpoint` until SIGINT/SIGTERM (main thread only) or `stop` is set;
-    with `security` (the router's keys) over TLS with the mesh's access control."""
+    """Run a Zenoh router on `endpoint` until SIGINT/SIGTERM (main thread only) or `stop` is set.
+
+    With `security` (the router's keys) it runs over TLS with the mesh's access control.
+    """
     if stop is None:
         stop = threading.Event()
     previous: dict[signal.Signals, Any] = {}

@@ -89,8 +89,11 @@ def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.E
 
 
 def hold_on_offboard_loss(link: VehicleLink, uav: int) -> None:
-    """PX4: make the OFFBOARD-loss failsafe Hold (COM_OBL_RC_ACT 5) where it is Position, Altitude or
-    Manual mode (0-2): flown from sticks, without them a fixed-wing flies straight on."""
+    """PX4: make the OFFBOARD-loss failsafe Hold (COM_OBL_RC_ACT 5) where it is a stick mode.
+
+    That is, where it is Position, Altitude or Manual mode (0-2): flown from sticks, without them a
+    fixed-wing flies straight on.
+    """
     action = link.read_params([OFFBOARD_LOSS]).get(OFFBOARD_LOSS)
     if action is not None and action <= OFFBOARD_LOSS_MANUAL:
         link.set_param(OFFBOARD_LOSS, OFFBOARD_LOSS_HOLD)
