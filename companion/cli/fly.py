@@ -12,13 +12,16 @@ from companion.core.feasibility import load_mission
 
 
 def _companion(args: argparse.Namespace) -> int:
+    """`uavsearch companion`: one UAV's companion process."""
     from companion.node.main import run_companion
 
     return run_companion(args)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from companion.app.launcher import RunOptions, run_mission
+    """`uavsearch run`: the whole swarm with one command."""
+    from companion.app.launcher import run_mission
+    from companion.app.run_options import RunOptions
 
     options = RunOptions(
         mission_file=Path(args.mission),
@@ -48,6 +51,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _keys(args: argparse.Namespace) -> int:
+    """`uavsearch keys`: a swarm's keys and certificates, or one UAV's signing key rotated."""
     from companion.contracts.keys import KeyDirectoryError, generate, rotate
 
     mission = load_mission(args.mission) if args.mission else None
@@ -82,16 +86,19 @@ def _keys(args: argparse.Namespace) -> int:
 
 
 def _view(args: argparse.Namespace) -> int:
+    """`uavsearch view`: the live map, or a run's replay."""
     from companion.app.view.main import run_view
 
     return run_view(args)
 
 
 def _links(text: str | None) -> tuple[str, ...]:
+    """Comma-separated links as a tuple (none for none)."""
     return tuple(u.strip() for u in (text or "").split(",") if u.strip())
 
 
 def _router(args: argparse.Namespace) -> int:
+    """`uavsearch router`: a Zenoh router for client-mode meshes."""
     from companion.node.mesh import router_main
 
     argv = ["--endpoint", args.endpoint] if args.endpoint else []
@@ -99,12 +106,14 @@ def _router(args: argparse.Namespace) -> int:
 
 
 def _sim(args: argparse.Namespace) -> int:
+    """`uavsearch sim`: the MAVLink fixed-wing simulator."""
     from sim_vehicles.cli import run
 
     return run(args)
 
 
 def _camera(args: argparse.Namespace) -> int:
+    """`uavsearch camera`: the stand-alone simulated camera."""
     from companion.app.camera_node import run
 
     return run(args)
