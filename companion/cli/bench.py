@@ -18,6 +18,7 @@ CLUSTER_NEEDS = (
 
 
 def _bench(args: argparse.Namespace) -> int:
+    """`uavsearch bench`: time per 1,000 steps and throughput, or CPU time against another checkout."""
     from companion.batch.executors import open_executor
     from companion.batch.experiments import bench, format_bench
 
@@ -38,6 +39,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _cluster_bench(args: argparse.Namespace) -> int:
+    """`uavsearch cluster-bench`: the local pool against a Dask cluster on loopback."""
     try:
         from companion.bench.cluster_bench import cluster_bench, format_cluster_bench
     except ImportError as exc:
@@ -61,18 +63,21 @@ def _cluster_bench(args: argparse.Namespace) -> int:
 
 
 def _sim_bench(args: argparse.Namespace) -> int:
+    """`uavsearch sim-bench`: the simulator's capacity (its own options)."""
     from sim_vehicles.bench import bench_main
 
     return bench_main(args.args)
 
 
 def _companion_bench(args: argparse.Namespace) -> int:
+    """`uavsearch companion-bench`: companion step latency (its own options)."""
     from companion.bench.companion_bench import bench_main
 
     return bench_main(args.args)
 
 
 def _altitude_bench(args: argparse.Namespace) -> int:
+    """`uavsearch altitude-bench`: altitude-keeping error per flight phase (its own options)."""
     from companion.bench.altitude_bench import bench_main
 
     return bench_main(args.args)

@@ -11,6 +11,7 @@ from companion.contracts.mission import ALGORITHMS
 
 
 def _generate(args: argparse.Namespace) -> int:
+    """`uavsearch generate`: generated missions written as mission files."""
     from companion.batch.generate import generate, write
 
     paths = write(generate(args.count, args.seed, family(args)), Path(args.out))
@@ -19,6 +20,7 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _soak(args: argparse.Namespace) -> int:
+    """`uavsearch soak`: every algorithm on generated missions; exit 1 on any event."""
     from rich.console import Console
 
     from companion.batch.executors import open_executor

@@ -19,6 +19,7 @@ from companion.contracts.mission import ALGORITHMS, Mission
 
 
 def _output_folder(out: Path) -> None:
+    """Make the output folder; a ValueError naming `--out` if it cannot be made."""
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -66,6 +67,7 @@ def _missions(
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    """`uavsearch evaluate`: the proposed method against each baseline on held-out missions."""
     from companion.batch.executors import open_executor
     from companion.batch.heldout import MIN_RUNS, evaluate
     from companion.batch.progress import run_progress
@@ -93,6 +95,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _tune(args: argparse.Namespace) -> int:
+    """`uavsearch tune`: the weights chosen on training missions (Optuna)."""
     from companion.batch.executors import open_executor
     from companion.batch.progress import run_progress
     from companion.batch.starts import parse_layouts
@@ -130,6 +133,7 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _print_evaluation(result: dict) -> None:
+    """The evaluation's tables: per mission, overall, and by area per UAV."""
     from rich.console import Console
     from rich.table import Table
 
@@ -165,6 +169,7 @@ def _print_evaluation(result: dict) -> None:
 
 
 def mission_set_options(p: argparse.ArgumentParser, out: str) -> None:
+    """Add the options of a set of missions (generated or a folder's) and where to compute them."""
     p.add_argument("--missions", type=count, default=None, help="generate this many missions (default: none)")
     p.add_argument("--seed", type=natural, default=None, help="the generator's seed (default: none)")
     p.add_argument(

@@ -17,6 +17,7 @@ FUZZ_NEEDS = (
 
 
 def _faults(args: argparse.Namespace) -> int:
+    """`uavsearch faults`: the fault matrix's rows; exit 1 if any failed."""
     from companion.app.faults import ROWS, Plan, run_row
 
     rows = ROWS if args.row == "all" else (args.row,)
@@ -42,6 +43,7 @@ def _faults(args: argparse.Namespace) -> int:
 
 
 def _fuzz(args: argparse.Namespace) -> int:
+    """`uavsearch fuzz`: the fuzzing campaigns; exit 1 if any failed."""
     try:
         from companion.app.fuzz import CAMPAIGNS, run_campaign
     except ImportError as exc:

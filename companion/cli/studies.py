@@ -12,6 +12,7 @@ from companion.core.feasibility import load_mission
 
 
 def _mc(args: argparse.Namespace) -> int:
+    """`uavsearch mc`: the algorithms compared over Monte Carlo runs of one mission."""
     from companion.batch.executors import open_executor
     from companion.batch.experiments import compare
     from companion.batch.report import copy_mission
@@ -43,6 +44,7 @@ def _mc(args: argparse.Namespace) -> int:
 
 
 def _print_summary(summary: dict) -> None:
+    """The Monte Carlo summary, one row per algorithm."""
     from rich.console import Console
     from rich.table import Table
 
@@ -75,6 +77,7 @@ def _print_summary(summary: dict) -> None:
 
 
 def _versus(args: argparse.Namespace) -> int:
+    """`uavsearch versus`: two `mc` outputs of the same runs, paired run by run."""
     from rich.console import Console
     from rich.table import Table
 
@@ -110,6 +113,7 @@ def _versus(args: argparse.Namespace) -> int:
 
 
 def _targets(args: argparse.Namespace) -> int:
+    """`uavsearch targets`: first-seen steps of one algorithm against another, by distance."""
     from rich.console import Console
     from rich.table import Table
 
@@ -153,6 +157,7 @@ def _targets(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
+    """`uavsearch sweep`: one algorithm parameter swept over its values."""
     from companion.batch.executors import open_executor
     from companion.batch.experiments import sweep, sweep_values
 
