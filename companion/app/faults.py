@@ -1,25 +1,11 @@
 """`uavsearch faults`: the fault matrix, flown by real processes on loopback (docs/reliability.md).
 
-Each row flies a mission in lockstep (the simulator and one companion per UAV, each companion with
-its journal), injects one fault at a chosen step and checks what the swarm must keep:
-
-- the mission completes: every companion flies the last step, then flies out its trajectory in
-  force (horizon + 1 steps logged as `closing`) before it hands its vehicle over;
-- no detection is lost: every target cell any UAV knew of, before or after the fault, is known to
-  every UAV at the end;
-- no separation is lost: the simulator's closest approach of any two vehicles, measured at its
-  physics rate (`sim_vehicles.approach`), stays above R_s in every step;
-- knowledge converges after the fault: every UAV knows the same targets and every other UAV, and
-  no task is held twice.
-
-The rows: `restart` (a companion killed with SIGKILL, its vehicle flying on without it for a few
-steps, then started again on its journal), `sim-restart` (the simulator killed and started again
-on the state file it saved a few steps before, so that it resumes behind its companions),
-`link-loss` (one companion's MAVLink link cut for 10 s of simulated time while its vehicle flies
-on), `partition` (two groups that hear nothing of each other for a window of steps) and `loss`
-(30 % of mesh messages lost for a window of steps). Every trigger is a step number: the harness
-watches the companions' step logs and, while a vehicle has no companion, releases its lockstep
-steps itself (`LockstepDriver`), as the autopilot flying on would.
+Each row flies a mission in lockstep (the simulator and one companion per UAV, each with its
+journal), injects one fault at a chosen step (`restart`, `sim-restart`, `link-loss`, `partition`,
+`loss`) and checks what the swarm must keep: the mission completed and flown out, no detection
+lost, no separation lost, knowledge converged (`measure`). Every trigger is a step number; while a
+vehicle has no companion the harness releases its lockstep steps itself
+(`companion.app.fault_links.LockstepDriver`), as the autopilot flying on would.
 """
 
 from __future__ import annotations
@@ -28,12 +14,9 @@ import contextlib
 import json
 import math
 import os
-import selectors
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -43,20 +26,17 @@ from pathlib import Path
 import msgspec
 import tomli_w
 
+from companion.app.children import Children
 from companion.app.evaluation import CompanionLogs, losses_3d, mission_rows, read_approach, read_vertical
-from companion.app.launcher import Children
+from companion.app.fault_links import LinkProxy, LockstepDriver
 from companion.app.loopback import free_ports
 from companion.contracts.keys import RUN_ENV, new_run_id
 from companion.contracts.mission import Mission, NetworkFault
 from companion.core.feasibility import load_mission
 from companion.node.journal import Checkpoint, Delta, read_records
 
-os.environ.setdefault("MAVLINK20", "1")
-from pymavlink import mavutil
-
 ROWS = ("restart", "sim-restart", "link-loss", "partition", "loss")
 REWIND_STEPS = 2  # sim-restart: how many steps before the kill the state it restarts on was saved
-LOCKSTEP_COMMAND = 31010
 START_S = 180.0  # generous: a busy 2-core machine starts five Python processes slowly
 STEP_S = 120.0  # longest wait for the swarm to fly one more step
 PY = sys.executable
@@ -64,6 +44,7 @@ PY = sys.executable
 
 # -- the mission, on loopback ----------------------------------------------------------------------
 def _no_none(value: object) -> object:
+    """A TOML-ready copy of builtins: tables without their None entries."""
     if isinstance(value, dict):
         return {k: _no_none(v) for k, v in value.items() if v is not None}
     if isinstance(value, list):
@@ -92,114 +73,10 @@ def loopback_mission(
         faults=s(base.faults, network=list(network or [])),
     )
     path = directory / f"{mission.name}-faults.toml"
-    path.write_text(tomli_w.dumps(_no_none(msgspec.to_builtins(mission))), encoding="utf-8")
+    table = _no_none(msgspec.to_builtins(mission))
+    assert isinstance(table, dict)  # a Struct's builtins are a table
+    path.write_text(tomli_w.dumps(table), encoding="utf-8")
     return path, load_mission(path)
-
-
-# -- the vehicles' side: a lockstep driver and a link that can be cut -------------------------------
-class LockstepDriver(threading.Thread):
-    """Releases one vehicle's lockstep steps up to `until`, and at least `span` steps past the step
-    it takes over at (the companion may have stepped once more before its link was cut), in place
-    of its companion: the vehicle flies on with the guidance it last had (then its autopilot's
-    failsafe)."""
-
-    def __init__(self, port: int, sysid: int, dt: float, until: int, span: int = 0) -> None:
-        super().__init__(daemon=True)
-        self.port, self.sysid, self.dt, self.until, self.span = port, sysid, dt, until, span
-        self.step = -1  # the vehicle's latest step seen
-        self.first = -1  # the step it was at when the driver took over
-        self.started = threading.Event()  # `first` and the final `until` are known
-        self.stopped = threading.Event()
-
-    def run(self) -> None:
-        conn = mavutil.mavlink_connection(
-            f"udpout:127.0.0.1:{self.port}", source_system=249, dialect="ardupilotmega"
-        )
-        try:
-            said = 0.0
-            while not self.stopped.is_set():
-                now = time.monotonic()
-                if now - said >= 0.5:  # hello, and ask for the current step's state
-                    conn.mav.heartbeat_send(6, 8, 0, 0, 0)  # GCS, invalid autopilot
-                    self._report(conn, 0)
-                    if 0 <= self.step < self.until:
-                        self._report(conn, self.step + 1)
-                    said = now
-                msg = conn.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=0.2)
-                if msg is None or msg.get_srcSystem() != self.sysid:
-                    continue
-                k = msg.time_boot_ms / (self.dt * 1000)
-                if abs(k - round(k)) > 1e-6 or round(k) <= self.step:
-                    continue
-                self.step = round(k)
-                if self.first < 0:
-                    self.until = max(self.until, self.step + self.span)
-                    self.first = self.step
-                    self.started.set()
-                if self.step < self.until:
-                    self._report(conn, self.step + 1)
-        finally:
-            conn.close()
-
-    def _report(self, conn: mavutil.mavfile, step: int) -> None:
-        conn.mav.command_long_send(self.sysid, 1, LOCKSTEP_COMMAND, 0, step, 0, 0, 0, 0, 0, 0)
-
-    def stop(self) -> None:
-        self.stopped.set()
-        self.join(timeout=10)
-
-
-class LinkProxy(threading.Thread):
-    """A UDP relay between a companion (`port`, where it sends) and its vehicle (`vehicle_port`);
-    `cut()` drops everything both ways until `restore()`."""
-
-    def __init__(self, vehicle_port: int) -> None:
-        super().__init__(daemon=True)
-        self.inner = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.inner.bind(("127.0.0.1", 0))
-        self.outer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.outer.bind(("127.0.0.1", 0))
-        self.port = self.inner.getsockname()[1]
-        self.vehicle = ("127.0.0.1", vehicle_port)
-        self.companion: tuple[str, int] | None = None
-        self.is_cut = threading.Event()
-        self.stopped = threading.Event()
-        self.dropped = 0
-
-    def run(self) -> None:
-        with selectors.DefaultSelector() as sel:
-            sel.register(self.inner, selectors.EVENT_READ)
-            sel.register(self.outer, selectors.EVENT_READ)
-            while not self.stopped.is_set():
-                for key, _ in sel.select(0.2):
-                    sock = key.fileobj
-                    assert isinstance(sock, socket.socket)
-                    try:
-                        data, addr = sock.recvfrom(65535)
-                    except OSError:
-                        continue
-                    if sock is self.inner:
-                        self.companion = addr
-                    if self.is_cut.is_set():
-                        self.dropped += 1
-                        continue
-                    with contextlib.suppress(OSError):
-                        if sock is self.inner:
-                            self.outer.sendto(data, self.vehicle)
-                        elif self.companion is not None:
-                            self.inner.sendto(data, self.companion)
-
-    def cut(self) -> None:
-        self.is_cut.set()
-
-    def restore(self) -> None:
-        self.is_cut.clear()
-
-    def stop(self) -> None:
-        self.stopped.set()
-        self.join(timeout=5)
-        self.inner.close()
-        self.outer.close()
 
 
 # -- the swarm ---------------------------------------------------------------------------------------
@@ -351,6 +228,7 @@ class Plan:
 
 
 def _restart(swarm: Swarm, plan: Plan, outcome: RowOutcome) -> set[int]:
+    """Companion `victim` killed, its vehicle flown alone, then the companion restarted on its journal."""
     m, v = swarm.mission, plan.victim
     swarm.wait_steps([v], plan.at)
     swarm.kill(f"companion{v}")
@@ -389,7 +267,9 @@ def _sim_restart(swarm: Swarm, plan: Plan, outcome: RowOutcome) -> set[int]:
     return set()
 
 
-def _link_loss(swarm: Swarm, plan: Plan, outcome: RowOutcome, proxy: LinkProxy) -> set[int]:
+def _link_loss(swarm: Swarm, plan: Plan, outcome: RowOutcome, proxy: LinkProxy | None) -> set[int]:
+    """The victim's MAVLink link cut (`proxy`, its relay) for 10 s of simulated time; its vehicle flies on."""
+    assert proxy is not None, "the link-loss row relays the victim's link through a LinkProxy"
     m, v = swarm.mission, plan.victim
     swarm.wait_steps([v], plan.at)
     proxy.cut()
@@ -414,6 +294,7 @@ def _link_loss(swarm: Swarm, plan: Plan, outcome: RowOutcome, proxy: LinkProxy) 
 
 
 def _network(swarm: Swarm, plan: Plan, outcome: RowOutcome) -> set[int]:
+    """The mesh faults of the mission file (partition, loss): nothing to do but note them."""
     outcome.notes["network_faults"] = [msgspec.to_builtins(f) for f in swarm.mission.faults.network]
     return set()
 
@@ -449,7 +330,7 @@ def run_row(row: str, base: Mission, out: Path, plan: Plan) -> RowOutcome:
         actions: dict[str, Callable[[], set[int]]] = {
             "restart": lambda: _restart(swarm, plan, outcome),
             "sim-restart": lambda: _sim_restart(swarm, plan, outcome),
-            "link-loss": lambda: _link_loss(swarm, plan, outcome, proxy),  # type: ignore[arg-type]
+            "link-loss": lambda: _link_loss(swarm, plan, outcome, proxy),
             "partition": lambda: _network(swarm, plan, outcome),
             "loss": lambda: _network(swarm, plan, outcome),
         }
@@ -481,11 +362,10 @@ def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) 
     closing = [sorted(set(logs.logs[i]) - set(searched[i])) for i in range(n)]
     if any(steps != fly_out for steps in closing):
         fail(f"the mission's end not flown out: steps {closing}, expected {fly_out}")
-    reports = []
-    for i in range(n):
-        path = out / f"uav{i}.json"
-        reports.append(json.loads(path.read_text()) if path.exists() else None)
-    if any(r is None for r in reports):
+    paths = [out / f"uav{i}.json" for i in range(n)]
+    loaded = [json.loads(p.read_text()) if p.exists() else None for p in paths]
+    reports: list[dict] = [r for r in loaded if r is not None]
+    if len(reports) < n:
         fail("a companion wrote no end-of-run report")
         return
     found = [set(r["found_cells"]) for r in reports]
@@ -524,6 +404,7 @@ def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) 
 
 
 def _last_row(path: Path) -> dict[str, str]:
+    """The last complete row of a companion's step log (every field -1: none)."""
     lines = path.read_text(errors="replace").splitlines()
     header = lines[0].split(",")
     for line in reversed(lines[1:]):

@@ -1,20 +1,11 @@
 """`uavsearch fuzz`: fuzzing campaigns against the inputs a companion and the simulator take from
-outside (docs/reliability.md, "Fuzzing"). Inputs come from Hypothesis strategies (mutations of
-valid inputs, structured values of the wrong kinds, raw bytes), driven by `hypothesis.given` with
-the campaign's example count; each input goes through the real code that receives it:
+outside (docs/reliability.md, "Fuzzing").
 
-- `mesh`: bundles through `received_bundle`'s checks (decode, `check_bundle`); the accepted ones
-  into a real `Agent.step`; then a share of them published over a real Zenoh session to a real
-  `Mesh`, whose counters must account for every sample;
-- `mavlink`: datagrams to a running simulator's vehicle endpoint (its own counters, then a
-  parameter read must still be answered) and to a companion's `VehicleLink`, whose pose must stay
-  finite;
-- `camera`: frames over Zenoh to a real `CameraFeed`, every one taken or counted as rejected;
-- `mission`: mission files through `load_mission`, each a `Mission` or a `MissionError` (never
-  another exception, never longer than `MISSION_SECONDS`), and a sample through `uavsearch mc` as a
-  subprocess: exit 2 and `error: mission file FILE: FIELD: REASON`.
-
-Every campaign counts what was accepted and what was rejected; any other outcome is a failure.
+Each input, drawn by Hypothesis (`companion.app.fuzz_inputs`), goes through the real code that
+receives it: `mesh` bundles into the mesh's checks, an `Agent` and a real Zenoh `Mesh`; `mavlink`
+datagrams into a running simulator and a companion's `VehicleLink`; `camera` frames into a real
+`CameraFeed`; `mission` files into `load_mission` and `uavsearch mc`. Every campaign counts what
+was accepted and what was rejected; any other outcome is a failure.
 """
 
 from __future__ import annotations
@@ -30,18 +21,15 @@ import sys
 import tempfile
 import time
 import uuid
-from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import msgspec
 import numpy as np
 import zenoh
-from hypothesis import HealthCheck, Phase, given, settings
-from hypothesis import seed as fix_seed
 from hypothesis import strategies as st
 
+from companion.app.fuzz_inputs import JUNK, Campaign, mutations, one_field_replaced, run_examples
 from companion.app.loopback import free_ports
 from companion.batch.engine import simulate
 from companion.contracts import detections
@@ -51,7 +39,7 @@ from companion.contracts.zenoh_config import MeshConfig
 from companion.core.agent import Agent, Observation
 from companion.core.feasibility import load_mission
 from companion.core.messages import MessageError
-from companion.core.world import build_world
+from companion.core.world import World, build_world
 from companion.node.camera_feed import CameraFeed
 from companion.node.mesh import Bundle, Mesh, check_bundle, decode_bundle, encode_bundle, key_base
 
@@ -63,94 +51,6 @@ FULL = {"mesh": 100_000, "mavlink": 10_000, "camera": 10_000, "mission": 1_000}
 MISSION_SECONDS = 10.0  # the longest a mission file may take to load or be refused
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO = ROOT / "mission_files" / "scenario1.toml"
-
-
-@dataclass
-class Campaign:
-    """What one campaign fed in and what became of it."""
-
-    name: str
-    inputs: int = 0
-    accepted: int = 0
-    rejected: int = 0
-    reasons: Counter[str] = field(default_factory=Counter)
-    failures: list[str] = field(default_factory=list)
-    seconds: float = 0.0
-    notes: dict[str, object] = field(default_factory=dict)
-
-    def reject(self, reason: str) -> None:
-        self.rejected += 1
-        self.reasons[reason[:60]] += 1
-
-
-def _run(strategy: st.SearchStrategy, count: int, seed: int, body: Callable[[object], None]) -> None:
-    """`body` on `count` inputs drawn from `strategy` by Hypothesis (reproducible from `seed`)."""
-    configured = settings(
-        max_examples=count,
-        database=None,
-        deadline=None,
-        suppress_health_check=list(HealthCheck),
-        phases=[Phase.generate],
-    )
-    fix_seed(seed)(configured(given(strategy)(body)))()
-
-
-def _mutations(valid: list[bytes]) -> st.SearchStrategy[bytes]:
-    """Valid inputs with bytes flipped, cut, inserted or spliced; and raw bytes."""
-
-    @st.composite
-    def mutate(draw: st.DrawFn) -> bytes:
-        data = bytearray(draw(st.sampled_from(valid)))
-        for _ in range(draw(st.integers(1, 4))):
-            op = draw(st.integers(0, 3))
-            at = draw(st.integers(0, max(len(data) - 1, 0)))
-            if op == 0 and data:
-                data[at] = draw(st.integers(0, 255))
-            elif op == 1:
-                del data[at:]
-            elif op == 2:
-                data[at:at] = draw(st.binary(max_size=16))
-            else:
-                data[at:at] = draw(st.sampled_from(valid))[: draw(st.integers(0, 64))]
-        return bytes(data)
-
-    return st.one_of(mutate(), st.binary(max_size=256))
-
-
-_JUNK = st.one_of(
-    st.none(),
-    st.booleans(),
-    st.integers(-(2**63), 2**64 - 1),
-    st.floats(allow_nan=True, allow_infinity=True),
-    st.text(max_size=8),
-    st.binary(max_size=8),
-    st.lists(st.integers(-5, 3000), max_size=40),
-)
-
-
-def _structured(valid: list[object]) -> st.SearchStrategy[bytes]:
-    """Valid values (as builtins) with one field, at any depth, replaced by a value of any kind."""
-
-    @st.composite
-    def replace(draw: st.DrawFn) -> bytes:
-        value = draw(st.sampled_from(valid))
-
-        def walk(node: object) -> object:
-            if isinstance(node, dict) and node:
-                key = draw(st.sampled_from(sorted(node)))
-                out = dict(node)
-                out[key] = walk(node[key]) if draw(st.booleans()) else draw(_JUNK)
-                return out
-            if isinstance(node, list) and node:
-                i = draw(st.integers(0, len(node) - 1))
-                out = list(node)
-                out[i] = walk(node[i]) if draw(st.booleans()) else draw(_JUNK)
-                return out
-            return draw(_JUNK)
-
-        return msgspec.msgpack.encode(walk(value))
-
-    return replace()
 
 
 # -- mesh -------------------------------------------------------------------------------------------
@@ -175,10 +75,12 @@ def _valid_bundles(mission: Mission, steps: int = 40) -> list[Bundle]:
 
 
 def fuzz_mesh(count: int, seed: int) -> Campaign:
+    """Bundles through the mesh's checks into an `Agent`, then a share over Zenoh to a real `Mesh`."""
     c = Campaign("mesh")
     mission = load_mission(SCENARIO)
     world = build_world(mission, mission.seed, 0)
-    n, cells, tasks = mission.n_uavs, world.grid.n_cells, world.tessellation.n_tasks  # type: ignore[union-attr]
+    assert world.tessellation is not None  # scenario 1 flies the proposed algorithm: its tasks are cells
+    n, cells, tasks = mission.n_uavs, world.grid.n_cells, world.tessellation.n_tasks
     bundles = _valid_bundles(mission)
     valid = [encode_bundle(b) for b in bundles]
     agent = Agent(world, 0)
@@ -208,14 +110,14 @@ def fuzz_mesh(count: int, seed: int) -> Campaign:
             except Exception as exc:
                 c.failures.append(f"agent: {type(exc).__name__}: {exc}")
 
-    structured = _structured([msgspec.to_builtins(b) for b in bundles[:200]])
-    _run(st.one_of(_mutations(valid), structured), count, seed, body)
+    structured = one_field_replaced([msgspec.to_builtins(b) for b in bundles[:200]])
+    run_examples(st.one_of(mutations(valid), structured), count, seed, body)
     over = (accepted + valid)[: min(2000, count)]  # the accepted inputs first, topped up with valid ones
     c.notes["over_zenoh"] = _mesh_over_zenoh(mission, world, over, c)
     return c
 
 
-def _mesh_over_zenoh(mission: Mission, world: object, payloads: list[bytes], c: Campaign) -> dict:
+def _mesh_over_zenoh(mission: Mission, world: World, payloads: list[bytes], c: Campaign) -> dict:
     """Garbled and valid payloads published over loopback to a real Mesh: every sample is counted."""
     ports = free_ports(1)
     m = msgspec.structs.replace(
@@ -226,9 +128,10 @@ def _mesh_over_zenoh(mission: Mission, world: object, payloads: list[bytes], c: 
     )
     rng = np.random.default_rng(0)
     garbled = [bytes(rng.integers(0, 256, size=int(rng.integers(0, 300)), dtype=np.uint8)) for _ in payloads]
-    n_tasks = world.tessellation.n_tasks  # type: ignore[attr-defined]
+    assert world.tessellation is not None
+    n_tasks = world.tessellation.n_tasks
     endpoint = f"tcp/127.0.0.1:{ports[0]}"
-    n_cells = world.grid.n_cells  # type: ignore[attr-defined]
+    n_cells = world.grid.n_cells
     with Mesh(m, 0, n_cells, n_tasks, config=MeshConfig("peer", (endpoint,), ())) as receiver:
         sender = Mesh(m, 1, n_cells, n_tasks, config=MeshConfig("peer", (), (endpoint,)))
         try:
@@ -303,7 +206,7 @@ def fuzz_mavlink(count: int, seed: int) -> Campaign:
     c = Campaign("mavlink")
     frames = _valid_frames()
     datagrams: list[bytes] = []
-    _run(_mutations(frames), count, seed, lambda d: datagrams.append(d))  # type: ignore[arg-type]
+    run_examples(mutations(frames), count, seed, lambda d: datagrams.append(d))
     c.inputs = len(datagrams)
     half = len(datagrams) // 2
     with tempfile.TemporaryDirectory() as tmp:
@@ -359,6 +262,7 @@ def fuzz_mavlink(count: int, seed: int) -> Campaign:
 
 
 def _to_simulator(sim: subprocess.Popen, port: int, datagrams: list[bytes], c: Campaign) -> dict:
+    """The datagrams to a simulator vehicle, then a parameter read it must still answer."""
     mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
     deadline = time.monotonic() + 120
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -397,7 +301,7 @@ def _to_simulator(sim: subprocess.Popen, port: int, datagrams: list[bytes], c: C
 
 # -- camera -----------------------------------------------------------------------------------------
 def fuzz_camera(count: int, seed: int) -> Campaign:
-
+    """Frames over Zenoh to a real `CameraFeed`: every one taken or counted as rejected."""
     from companion.contracts.zenoh_config import open_session
 
     c = Campaign("camera")
@@ -410,8 +314,8 @@ def fuzz_camera(count: int, seed: int) -> Campaign:
     ]  # fmt: skip
     valid = [detections.encode(f) for f in valid_frames]
     payloads: list[bytes] = []
-    structured = _structured([msgspec.to_builtins(f) for f in valid_frames])
-    _run(st.one_of(_mutations(valid), structured), count, seed, lambda d: payloads.append(d))  # type: ignore[arg-type]
+    structured = one_field_replaced([msgspec.to_builtins(f) for f in valid_frames])
+    run_examples(st.one_of(mutations(valid), structured), count, seed, lambda d: payloads.append(d))
     c.inputs = len(payloads)
     port = free_ports(1)[0]
     key = f"fuzz{uuid.uuid4().hex[:10]}/cam/uav/0/camera"
@@ -457,7 +361,7 @@ _FIELDS = [
     "sim.camera_hz", "comms.attraction", "comms.repulsion", "algorithm.name", "kinematics.altitude_step",
 ]  # fmt: skip
 _VALUES = st.one_of(
-    _JUNK,
+    JUNK,
     st.sampled_from([0.001, 1e-9, 1e12, -40.0, 0, 10**9, 10**18, 2500, 2501, 1e308]),
     st.sampled_from([1e200, 5e-324, 0.499, 0.5, 3600.5, 1e5]),
     st.sampled_from(["continuous", "grid", "proposed", "no-ta", "pheromone"]),
@@ -490,10 +394,11 @@ def _mission_files() -> st.SearchStrategy[bytes]:
         except (TypeError, ValueError):
             return repr(raw).encode()
 
-    return st.one_of(field_set(), _mutations(base))
+    return st.one_of(field_set(), mutations(base))
 
 
 def fuzz_missions(count: int, seed: int) -> Campaign:
+    """Mission files through `load_mission`, and a few of the refused ones through `uavsearch mc`."""
     c = Campaign("mission")
     with tempfile.TemporaryDirectory() as tmp:
         files: list[Path] = []
@@ -521,7 +426,7 @@ def fuzz_missions(count: int, seed: int) -> Campaign:
             elif path not in files:  # those kept go through `uavsearch mc` below
                 path.unlink()
 
-        _run(_mission_files(), count, seed, body)
+        run_examples(_mission_files(), count, seed, body)
         c.notes["cli_checked"] = len(files)  # a few: each is a Python process start
         for path in files:
             _check_cli(path, c)

@@ -1,21 +1,13 @@
-"""`uavsearch run`: the whole swarm with one command.
+"""`uavsearch run`: the whole swarm with one command (docs/companion.md).
 
-Starts the vehicles, a Zenoh router when the mission's mesh is in client mode, and one companion
-per UAV, each as a subprocess; shows live progress; ends when every target is found or after K
-steps; stops every child; scores the run against the mission's ground truth and writes the batch
-engine's files (summary.json, trajectories.csv, plots), the plan-versus-flight figures
-(tracking.json) and one MAVLink .tlog per vehicle. Exits 1 when the mission's pass criteria fail.
-
-The vehicles are the bundled simulator (default); or ArduPlane SITL or PX4 SITL, one instance per
-UAV at its start pose (`--autopilot ardupilot-sitl`, `--autopilot px4-sitl`), with the stand-alone
-simulated camera reading their positions; or vehicles that already exist (`--vehicles URL,...`,
-optionally with the stand-alone camera on `--camera-links URL,...`).
+Starts the vehicles (the bundled simulator, ArduPlane or PX4 SITL, or vehicles that exist), a Zenoh
+router when the mission's mesh is in client mode, and one companion per UAV, each as a subprocess;
+shows live progress; ends when every target is found or after K steps; stops every child; then
+scores the run (`companion.app.run_report`). Exits 1 when the mission's pass criteria fail.
 """
 
 from __future__ import annotations
 
-import json
-import math
 import os
 import shutil
 import signal
@@ -23,23 +15,15 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from companion.app import px4_sitl, sitl
-from companion.app.evaluation import (
-    CompanionLogs,
-    evaluate,
-    failed_criteria,
-    flight_report,
-    read_approach,
-    read_vertical,
-    truth_cells,
-)
+from companion.app.children import Children
+from companion.app.evaluation import CompanionLogs, truth_cells
 from companion.app.progress import Progress
-from companion.batch import plots, report
+from companion.app.run_options import RunOptions, check_options
+from companion.app.run_report import report_run
 from companion.batch.engine import warm_up
 from companion.contracts.frames import LocalFrame
 from companion.contracts.keys import (
@@ -51,146 +35,14 @@ from companion.contracts.keys import (
     new_run_id,
     uav_identity,
 )
-from companion.contracts.lifeline import launcher_env
 from companion.contracts.mission import Mission
 from companion.core.feasibility import load_mission
 from companion.core.world import build_world
-from companion.node.airframe import Airframe, refusal
 from sim_vehicles import camera as cam
-
-START_TIMEOUT_S = 120.0
-STOP_TIMEOUT_S = 30.0  # a companion flies out its trajectory in force first (horizon + 1 steps)
-SITL_FLAVOURS = {"ardupilot-sitl": "ardupilot", "px4-sitl": "px4"}
-
-
-@dataclass(frozen=True)
-class RunOptions:
-    mission_file: Path
-    out: Path
-    speedup: float = 10.0
-    lockstep: bool = False
-    steps: int | None = None
-    seed: int | None = None
-    command_mode: str | None = None  # None: turn-rate on the bundled simulator, heading otherwise
-    flavour: str | None = None
-    progress: bool = True
-    keep_going: bool = False  # fly all the steps even when every target is found
-    view: bool = False  # serve the live map (`uavsearch view`) while the swarm flies
-    view_port: int = 0
-    autopilot: str = "bundled"  # or "ardupilot-sitl", "px4-sitl"
-    vehicles: tuple[str, ...] = ()  # external vehicles, one pymavlink URL per UAV
-    camera_links: tuple[str, ...] = ()  # the stand-alone camera's links to the external vehicles
-    sitl_binary: str | None = None
-    sitl_defaults: str | None = None
-    sitl_instance: int = 0  # PX4: the first instance number tried
-
-    @property
-    def external(self) -> bool:
-        return self.autopilot != "bundled" or bool(self.vehicles)
-
-    @property
-    def mode(self) -> str:
-        if self.command_mode:
-            return self.command_mode
-        if self.autopilot == "px4-sitl":
-            return "position-target"
-        return "heading" if self.external else "turn-rate"
-
-
-class Interrupted(RuntimeError):
-    """A signal stopped the launcher while it waited for a child to start."""
-
-
-class Children:
-    """The subprocesses this launcher started, stopped by PID and never left behind; `stop` (set by
-    SIGINT/SIGTERM) cuts any wait for one of them short."""
-
-    def __init__(self, stop: threading.Event | None = None) -> None:
-        self.procs: dict[str, subprocess.Popen] = {}
-        self.logs: dict[str, Path] = {}
-        self.signals: dict[str, int] = {}
-        self.env: dict[str, str] = {}  # added to every child's environment (the run identity)
-        self._stop = stop if stop is not None else threading.Event()
-
-    def start(
-        self,
-        name: str,
-        argv: list[str],
-        log: Path,
-        cwd: Path | None = None,
-        extra: dict[str, str] | None = None,
-        stop_signal: int = signal.SIGTERM,
-    ) -> subprocess.Popen:
-        """Start `argv` in its own session, output to `log`, with `extra` added to the environment;
-        `stop` sends it `stop_signal`: SIGTERM, which our processes handle as they do SIGINT but
-        which, unlike SIGINT, ends one still loading its modules with no traceback. Our own
-        processes end with this one (`lifeline`)."""
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", **launcher_env(), **self.env, **(extra or {})}
-        with log.open("w") as f:
-            proc = subprocess.Popen(
-                argv, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True, cwd=cwd
-            )
-        self.procs[name], self.logs[name], self.signals[name] = proc, log, stop_signal
-        return proc
-
-    def wait_for_line(self, name: str, text: str, timeout: float = START_TIMEOUT_S) -> str:
-        """The first line of child `name`'s log holding `text`, once it is there; RuntimeError if
-        the child exits first or `timeout` seconds pass, Interrupted if a signal comes first."""
-        log, proc = self.logs[name], self.procs[name]
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if log.exists():
-                for line in log.read_text(errors="replace").splitlines():
-                    if text in line:
-                        return line
-            if proc.poll() is not None:
-                raise RuntimeError(
-                    f"{log.name}: exited with {proc.returncode}:\n{log.read_text(errors='replace')}"
-                )
-            if self._stop.wait(0.1):
-                raise Interrupted(f"stopped by a signal while waiting for '{text}' from {name}")
-        raise RuntimeError(f"{log.name}: '{text}' not seen within {timeout:.0f} s")
-
-    def stop(self) -> None:
-        """Each child's stop signal (SIGTERM unless started otherwise), the companions first: a
-        companion ends its step and writes its report while its vehicle, camera and router still
-        answer. Whatever has not exited `STOP_TIMEOUT_S` after its signal is killed."""
-        companions = [n for n in self.procs if n.startswith("companion")]
-        for group in (companions, [n for n in self.procs if n not in companions]):
-            for name in group:
-                if self.procs[name].poll() is None:
-                    self.procs[name].send_signal(self.signals[name])
-            deadline = time.monotonic() + STOP_TIMEOUT_S
-            for name in group:
-                try:
-                    self.procs[name].wait(max(0.1, deadline - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    self.procs[name].kill()
-                    self.procs[name].wait()
-
-
-def _check_options(opts: RunOptions, mission: Mission) -> str | None:
-    """Why the run cannot start (None: it can)."""
-    if opts.vehicles and len(opts.vehicles) != mission.n_uavs:
-        return f"--vehicles: {len(opts.vehicles)} links for the mission's {mission.n_uavs} UAVs"
-    if opts.camera_links and len(opts.camera_links) != mission.n_uavs:
-        return f"--camera-links: {len(opts.camera_links)} links for the mission's {mission.n_uavs} UAVs"
-    if opts.autopilot in SITL_FLAVOURS:
-        if opts.vehicles:
-            return f"--vehicles and --autopilot {opts.autopilot} exclude each other"
-        airframe = Airframe(SITL_FLAVOURS[opts.autopilot], {}, simulator=False)
-        problem = refusal(mission, airframe, opts.mode)
-        if problem:
-            return f"--autopilot {opts.autopilot}: {problem}"
-        if opts.autopilot == "px4-sitl" and mission.secured and mission.security.mavlink_signing:
-            return (
-                "--autopilot px4-sitl: the PX4 SITL links are not MAVLink2-signed (PX4 is given no secret): "
-                "set [security] mavlink_signing = false for it"
-            )
-    return None
 
 
 def _companion_argv(opts: RunOptions, i: int, steps: int, seed: int, url: str | None) -> list[str]:
+    """The command line of UAV i's companion."""
     argv = [
         sys.executable,
         "-m",
@@ -288,6 +140,7 @@ def _start_px4(children: Children, opts: RunOptions, mission: Mission, seed: int
 
 
 def _start_bundled(children: Children, opts: RunOptions, mission: Mission, seed: int) -> None:
+    """The bundled simulator; returns once it serves every vehicle."""
     sim_argv = [
         sys.executable,
         "-m",
@@ -324,22 +177,6 @@ def _stopped_early(children: Children) -> str | None:
     return None
 
 
-def refused_by_companions(out: Path, n: int) -> dict[str, int]:
-    """What the companions refused, summed over them, by kind ("mesh forged bundle", "MAVLink bad
-    signature", ...), from their reports (uav{i}.json)."""
-    total: dict[str, int] = {}
-    for i in range(n):
-        try:
-            refused = json.loads((out / f"uav{i}.json").read_text()).get("refused", {})
-        except (OSError, ValueError):
-            continue
-        for where, kinds in refused.items():
-            for kind, senders in kinds.items():
-                key = f"{where} {kind}"
-                total[key] = total.get(key, 0) + sum(senders.values())
-    return total
-
-
 def security_summary(mission: Mission) -> str:
     """What authenticates this run, after checking that every identity's keys load; the insecure
     warning when nothing does."""
@@ -359,14 +196,13 @@ def run_mission(opts: RunOptions) -> int:
     # absolute paths: the SITL instances run in working directories of their own
     opts = replace(opts, mission_file=opts.mission_file.resolve(), out=opts.out.resolve())
     mission = load_mission(opts.mission_file)
-    problem = _check_options(opts, mission)
+    problem = check_options(opts, mission)
     if problem:
         print(f"error: {problem}", file=sys.stderr)
         return 2
     security = security_summary(mission)  # raises KeyDirectoryError (a ValueError) for bad keys
     print(security, flush=True)
     seed = mission.seed if opts.seed is None else opts.seed
-    steps = opts.steps or mission.steps
     out = opts.out
     out.mkdir(parents=True, exist_ok=True)
     for stale in [*out.glob("uav*.*"), out / "truth.json", out / "approach.csv"]:  # an earlier run's
@@ -387,57 +223,10 @@ def run_mission(opts: RunOptions) -> int:
     failure = None
     progress: Progress | None = None
     try:
-        if mission.mesh.mode == "client":
-            children.start(
-                "router",
-                [sys.executable, "-m", "companion.cli", "router", "--mission", str(opts.mission_file)],
-                out / "router.log",
-            )
-            children.wait_for_line("router", "router listening")
-        urls: list[str | None] = [None] * mission.n_uavs
-        if opts.autopilot == "ardupilot-sitl":
-            urls = list(_start_sitl(children, opts, mission, seed))
-        elif opts.autopilot == "px4-sitl":
-            urls = list(_start_px4(children, opts, mission, seed))
-        elif opts.vehicles:
-            urls = list(opts.vehicles)
-            if opts.camera_links:
-                _start_camera(children, opts, list(opts.camera_links), seed, mission.n_uavs)
-            else:  # a real detector publishes; score against the mission's simulated ground truth
-                grid, targets = cam.draw_truth(mission, seed)
-                frame = LocalFrame(mission.region.origin)
-                cam.write_truth(out / "truth.json", cam.truth_record(mission, seed, grid, targets, frame))
-        if opts.view:
-            argv = [sys.executable, "-m", "companion.cli", "view", "--mission", str(opts.mission_file)]
-            argv += ["--seed", str(seed), "--port", str(opts.view_port)]
-            children.start("view", argv, out / "view.log")
-            line = children.wait_for_line("view", "view at ")
-            print(f"live map of the swarm: {line.split('view at ', 1)[1]}", flush=True)
-        for i in range(mission.n_uavs):
-            argv = _companion_argv(opts, i, steps, seed, urls[i])
-            if opts.vehicles and mavlink_secrets(mission) is not None:  # not ours to provision: their key
-                argv += ["--mavlink-key", str(Path(mission.security.keys) / uav_identity(i) / "mavlink.key")]
-            children.start(f"companion{i}", argv, out / f"companion{i}.log")
-        if not opts.external:
-            for i in range(mission.n_uavs):  # companions first: each waits for its vehicle's heartbeat
-                children.wait_for_line(f"companion{i}", "waiting for the vehicle")
-            _start_bundled(children, opts, mission, seed)
+        _start_swarm(children, opts, mission, seed)
         targets = truth_cells(out / "truth.json")
         progress = Progress(world, world.grid.centres[targets], started)
-        last_print = 0.0
-        while not stop.is_set():
-            time.sleep(0.5)
-            line = progress.update(logs.logs, logs.poll(), time.monotonic())
-            if opts.progress and line is not None and time.monotonic() - last_print >= 2.0:
-                print(line, flush=True)
-                last_print = time.monotonic()
-            companions = [p for n, p in children.procs.items() if n.startswith("companion")]
-            all_found = progress.seen.all() and not opts.keep_going
-            if all_found or all(p.poll() is not None for p in companions):
-                break
-            failure = _stopped_early(children)
-            if failure:
-                break
+        failure = _watch(children, opts, logs, progress, stop)
     except (RuntimeError, sitl.SitlError) as exc:
         failure = str(exc)
     finally:
@@ -453,86 +242,68 @@ def run_mission(opts: RunOptions) -> int:
         line = progress.update(logs.logs, new, time.monotonic(), final=True)
         if line is not None:
             print(line, flush=True)
-    approach = read_approach(out / "approach.csv")
-    targets = truth_cells(out / "truth.json")
-    result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed, approach)
-    if result.steps == 0:
-        if stop.is_set():
-            print("stopped by a signal before any step was flown", file=sys.stderr)
-        else:
-            print(
-                "error: no step was flown (see the companion and vehicle logs in the output directory)",
-                file=sys.stderr,
-            )
-        return 1
-    name = mission.algorithm.name
-    summary = report.write_summary(
-        out,
-        {name: [result]},
-        {
-            "mission": mission.name, "seed": seed, "distributed": True, "lockstep": opts.lockstep,
-            "run": run, "refused": refused_by_companions(out, mission.n_uavs),
-        },
-    )  # fmt: skip
-    report.write_trajectories(out, {name: [result]})
-    report.write_steps(out, {name: [result]})
-    report.write_targets(out, {name: [result]})
-    report.copy_mission(opts.mission_file, out)
-    plots.plot_prior(out / "prior_cvt.png", world)
-    starts = {name: np.array([(v.x, v.y) for v in mission.vehicles])}
-    plots.plot_trajectories(out / "trajectories.png", {name: world}, {name: result}, starts)
-    plots.plot_uncertainty(out / "uncertainty.png", {name: [result]})
-    plots.plot_found(out / "targets_found.png", {name: [result]})
-    plots.plot_links(out / "links.png", result, mission.comms.safety)
-    flight = flight_report(mission, out, logs.logs)
-    vertical = read_vertical(out / "approach.csv")
-    flight["steps_within_rs"] = len(vertical)  # a pair horizontally within R_s (approach.csv)
-    flight["closest_vertical_within_rs_m"] = min(vertical.values()) if vertical else None
-    (out / "tracking.json").write_text(json.dumps(flight, indent=2) + "\n")
+    return report_run(opts, mission, world, logs, seed, run, started, stop.is_set())
+
+
+def _start_swarm(children: Children, opts: RunOptions, mission: Mission, seed: int) -> None:
+    """The router (client-mode mesh), the vehicles, the live map and the companions, each once it
+    can start; returns when the swarm flies."""
+    out = opts.out
+    if mission.mesh.mode == "client":
+        children.start(
+            "router",
+            [sys.executable, "-m", "companion.cli", "router", "--mission", str(opts.mission_file)],
+            out / "router.log",
+        )
+        children.wait_for_line("router", "router listening")
+    urls: list[str | None] = [None] * mission.n_uavs
+    if opts.autopilot == "ardupilot-sitl":
+        urls = list(_start_sitl(children, opts, mission, seed))
+    elif opts.autopilot == "px4-sitl":
+        urls = list(_start_px4(children, opts, mission, seed))
+    elif opts.vehicles:
+        urls = list(opts.vehicles)
+        if opts.camera_links:
+            _start_camera(children, opts, list(opts.camera_links), seed, mission.n_uavs)
+        else:  # a real detector publishes; score against the mission's simulated ground truth
+            grid, targets = cam.draw_truth(mission, seed)
+            frame = LocalFrame(mission.region.origin)
+            cam.write_truth(out / "truth.json", cam.truth_record(mission, seed, grid, targets, frame))
     if opts.view:
-        print(f"replay the run with: uavsearch view --replay {out}", flush=True)
-    closest_flown = min(approach.values()) if approach else math.inf
-    failures = failed_criteria(world, result, out / "approach.csv")
-    s = summary[name]
-    print(
-        f"{mission.name}: {result.steps} steps, targets found {int(np.sum(result.target_steps >= 0))}/"
-        f"{len(result.target_cells)}, mean target time {s['mean_target_time']:.1f}, "
-        f"min lambda_2 {s['min_lambda2']:.4f}, min distance {s['min_distance']:.1f} m"
-    )
-    if approach:
-        source = "stand-alone camera, position streams" if opts.external else "simulator, physics rate"
-        print(
-            f"closest approach along the flown tracks ({source}): "
-            f"{result.approach.min():.1f} m (R_s = {mission.comms.safety:g} m); "
-            f"{result.separation_losses} steps within R_s; "
-            f"{closest_flown:.1f} m over all it recorded (start-up and hand-over included)"
-        )
-    if approach:
-        within = (
-            f"{len(vertical)} steps had a pair within R_s horizontally, at least "
-            f"{min(vertical.values()):.1f} m apart vertically"
-            if vertical
-            else "no pair came within R_s horizontally"
-        )
-        print(f"in three dimensions: {within}")
-    p, h = flight["position_m"], flight["heading_deg"]
-    if p["median"] is not None:
-        print(
-            f"plan vs flight ({opts.mode}): position error median {p['median']:.1f} m, p95 {p['p95']:.1f} m; "
-            f"heading error median {h['median']:.1f} deg, p95 {h['p95']:.1f} deg; "
-            f"{flight['outside_fence']} logged poses outside the fence"
-        )
-    refused = summary["_meta"]["refused"]
-    if mission.secured and refused:
-        kinds = ", ".join(f"{n} {kind}" for kind, n in sorted(refused.items()))
-        print(f"secured run: the companions refused {kinds} (who sent them: companion*.log, uav*.json)")
-    (out / "criteria.json").write_text(
-        json.dumps({"passed": not failures, "failures": failures}, indent=2) + "\n"
-    )
-    if failures:
-        print("pass criteria FAILED: " + "; ".join(failures), file=sys.stderr)
-        return 1
-    print(f"pass criteria met; wrote {out}")
-    if not mission.secured:
-        print("this run was INSECURE (no [security] keys): see the warning at its start", flush=True)
-    return 0
+        argv = [sys.executable, "-m", "companion.cli", "view", "--mission", str(opts.mission_file)]
+        argv += ["--seed", str(seed), "--port", str(opts.view_port)]
+        children.start("view", argv, out / "view.log")
+        line = children.wait_for_line("view", "view at ")
+        print(f"live map of the swarm: {line.split('view at ', 1)[1]}", flush=True)
+    steps = opts.steps or mission.steps
+    for i in range(mission.n_uavs):
+        argv = _companion_argv(opts, i, steps, seed, urls[i])
+        if opts.vehicles and mavlink_secrets(mission) is not None:  # not ours to provision: their key
+            argv += ["--mavlink-key", str(Path(mission.security.keys) / uav_identity(i) / "mavlink.key")]
+        children.start(f"companion{i}", argv, out / f"companion{i}.log")
+    if not opts.external:
+        for i in range(mission.n_uavs):  # companions first: each waits for its vehicle's heartbeat
+            children.wait_for_line(f"companion{i}", "waiting for the vehicle")
+        _start_bundled(children, opts, mission, seed)
+
+
+def _watch(
+    children: Children, opts: RunOptions, logs: CompanionLogs, progress: Progress, stop: threading.Event
+) -> str | None:
+    """Follow the flight until every target is found (unless `keep_going`), every companion has
+    exited or a signal comes; returns what went wrong, if anything did."""
+    last_print = 0.0
+    while not stop.is_set():
+        time.sleep(0.5)
+        line = progress.update(logs.logs, logs.poll(), time.monotonic())
+        if opts.progress and line is not None and time.monotonic() - last_print >= 2.0:
+            print(line, flush=True)
+            last_print = time.monotonic()
+        companions = [p for n, p in children.procs.items() if n.startswith("companion")]
+        all_found = progress.seen.all() and not opts.keep_going
+        if all_found or all(p.poll() is not None for p in companions):
+            return None
+        failure = _stopped_early(children)
+        if failure:
+            return failure
+    return None

@@ -1,35 +1,13 @@
 """PX4 SITL instances, one per UAV at its start pose (`uavsearch run --autopilot px4-sitl`).
 
-The build is PX4's software-in-the-loop `px4_sitl_default` flying its own simulated fixed-wing (SIH,
-`sihsim_airplane`); it is not part of the project. It is found from `--sitl-binary PATH` (the `px4`
-binary, with its ROMFS in `../etc`), the environment variable PX4_SITL_DIR (the build folder, with
-`bin/px4` and `etc/`) or `../shared/px4` relative to the repository root.
-
-Instance i runs in its own working directory (parameters, dataman, flight logs), with:
-
-- a folder of command links, `bin/`: PX4's start-up scripts call `px4-<module>`, each a link to
-  the binary, looked up next to the binary that runs; they are made afresh there (a copied build
-  can have lost its links), with the MAVLink set-up of our own, `px4-rc.mavlink`, which PX4's
-  start-up script takes from that folder instead of its own;
-- the SIH fixed-wing, headless, home at vehicle i's start (its position, the mission's origin
-  altitude: PX4_HOME_LAT/LON/ALT, which set SIH_LOC_*; SIH always starts facing north);
-- PX4_SIM_SPEED_FACTOR = the speed-up; SIH steps PX4's clock in lockstep with its controllers;
-- COM_OF_LOSS_T = 3 s of real time (three times PX4's default 1 s) times the speed-up, at most
-  PX4's 60 s: the OFFBOARD setpoint stream may pause that long before PX4's failsafe takes the
-  aircraft from the companion (the companion streams from the thread that also plans; three PX4
-  instances, three companions and the camera on two cores paused it for 1.4 s at the swarm's first
-  steps, measured from the companion's .tlog, and all three aircraft went to Hold). It is set in
-  our `px4-rc.mavlink`, which PX4's start-up script runs last: that script sets COM_OF_LOSS_T to
-  the speed-up times 1 s after the PX4_PARAM_* overrides (4 s at 4x, one real second), which
-  undid an override by PX4_PARAM_COM_OF_LOSS_T. A companion whose stream paused that long anyway
-  takes the aircraft back from the failsafe's Hold (companion.node.process);
-- a PX4 instance number I (MAV_SYS_ID = I + 1, /tmp/px4_lock-I, /tmp/px4-sock-I): the first free
-  ones from `first_instance`;
-- three UDP MAVLink links on 127.0.0.1, from the mission's port of vehicle i, P =
-  `mission.vehicle_port(i)`: the companion's (onboard mode) PX4 listening on P + 1 and sending to P,
-  the camera's on P + 3 / P + 2, a ground station's on P + 5 / P + 4. Each client listens on its
-  port (`udpin:127.0.0.1:P`): PX4 answers the first address it hears from for good, so a client
-  that restarts on the same port is heard again.
+The build is PX4's `px4_sitl_default` flying its own simulated fixed-wing (SIH,
+`sihsim_airplane`), found from `--sitl-binary PATH`, $PX4_SITL_DIR or `../shared/px4`. Instance i
+runs in its own working directory with a fresh folder of `px4-<module>` command links and our own
+`px4-rc.mavlink`: home at vehicle i's start, PX4_SIM_SPEED_FACTOR = the speed-up, COM_OF_LOSS_T =
+`OFFBOARD_LOSS_S` real seconds, the first free instance numbers from `first_instance`, and three
+UDP MAVLink links from the mission's port P of vehicle i (companion P / P + 1, camera P + 2 / P + 3,
+ground station P + 4 / P + 5), each client listening on its port. Why each of these:
+docs/companion.md, "Flying PX4 SITL".
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from companion.app import px4_sitl, sitl
-from companion.app.launcher import Children
+from companion.app.children import Children
 from companion.app.loopback import free_blocks
 from companion.contracts.arguments import natural, positive, weight
 from companion.contracts.frames import LocalFrame

@@ -1,0 +1,162 @@
+"""`uavsearch bench`, `cluster-bench` and the benchmarks that parse their own options."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from companion.cli.options import Subparsers, add_executor_arguments
+from companion.contracts.arguments import count, natural, step_count
+from companion.core.feasibility import load_mission
+
+CLUSTER_NEEDS = (
+    "error: uavsearch cluster-bench needs Dask distributed, which a plain install leaves out: "
+    "pip install 'uavsearch[cluster]'"
+)
+
+
+def _bench(args: argparse.Namespace) -> int:
+    """`uavsearch bench`: time per 1,000 steps and throughput, or CPU time against another checkout."""
+    from companion.batch.executors import open_executor
+    from companion.batch.experiments import bench, format_bench
+
+    if args.against is not None:
+        from companion.bench.against import cpu_against, format_against
+
+        print(format_against(cpu_against(Path(args.against), args.rounds, args.steps, args.concurrent)))
+        return 0
+    missions = [load_mission(m) for m in args.missions]
+    with open_executor(args.scheduler, args.workers) as executor:
+        result = bench(
+            missions, args.runs, args.steps, args.seed, study_runs=args.study_runs, executor=executor
+        )
+    print(format_bench(result))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+def _cluster_bench(args: argparse.Namespace) -> int:
+    """`uavsearch cluster-bench`: the local pool against a Dask cluster on loopback."""
+    try:
+        from companion.bench.cluster_bench import cluster_bench, format_cluster_bench
+    except ImportError as exc:
+        if exc.name not in ("distributed", "dask"):
+            raise
+        print(CLUSTER_NEEDS, file=sys.stderr)
+        return 1
+
+    missions = [load_mission(m) for m in args.missions]
+    try:
+        workers = [int(w) for w in args.workers.split(",") if w.strip()]
+    except ValueError:
+        workers = []
+    if not workers or min(workers) < 1:
+        raise ValueError(f"--workers {args.workers!r}: give worker counts of at least 1, e.g. 1,2")
+    rows = cluster_bench(missions, workers, args.study_runs, args.steps, args.seed)
+    print(format_cluster_bench(rows))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
+def _sim_bench(args: argparse.Namespace) -> int:
+    """`uavsearch sim-bench`: the simulator's capacity (its own options)."""
+    from sim_vehicles.bench import bench_main
+
+    return bench_main(args.args)
+
+
+def _companion_bench(args: argparse.Namespace) -> int:
+    """`uavsearch companion-bench`: companion step latency (its own options)."""
+    from companion.bench.companion_bench import bench_main
+
+    return bench_main(args.args)
+
+
+def _altitude_bench(args: argparse.Namespace) -> int:
+    """`uavsearch altitude-bench`: altitude-keeping error per flight phase (its own options)."""
+    from companion.bench.altitude_bench import bench_main
+
+    return bench_main(args.args)
+
+
+def register(sub: Subparsers) -> None:
+    """Add `bench` and `cluster-bench` to the subcommands."""
+    be = sub.add_parser("bench", help="time per 1,000 sampling moments and Monte Carlo throughput")
+    be.add_argument(
+        "--missions",
+        nargs="+",
+        default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)],
+        help="mission files",
+    )
+    be.add_argument("--runs", type=count, default=3, help="timed runs per mission and algorithm")
+    be.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
+    be.add_argument("--seed", type=natural, default=1, help="the first run's seed")
+    add_executor_arguments(be)
+    be.add_argument(
+        "--study-runs", type=count, default=8, help="runs per mission and algorithm in the throughput"
+    )
+    be.add_argument("--json", default=None, help="also write the figures to this JSON file (default: none)")
+    be.add_argument(
+        "--against",
+        metavar="CHECKOUT",
+        help="instead: CPU seconds per run of this checkout against another's (e.g. a git worktree of an "
+        "older commit), interleaved, with their ratio (default: none)",
+    )
+    be.add_argument(
+        "--rounds", type=count, default=2, help="with --against: interleaved rounds (the minimum is taken)"
+    )
+    be.add_argument(
+        "--concurrent",
+        action="store_true",
+        help="with --against: time both checkouts at the same time, one per core, in each round (on a "
+        "machine whose speed drifts, both then see the same drift)",
+    )
+    be.set_defaults(func=_bench)
+
+    cl = sub.add_parser(
+        "cluster-bench", help="Monte Carlo throughput: local pool against a Dask cluster on loopback"
+    )
+    cl.add_argument(
+        "--missions",
+        nargs="+",
+        default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)],
+        help="mission files",
+    )
+    cl.add_argument("--workers", default="1,2", help="worker counts, e.g. 1,2")
+    cl.add_argument("--study-runs", type=count, default=20, help="runs per mission and algorithm")
+    cl.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
+    cl.add_argument("--seed", type=natural, default=1, help="the first run's seed")
+    cl.add_argument("--json", default=None, help="also write the rows to this JSON file (default: none)")
+    cl.set_defaults(func=_cluster_bench)
+
+
+def register_passthrough(sub: Subparsers) -> None:
+    """Add the benchmarks that parse their own options (`PASSTHROUGH`)."""
+    sb = sub.add_parser(
+        "sim-bench", help="simulator capacity: vehicles in real time, highest speedup", add_help=False
+    )
+    sb.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
+    sb.set_defaults(func=_sim_bench)
+    cb = sub.add_parser(
+        "companion-bench", help="companion step latency and the largest real-time swarm", add_help=False
+    )
+    cb.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
+    cb.set_defaults(func=_companion_bench)
+    ab = sub.add_parser(
+        "altitude-bench",
+        help="altitude-keeping error per flight phase of ArduPlane SITL, PX4 SITL and the bundled simulator",
+        add_help=False,
+    )
+    ab.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
+    ab.set_defaults(func=_altitude_bench)
+
+
+PASSTHROUGH = {
+    "sim-bench": _sim_bench,
+    "companion-bench": _companion_bench,
+    "altitude-bench": _altitude_bench,
+}
