@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from companion.batch.executors import ClusterError
 from companion.batch.starts import LAYOUTS
+from companion.cli import area
 from companion.contracts.arguments import (
     HelpFormatter,
     check_mission,
@@ -1091,6 +1092,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ab.add_argument("args", nargs=argparse.REMAINDER, help="passed to the benchmark (--help for its options)")
     ab.set_defaults(func=_altitude_bench)
+    area.register(sub)
     for command in sub.choices.values():  # a mistake prints the subcommand's own usage (`main`)
         command.set_defaults(parser=command)
     return parser
