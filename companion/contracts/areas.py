@@ -257,41 +257,58 @@ def _parse_plan(doc: dict[str, Any], source: str) -> _Parsed:
             parsed.nofly.append(ZoneCircle(lat=lat, lon=lon, radius=c.circle.radius))
     items = plan.mission.get("items")
     if isinstance(items, list) and items:
-        parsed.notes.append(f"mission: {len(items)} mission items, ignored (the companions plan the flight)")
+        parsed.notes.append(f"mission: {_count(len(items), 'mission item')}, ignored (the companions fly)")
     points = plan.rallyPoints.get("points")
     if isinstance(points, list) and points:
-        parsed.notes.append(f"rallyPoints: {len(points)} rally points, ignored")
+        parsed.notes.append(f"rallyPoints: {_count(len(points), 'rally point')}, ignored")
     return parsed
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
 def _geojson_features(
-    doc: dict[str, Any], source: str, notes: list[str]
+    doc: dict[str, Any], source: str, notes: list[str], at: str = ""
 ) -> Iterator[tuple[str, dict[str, Any], dict[str, Any]]]:
-    """(where in the file, geometry, properties) of each geometry of a GeoJSON document."""
-    kind = doc["type"]
+    """(where in the file, geometry, properties) of each geometry of a GeoJSON object at `at`."""
+    kind = doc.get("type")
     if kind == "FeatureCollection":
         features = doc.get("features")
         if not isinstance(features, list):
-            raise MissionError(source, "features", "a FeatureCollection needs a list of features")
+            raise MissionError(source, _at(at, "features"), "a FeatureCollection needs a list of features")
         for i, feature in enumerate(features):
             if not isinstance(feature, dict) or feature.get("type") != "Feature":
-                raise MissionError(source, f"features[{i}]", 'not a GeoJSON Feature ("type": "Feature")')
-            yield from _geojson_features(feature, source, notes)
+                raise MissionError(source, _at(at, f"features[{i}]"), 'not a Feature ("type": "Feature")')
+            yield from _geojson_features(feature, source, notes, _at(at, f"features[{i}]"))
     elif kind == "Feature":
         geometry, properties = doc.get("geometry"), doc.get("properties") or {}
         if not isinstance(properties, dict):
-            raise MissionError(source, "properties", "must be an object or null")
+            raise MissionError(source, _at(at, "properties"), "must be an object or null")
         if geometry is None:
-            notes.append("a Feature without a geometry, ignored")
-        elif not isinstance(geometry, dict) or not isinstance(geometry.get("type"), str):
-            raise MissionError(source, "geometry", 'not a GeoJSON geometry (an object with a "type")')
-        else:
-            yield from ((w, g, properties) for w, g, _ in _geojson_features(geometry, source, notes))
+            notes.append(f"{at or 'the Feature'}: no geometry, ignored")
+            return
+        where = _at(at, "geometry")
+        for w, g, _ in _geojson_features(_geometry(geometry, source, where), source, notes, where):
+            yield w, g, properties
     elif kind == "GeometryCollection":
-        for geometry in _convert(doc.get("geometries"), list[dict[str, Any]], source, "geometries"):
-            yield from _geojson_features(geometry, source, notes)
+        members = _convert(doc.get("geometries"), list[Any], source, _at(at, "geometries"))
+        for i, member in enumerate(members):
+            where = _at(at, f"geometries[{i}]")
+            yield from _geojson_features(_geometry(member, source, where), source, notes, where)
     else:
-        yield f"a {kind}", doc, {}
+        yield at, doc, {}
+
+
+def _at(at: str, key: str) -> str:
+    """A JSON path one key deeper."""
+    return f"{at}.{key}" if at else key
+
+
+def _geometry(value: object, source: str, at: str) -> dict[str, Any]:
+    if not isinstance(value, dict) or not isinstance(value.get("type"), str):
+        raise MissionError(source, at, 'not a GeoJSON geometry (an object with a "type")')
+    return value
 
 
 def _flag(value: object) -> bool:
@@ -300,37 +317,44 @@ def _flag(value: object) -> bool:
 
 
 def _take(parsed: _Parsed, source: str, where: str, geometry: dict[str, Any], props: dict[str, Any]) -> None:
-    """Add one (lon, lat) geometry: a Polygon's outer ring is the area or a no-fly zone, its holes
-    no-fly zones; a MultiPolygon's parts each so; a no-fly Point with a radius, a no-fly circle."""
+    """Add one (lon, lat) geometry found at `where`: a Polygon's outer ring is the area or a no-fly
+    zone, its holes no-fly zones; a MultiPolygon's parts each so; a no-fly Point with a radius, a
+    no-fly circle."""
     kind, nofly = geometry["type"], _flag(props.get("nofly"))
-    coords = geometry.get("coordinates")
+    coords, label, at = (
+        geometry.get("coordinates"),
+        where or f"the {geometry['type']}",
+        _at(where, "coordinates"),
+    )
     if kind == "Polygon":
-        polygons = [_convert(coords, list[list[list[float]]], source, f"{where}: coordinates")]
+        polygons = [_convert(coords, list[list[list[float]]], source, at)]
     elif kind == "MultiPolygon":
-        polygons = _convert(coords, list[list[list[list[float]]]], source, f"{where}: coordinates")
+        polygons = _convert(coords, list[list[list[list[float]]]], source, at)
     elif kind == "Point" and nofly:
-        lon, lat = _lonlat(_convert(coords, list[float], source, f"{where}: coordinates"), source, where)
-        radius = _convert(props.get("radius"), float, source, f"{where}: radius (metres)")
-        parsed.nofly.append(ZoneCircle(lat=lat, lon=lon, radius=radius))
+        lon, lat = _lonlat(_convert(coords, list[float], source, at), source, at)
+        radius = props.get("radius")
+        if isinstance(radius, bool) or not isinstance(radius, int | float):
+            raise MissionError(source, label, f'a no-fly point needs a "radius" in metres, got {radius!r}')
+        parsed.nofly.append(ZoneCircle(lat=lat, lon=lon, radius=float(radius)))
         return
     else:
-        parsed.notes.append(f"{where}: not a polygon (nor a no-fly point with a radius), ignored")
+        parsed.notes.append(f"{label}: a {kind}, not a polygon (nor a no-fly point with a radius), ignored")
         return
     for rings in polygons:
         if not rings:
-            raise MissionError(source, where, "a polygon without rings")
-        outer, holes = [_lonlat(p, source, where) for p in rings[0]], rings[1:]
+            raise MissionError(source, at, "a polygon without rings")
+        outer, holes = [_lonlat(p, source, at) for p in rings[0]], rings[1:]
         if nofly:
             parsed.nofly.append(ZonePolygon(ring=tuple((lat, lon) for lon, lat in outer)))
             if holes:
-                parsed.notes.append(f"{where}: the holes of a no-fly polygon, ignored")
+                parsed.notes.append(f"{label}: the holes of a no-fly polygon, ignored")
             continue
         if parsed.inclusion is not None:
-            parsed.notes.append(f"{where}: a further area polygon, ignored")
+            parsed.notes.append(f"{label}: a further area polygon, ignored")
             continue
         parsed.inclusion = [(lat, lon) for lon, lat in outer]
         for hole in holes:
-            ring = [_lonlat(p, source, where) for p in hole]
+            ring = [_lonlat(p, source, at) for p in hole]
             parsed.nofly.append(ZonePolygon(ring=tuple((lat, lon) for lon, lat in ring)))
 
 
@@ -435,7 +459,7 @@ def _clean_ring(points: Sequence[LatLon], source: str, field: str) -> tuple[LatL
     if len(ring) > MAX_VERTICES:
         raise MissionError(source, field, f"{len(ring)} vertices; at most {MAX_VERTICES}")
     shape = Polygon([(lon, lat) for lat, lon in ring])
-    if shape.area == 0:
+    if shapely.MultiPoint(shape.exterior.coords).convex_hull.area == 0:
         raise MissionError(source, field, "encloses no area (its vertices are collinear)")
     if not shape.is_valid:
         where = re.search(r"\[(\S+) (\S+)\]", explain_validity(shape))
@@ -453,7 +477,7 @@ def _check_local(area: Area) -> list[str]:
     local = local_area(area)
     polygon, source, notes = local.polygon, area.source, []
     if polygon.area < MIN_AREA_M2:
-        raise MissionError(source, "area", f"encloses {polygon.area:.3g} m^2: degenerate")
+        raise MissionError(source, "area", f"encloses {polygon.area:.3g} m^2: degenerate (a sliver)")
     x0, y0, x1, y1 = polygon.bounds
     if (x1 - x0) * (y1 - y0) > MAX_AREA_M2:
         raise MissionError(
@@ -465,7 +489,7 @@ def _check_local(area: Area) -> list[str]:
     for i, shape in enumerate(local.zone_shapes()):
         field = f"area.nofly[{i}]"
         if shape.area < MIN_AREA_M2:
-            raise MissionError(source, field, f"encloses {shape.area:.3g} m^2: degenerate")
+            raise MissionError(source, field, f"encloses {shape.area:.3g} m^2: degenerate (a sliver)")
         if shape.covers(polygon):
             raise MissionError(source, field, "covers the whole area")
         if shape.disjoint(polygon):
