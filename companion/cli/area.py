@@ -79,4 +79,5 @@ def _describe(local: LocalArea) -> str:
 
 
 def _size(m2: float) -> str:
+    """An area in m^2 and km^2."""
     return f"{m2:,.0f} m^2 ({m2 / 1e6:.3f} km^2)"

@@ -10,22 +10,18 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
-import fastkml
 import msgspec
 import shapely
-from fastkml.utils import find_all
-from lxml import etree
 from shapely.geometry import Point, Polygon
 from shapely.validation import explain_validity
 
+from companion.contracts.area_readers import Found, LatLon, read_found
 from companion.contracts.frames import LocalFrame
 from companion.contracts.mission import MAX_FILE_BYTES, MAX_GRID_CELLS, MAX_VERTICES, MissionError, Origin
 
-LatLon = tuple[float, float]  # (latitude, longitude), degrees
 XY = tuple[float, float]  # (x east, y north), metres
 AREA_CELL_M = 40.0  # the paper's cell: the area limit is MAX_GRID_CELLS of them
 MAX_AREA_M2 = MAX_GRID_CELLS * AREA_CELL_M**2  # 400 km^2: the inclusion polygon's bounding box
@@ -33,12 +29,10 @@ MAX_ZONES = 64
 MIN_AREA_M2 = 1.0  # a ring enclosing less is degenerate
 ORIGIN_DECIMALS = 7  # the area's own origin, rounded to MAVLink's 1e-7 degree
 CIRCLE_SEGMENTS = 64  # a circle's polygon (quarter-circle segments) in the coverage checks
-NOFLY_NAME = re.compile(r"\s*no[\s_-]?fly\b", re.IGNORECASE)
-TRUE_WORDS = ("true", "1", "yes")
 
 
 class _Frozen(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    pass
+    """Immutable, keyword-only, strict about unknown fields."""
 
 
 class ZonePolygon(_Frozen, frozen=True, tag="polygon"):
@@ -114,6 +108,7 @@ class LocalArea(_Frozen, frozen=True):
 
 
 def _zone_shape(zone: LocalPolygon | LocalCircle) -> Polygon:
+    """A zone as a shapely polygon: a circle as the polygon around it, so that it covers the circle."""
     if isinstance(zone, LocalPolygon):
         return Polygon(zone.ring)
     circumscribed = zone.radius / math.cos(math.pi / (4 * CIRCLE_SEGMENTS))  # the circle inside it
@@ -126,6 +121,7 @@ def local_area(area: Area, origin: Origin | None = None) -> LocalArea:
     frame = LocalFrame(origin)
 
     def ring(points: Sequence[LatLon]) -> tuple[XY, ...]:
+        """A (lat, lon) ring in local metres."""
         return tuple(frame.to_local(lat, lon) for lat, lon in points)
 
     zones: list[LocalPolygon | LocalCircle] = []
@@ -141,16 +137,7 @@ def local_area(area: Area, origin: Origin | None = None) -> LocalArea:
     )
 
 
-# -- reading -------------------------------------------------------------------------------------
-
-
-class _Parsed(msgspec.Struct, kw_only=True):
-    """What a format's reader found, before validation."""
-
-    kind: str
-    inclusion: list[LatLon] | None = None
-    nofly: list[ZonePolygon | ZoneCircle] = []
-    notes: list[str] = []
+# -- reading and validation ------------------------------------------------------------------------
 
 
 def read_area(path: str | Path) -> Area:
@@ -166,242 +153,11 @@ def read_area(path: str | Path) -> Area:
 
 
 def parse_area(data: bytes, source: str) -> Area:
-    """The area in a file's bytes; `source` names it in errors."""
-    head = data.lstrip()[:1]
-    if data[:2] == b"PK":
-        raise MissionError(source, "(file)", "a zip archive (KMZ?): unzip it and give its .kml file")
-    if head == b"<":
-        parsed = _parse_kml(data, source)
-    elif head in (b"{", b"["):
-        parsed = _parse_json(data, source)
-    else:
-        raise MissionError(source, "(file)", "neither JSON (a .plan or GeoJSON) nor XML (KML)")
-    return _validate(parsed, source)
+    """The area in a file's bytes (.plan, GeoJSON or KML, told apart by content), validated.
 
+    `source` names the file in errors."""
+    return _validate(read_found(data, source), source)
 
-def _parse_json(data: bytes, source: str) -> _Parsed:
-    try:
-        doc = msgspec.json.decode(data)
-    except msgspec.DecodeError as exc:
-        raise MissionError(source, "(syntax)", str(exc)) from None
-    if isinstance(doc, dict) and doc.get("fileType") == "Plan":
-        return _parse_plan(doc, source)
-    if isinstance(doc, dict) and isinstance(doc.get("type"), str):
-        parsed = _Parsed(kind="GeoJSON")
-        for where, geometry, properties in _geojson_features(doc, source, parsed.notes):
-            _take(parsed, source, where, geometry, properties)
-        return parsed
-    raise MissionError(
-        source, "(document)", 'neither a QGroundControl plan ("fileType": "Plan") nor GeoJSON (a "type")'
-    )
-
-
-_MSGSPEC_AT = re.compile(r" - at `\$(?P<path>[^`]*)`$")
-
-
-def _convert(value: object, kind: type[Any], source: str, where: str) -> Any:
-    """`value` as `kind` (msgspec), or the MissionError naming where in the file it failed."""
-    try:
-        return msgspec.convert(value, kind)
-    except msgspec.ValidationError as exc:
-        match = _MSGSPEC_AT.search(str(exc))
-        reason = str(exc)[: match.start()] if match else str(exc)
-        path = match.group("path") if match else ""
-        raise MissionError(source, f"{where}{path}".lstrip(".") or "(document)", reason) from None
-
-
-# QGroundControl's plan (docs/mission-files.md): only what the reader uses is typed; the rest is noted.
-class _PlanPolygon(msgspec.Struct):
-    polygon: list[tuple[float, float]]  # (lat, lon)
-    inclusion: bool
-
-
-class _PlanCircleShape(msgspec.Struct):
-    center: tuple[float, float]  # (lat, lon)
-    radius: float
-
-
-class _PlanCircle(msgspec.Struct):
-    circle: _PlanCircleShape
-    inclusion: bool
-
-
-class _PlanFence(msgspec.Struct):
-    polygons: list[_PlanPolygon] = []
-    circles: list[_PlanCircle] = []
-
-
-class _Plan(msgspec.Struct):
-    geoFence: _PlanFence | None = None  # the plan's own keys
-    mission: dict[str, Any] = {}
-    rallyPoints: dict[str, Any] = {}
-
-
-def _parse_plan(doc: dict[str, Any], source: str) -> _Parsed:
-    """A .plan's first inclusion polygon and its exclusion polygons and circles."""
-    plan = _convert(doc, _Plan, source, "")
-    parsed = _Parsed(kind="QGroundControl plan")
-    fence = plan.geoFence or _PlanFence()
-    for i, poly in enumerate(fence.polygons):
-        if not poly.inclusion:
-            parsed.nofly.append(ZonePolygon(ring=tuple(poly.polygon)))
-        elif parsed.inclusion is None:
-            parsed.inclusion = list(poly.polygon)
-        else:
-            parsed.notes.append(f"geoFence.polygons[{i}]: a further inclusion polygon, ignored")
-    for i, c in enumerate(fence.circles):
-        if c.inclusion:
-            parsed.notes.append(f"geoFence.circles[{i}]: an inclusion circle, ignored")
-        else:
-            lat, lon = c.circle.center
-            parsed.nofly.append(ZoneCircle(lat=lat, lon=lon, radius=c.circle.radius))
-    items = plan.mission.get("items")
-    if isinstance(items, list) and items:
-        parsed.notes.append(f"mission: {_count(len(items), 'mission item')}, ignored (the companions fly)")
-    points = plan.rallyPoints.get("points")
-    if isinstance(points, list) and points:
-        parsed.notes.append(f"rallyPoints: {_count(len(points), 'rally point')}, ignored")
-    return parsed
-
-
-def _count(n: int, noun: str) -> str:
-    return f"{n} {noun}" + ("" if n == 1 else "s")
-
-
-def _geojson_features(
-    doc: dict[str, Any], source: str, notes: list[str], at: str = ""
-) -> Iterator[tuple[str, dict[str, Any], dict[str, Any]]]:
-    """(where in the file, geometry, properties) of each geometry of a GeoJSON object at `at`."""
-    kind = doc.get("type")
-    if kind == "FeatureCollection":
-        features = doc.get("features")
-        if not isinstance(features, list):
-            raise MissionError(source, _at(at, "features"), "a FeatureCollection needs a list of features")
-        for i, feature in enumerate(features):
-            if not isinstance(feature, dict) or feature.get("type") != "Feature":
-                raise MissionError(source, _at(at, f"features[{i}]"), 'not a Feature ("type": "Feature")')
-            yield from _geojson_features(feature, source, notes, _at(at, f"features[{i}]"))
-    elif kind == "Feature":
-        geometry, properties = doc.get("geometry"), doc.get("properties") or {}
-        if not isinstance(properties, dict):
-            raise MissionError(source, _at(at, "properties"), "must be an object or null")
-        if geometry is None:
-            notes.append(f"{at or 'the Feature'}: no geometry, ignored")
-            return
-        where = _at(at, "geometry")
-        for w, g, _ in _geojson_features(_geometry(geometry, source, where), source, notes, where):
-            yield w, g, properties
-    elif kind == "GeometryCollection":
-        members = _convert(doc.get("geometries"), list[Any], source, _at(at, "geometries"))
-        for i, member in enumerate(members):
-            where = _at(at, f"geometries[{i}]")
-            yield from _geojson_features(_geometry(member, source, where), source, notes, where)
-    else:
-        yield at, doc, {}
-
-
-def _at(at: str, key: str) -> str:
-    """A JSON path one key deeper."""
-    return f"{at}.{key}" if at else key
-
-
-def _geometry(value: object, source: str, at: str) -> dict[str, Any]:
-    if not isinstance(value, dict) or not isinstance(value.get("type"), str):
-        raise MissionError(source, at, 'not a GeoJSON geometry (an object with a "type")')
-    return value
-
-
-def _flag(value: object) -> bool:
-    """A no-fly flag's value: true, 1, "true", "yes" (any case)."""
-    return value is True or value == 1 or (isinstance(value, str) and value.strip().lower() in TRUE_WORDS)
-
-
-def _take(parsed: _Parsed, source: str, where: str, geometry: dict[str, Any], props: dict[str, Any]) -> None:
-    """Add one (lon, lat) geometry found at `where`: a Polygon's outer ring is the area or a no-fly
-    zone, its holes no-fly zones; a MultiPolygon's parts each so; a no-fly Point with a radius, a
-    no-fly circle."""
-    kind, nofly = geometry["type"], _flag(props.get("nofly"))
-    coords, label, at = (
-        geometry.get("coordinates"),
-        where or f"the {geometry['type']}",
-        _at(where, "coordinates"),
-    )
-    if kind == "Polygon":
-        polygons = [_convert(coords, list[list[list[float]]], source, at)]
-    elif kind == "MultiPolygon":
-        polygons = _convert(coords, list[list[list[list[float]]]], source, at)
-    elif kind == "Point" and nofly:
-        lon, lat = _lonlat(_convert(coords, list[float], source, at), source, at)
-        radius = props.get("radius")
-        if isinstance(radius, bool) or not isinstance(radius, int | float):
-            raise MissionError(source, label, f'a no-fly point needs a "radius" in metres, got {radius!r}')
-        parsed.nofly.append(ZoneCircle(lat=lat, lon=lon, radius=float(radius)))
-        return
-    else:
-        parsed.notes.append(f"{label}: a {kind}, not a polygon (nor a no-fly point with a radius), ignored")
-        return
-    for rings in polygons:
-        if not rings:
-            raise MissionError(source, at, "a polygon without rings")
-        outer, holes = [_lonlat(p, source, at) for p in rings[0]], rings[1:]
-        if nofly:
-            parsed.nofly.append(ZonePolygon(ring=tuple((lat, lon) for lon, lat in outer)))
-            if holes:
-                parsed.notes.append(f"{label}: the holes of a no-fly polygon, ignored")
-            continue
-        if parsed.inclusion is not None:
-            parsed.notes.append(f"{label}: a further area polygon, ignored")
-            continue
-        parsed.inclusion = [(lat, lon) for lon, lat in outer]
-        for hole in holes:
-            ring = [_lonlat(p, source, at) for p in hole]
-            parsed.nofly.append(ZonePolygon(ring=tuple((lat, lon) for lon, lat in ring)))
-
-
-def _lonlat(position: list[float], source: str, where: str) -> tuple[float, float]:
-    """A GeoJSON/KML position's (lon, lat); a third number (altitude) is dropped."""
-    if len(position) < 2:
-        raise MissionError(source, where, f"a position needs longitude and latitude, got {position}")
-    return position[0], position[1]
-
-
-def _parse_kml(data: bytes, source: str) -> _Parsed:
-    """A KML's Placemarks: no-fly ones (a name starting "no-fly", or ExtendedData nofly = true)
-    are zones, the first other polygon is the area (its inner boundaries zones)."""
-    parser = etree.XMLParser(resolve_entities=False, no_network=True)
-    try:
-        root = etree.fromstring(data, parser)
-        ns = root.tag[: -len("kml")] if root.tag.endswith("kml") else ""
-        names = {**fastkml.config.NAME_SPACES, "kml": ns}
-        document = fastkml.KML.class_from_element(ns=ns, name_spaces=names, strict=True, element=root)
-    except (etree.XMLSyntaxError, fastkml.exceptions.FastKMLError, ValueError) as exc:
-        raise MissionError(source, "(syntax)", str(exc).splitlines()[0] if str(exc) else repr(exc)) from None
-    parsed = _Parsed(kind="KML")
-    placemarks = [
-        p for p in find_all(document, of_type=fastkml.Placemark) if isinstance(p, fastkml.Placemark)
-    ]
-    for i, placemark in enumerate(placemarks):
-        where = f"Placemark {i}" + (f" ({placemark.name!r})" if placemark.name else "")
-        if placemark.geometry is None:
-            parsed.notes.append(f"{where}: no geometry, ignored")
-            continue
-        data_items = placemark.extended_data.elements if placemark.extended_data else []
-        extended = {d.name: d.value for d in data_items if isinstance(d, fastkml.Data)}
-        nofly = _flag(extended.get("nofly")) or bool(NOFLY_NAME.match(placemark.name or ""))
-        props = {"nofly": nofly, "radius": _kml_number(extended.get("radius"))}
-        _take(parsed, source, where, dict(placemark.geometry.__geo_interface__), props)
-    return parsed
-
-
-def _kml_number(text: str | None) -> float | str | None:
-    """An ExtendedData value as a number when it is one (else as given, for the error)."""
-    try:
-        return float(text) if text is not None else None
-    except ValueError:
-        return text
-
-
-# -- validation ----------------------------------------------------------------------------------
 
 HINTS = {
     "QGroundControl plan": "draw an inclusion polygon in the plan's GeoFence",
@@ -410,29 +166,31 @@ HINTS = {
 }
 
 
-def _validate(parsed: _Parsed, source: str) -> Area:
-    """`parsed` as an `Area`, each ring and zone checked (module docstring: every error names the
-    file and the field, "area" or "area.nofly[i]")."""
-    if parsed.inclusion is None:
-        raise MissionError(source, "area", f"no inclusion area: {HINTS[parsed.kind]}")
-    if len(parsed.nofly) > MAX_ZONES:
-        raise MissionError(source, "area.nofly", f"{len(parsed.nofly)} no-fly zones; at most {MAX_ZONES}")
+def _validate(found: Found, source: str) -> Area:
+    """What a file holds as an `Area`, each ring and zone checked.
+
+    An error names the file and the field, "area" or "area.nofly[i]" (zones in file order)."""
+    if found.inclusion is None:
+        raise MissionError(source, "area", f"no inclusion area: {HINTS[found.kind]}")
+    if len(found.nofly) > MAX_ZONES:
+        raise MissionError(source, "area.nofly", f"{len(found.nofly)} no-fly zones; at most {MAX_ZONES}")
     zones: list[ZonePolygon | ZoneCircle] = []
-    for i, zone in enumerate(parsed.nofly):
+    for i, zone in enumerate(found.nofly):
         field = f"area.nofly[{i}]"
-        if isinstance(zone, ZonePolygon):
-            zones.append(ZonePolygon(ring=_clean_ring(zone.ring, source, field)))
+        if isinstance(zone, list):
+            zones.append(ZonePolygon(ring=_clean_ring(zone, source, field)))
             continue
         _check_position(zone.lat, zone.lon, source, field, "the centre")
         if not (math.isfinite(zone.radius) and zone.radius > 0):
             raise MissionError(source, field, f"a circle's radius must be positive metres, got {zone.radius}")
-        zones.append(zone)
-    inclusion = _clean_ring(parsed.inclusion, source, "area")
-    area = Area(source=source, kind=parsed.kind, inclusion=inclusion, nofly=tuple(zones))
-    return msgspec.structs.replace(area, notes=(*parsed.notes, *_check_local(area)))
+        zones.append(ZoneCircle(lat=zone.lat, lon=zone.lon, radius=zone.radius))
+    inclusion = _clean_ring(found.inclusion, source, "area")
+    area = Area(source=source, kind=found.kind, inclusion=inclusion, nofly=tuple(zones))
+    return msgspec.structs.replace(area, notes=(*found.notes, *_check_local(area)))
 
 
 def _check_position(lat: float, lon: float, source: str, field: str, which: str) -> None:
+    """A finite latitude within ±90 (else swapped?) and longitude within ±180."""
     if not (math.isfinite(lat) and math.isfinite(lon)):
         raise MissionError(source, field, f"{which} is not a finite latitude and longitude")
     if abs(lat) > 90:
@@ -447,8 +205,10 @@ def _check_position(lat: float, lon: float, source: str, field: str, which: str)
 
 
 def _clean_ring(points: Sequence[LatLon], source: str, field: str) -> tuple[LatLon, ...]:
-    """A ring checked (positions, vertex count, no crossing, an area) and normalised: open, without
-    repeated vertices, counter-clockwise, from its southernmost (then westernmost) vertex."""
+    """A ring checked (positions, vertex count, no crossing, an area) and normalised.
+
+    Normalised: open, without repeated vertices, counter-clockwise, from its southernmost (then
+    westernmost) vertex."""
     for i, (lat, lon) in enumerate(points):
         _check_position(lat, lon, source, field, f"vertex {i}")
     ring = [p for i, p in enumerate(points) if i == 0 or p != points[i - 1]]
@@ -472,8 +232,9 @@ def _clean_ring(points: Sequence[LatLon], source: str, field: str) -> tuple[LatL
 
 
 def _check_local(area: Area) -> list[str]:
-    """The checks in metres, around the area's own origin: its size, and each zone against it;
-    returns the notes (a zone wholly outside the area)."""
+    """The checks in metres around the area's own origin (its size, each zone against it); notes.
+
+    A zone wholly outside the area is kept, with a note."""
     local = local_area(area)
     polygon, source, notes = local.polygon, area.source, []
     if polygon.area < MIN_AREA_M2:
