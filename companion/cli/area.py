@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
 def _describe(local: LocalArea) -> str:
     """The area's lines: its ring, each zone, and the areas in m^2 and km^2."""
     ring = ", ".join(f"({x:.2f}, {y:.2f})" for x, y in local.inclusion)
-    lines = [f"area: {len(local.inclusion)} vertices (x east, y north; m): {ring}"]
+    lines = [f"inclusion polygon: {len(local.inclusion)} vertices (x east, y north; m): {ring}"]
     for i, (zone, shape) in enumerate(zip(local.nofly, local.zone_shapes(), strict=True)):
         if isinstance(zone, LocalCircle):
             what = f"circle at ({zone.x:.2f}, {zone.y:.2f}), radius {zone.radius:.2f} m"

@@ -245,7 +245,7 @@ def _check_local(area: Area) -> list[str]:
             source,
             "area",
             f"its bounding box is {(x1 - x0) / 1e3:.1f} km x {(y1 - y0) / 1e3:.1f} km; at most "
-            f"{MAX_AREA_M2 / 1e6:g} km^2 (MAX_GRID_CELLS cells of {AREA_CELL_M:g} m)",
+            f"{MAX_AREA_M2 / 1e6:g} km^2 (the search grid's {MAX_GRID_CELLS:,} cells of {AREA_CELL_M:g} m)",
         )
     for i, shape in enumerate(local.zone_shapes()):
         field = f"area.nofly[{i}]"
