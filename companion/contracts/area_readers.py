@@ -23,6 +23,8 @@ from companion.contracts.mission import MissionError
 LatLon = tuple[float, float]  # (latitude, longitude), degrees
 NOFLY_NAME = re.compile(r"\s*no[\s_-]?fly\b", re.IGNORECASE)
 TRUE_WORDS = ("true", "1", "yes")
+# What fastkml and pygeoif raise on malformed KML besides their own errors (a bad coordinate count)
+MALFORMED = (TypeError, ValueError, AttributeError, IndexError)
 
 
 class Circle(NamedTuple):
@@ -220,12 +222,13 @@ def _take(parsed: Found, source: str, where: str, geometry: dict[str, Any], prop
         polygons = [_convert(coords, list[list[list[float]]], source, at)]
     elif kind == "MultiPolygon":
         polygons = _convert(coords, list[list[list[list[float]]]], source, at)
-    elif kind == "Point" and nofly:
-        lon, lat = _lonlat(_convert(coords, list[float], source, at), source, at)
+    elif kind in ("Point", "MultiPoint") and nofly:
         radius = props.get("radius")
         if isinstance(radius, bool) or not isinstance(radius, int | float):
             raise MissionError(source, label, f'a no-fly point needs a "radius" in metres, got {radius!r}')
-        parsed.nofly.append(Circle(lat, lon, float(radius)))
+        points = [coords] if kind == "Point" else coords
+        for lon, lat in (_lonlat(p, source, at) for p in _convert(points, list[list[float]], source, at)):
+            parsed.nofly.append(Circle(lat, lon, float(radius)))
         return
     else:
         parsed.notes.append(f"{label}: a {kind}, not a polygon (nor a no-fly point with a radius), ignored")
@@ -266,23 +269,39 @@ def _parse_kml(data: bytes, source: str) -> Found:
         ns = root.tag[: -len("kml")] if root.tag.endswith("kml") else ""
         names = {**fastkml.config.NAME_SPACES, "kml": ns}
         document = fastkml.KML.class_from_element(ns=ns, name_spaces=names, strict=True, element=root)
-    except (etree.XMLSyntaxError, fastkml.exceptions.FastKMLError, ValueError) as exc:
-        raise MissionError(source, "(syntax)", str(exc).splitlines()[0] if str(exc) else repr(exc)) from None
+    except (etree.XMLSyntaxError, fastkml.exceptions.FastKMLError, *MALFORMED) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else repr(exc)
+        raise MissionError(source, "(syntax)", f"not readable as KML: {reason}") from None
     parsed = Found(kind="KML")
     placemarks = [
         p for p in find_all(document, of_type=fastkml.Placemark) if isinstance(p, fastkml.Placemark)
     ]
     for i, placemark in enumerate(placemarks):
         where = f"Placemark {i}" + (f" ({placemark.name!r})" if placemark.name else "")
-        if placemark.geometry is None:
-            parsed.notes.append(f"{where}: no geometry, ignored")
+        try:  # pygeoif builds the geometry on access, and fails on a malformed one as it may
+            geometry = placemark.geometry
+            shape = None if geometry is None else dict(geometry.__geo_interface__)
+        except MALFORMED as exc:
+            raise MissionError(source, where, f"a malformed geometry ({exc})") from None
+        if shape is None:
+            parsed.notes.append(f"{where}: no (readable) geometry, ignored")
             continue
         data_items = placemark.extended_data.elements if placemark.extended_data else []
         extended = {d.name: d.value for d in data_items if isinstance(d, fastkml.Data)}
         nofly = _flag(extended.get("nofly")) or bool(NOFLY_NAME.match(placemark.name or ""))
         props = {"nofly": nofly, "radius": _kml_number(extended.get("radius"))}
-        _take(parsed, source, where, dict(placemark.geometry.__geo_interface__), props)
+        for part in _parts(shape):
+            _take(parsed, source, where, part, props)
     return parsed
+
+
+def _parts(shape: dict[str, Any]) -> Iterator[dict[str, Any]]:
+    """The geometries in a KML geometry: a MultiGeometry of mixed parts (nested or not) part by part."""
+    if shape.get("type") != "GeometryCollection":
+        yield shape
+        return
+    for part in shape.get("geometries") or ():
+        yield from _parts(dict(part))
 
 
 def _kml_number(text: str | None) -> float | str | None:

@@ -158,6 +158,19 @@ def test_too_many_zones() -> None:
             "not a GeoJSON geometry",
         ),
         (b'{"type": "Point", "coordinates": [149.1, -35.3]}', "area", "no inclusion area"),
+        (
+            b'<kml xmlns="http://www.opengis.net/kml/2.2"><Placemark><Polygon><outerBoundaryIs>'
+            b"<LinearRing><coordinates>149.1 149.2</coordinates></LinearRing></outerBoundaryIs>"
+            b"</Polygon></Placemark></kml>",
+            "(syntax)",
+            "not readable as KML",
+        ),
+        (
+            b'<kml xmlns="http://www.opengis.net/kml/2.2"><Placemark><name>x</name>'
+            b"<Point><coordinates>nan,inf</coordinates></Point></Placemark></kml>",
+            "Placemark 0 ('x')",
+            "a malformed geometry",
+        ),
     ],
 )
 def test_malformed_content_names_the_place(data: bytes, field: str, reason: str) -> None:
@@ -213,7 +226,10 @@ def test_no_fly_points_with_a_radius_are_circles_in_geojson_and_kml() -> None:
 <Placemark><name>NOFLY mast</name><ExtendedData><Data name="radius"><value>75</value></Data></ExtendedData>
 <Point><coordinates>{lon},{lat},0</coordinates></Point></Placemark>
 </Document></kml>"""
-    for data in (json.dumps(geojson).encode(), kml.encode()):
+    mixed = kml.replace("<Point>", "<MultiGeometry><Point>").replace(
+        "</Point>", "</Point><LineString><coordinates>1,2 3,4</coordinates></LineString></MultiGeometry>"
+    )
+    for data in (json.dumps(geojson).encode(), kml.encode(), mixed.encode()):
         local = local_area(parse_area(data, "f"), SCENARIO1.origin)
         zone = local.nofly[0]
         assert isinstance(zone, LocalCircle) and math.dist((zone.x, zone.y), (200.0, -300.0)) < CM
