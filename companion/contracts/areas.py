@@ -156,6 +156,8 @@ def parse_area(data: bytes, source: str) -> Area:
     """The area in a file's bytes (.plan, GeoJSON or KML, told apart by content), validated.
 
     `source` names the file in errors."""
+    if len(data) > MAX_FILE_BYTES:
+        raise MissionError(source, "(file)", f"{len(data):,} bytes; at most {MAX_FILE_BYTES:,}")
     return _validate(read_found(data, source), source)
 
 

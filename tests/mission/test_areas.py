@@ -25,7 +25,7 @@ from companion.contracts.areas import (
     read_area,
 )
 from companion.contracts.frames import LocalFrame
-from companion.contracts.mission import MAX_VERTICES, MissionError, Origin, read_schema
+from companion.contracts.mission import MAX_FILE_BYTES, MAX_VERTICES, MissionError, Origin, read_schema
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).parent / "areas"
@@ -144,6 +144,7 @@ def test_too_many_zones() -> None:
     [
         (b"PK\x03\x04...", "(file)", "KMZ"),
         (b"hello", "(file)", "neither JSON"),
+        (b" " * (MAX_FILE_BYTES + 1), "(file)", "at most"),
         (b'{"fileType": "Mission"}', "(document)", "neither a QGroundControl plan"),
         (
             b'{"fileType": "Plan", "geoFence": {"polygons": [{"polygon": [[1, 2]]}]}}',
