@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 
 from companion.batch.executors import ClusterError
-from companion.cli import bench, fly, generated, heldout, reliability, studies
+from companion.cli import area, bench, fly, generated, heldout, reliability, studies
 from companion.cli.options import CommandParser
 from companion.contracts.arguments import check_mission
 from companion.contracts.entry import INTERRUPTED
@@ -23,6 +23,7 @@ GROUPS = (
     reliability.register,
     fly.register,
     bench.register_passthrough,
+    area.register,
 )
 
 
