@@ -137,7 +137,9 @@ class MavlinkEndpoint:
         return self.signing and frame[0] == _V2 and bool(frame[2] & 1) and len(frame) >= 25
 
     def _count_bad(self, exc: Exception, frame: bytes) -> None:
-        """Count an undecodable frame: bad, unsigned, or badly signed (its stream's timestamp is
+        """Count an undecodable frame: bad, unsigned, or badly signed.
+
+        Count an undecodable frame: bad, unsigned, or badly signed (its stream's timestamp is
         already put back by `keep_stream_timestamps`)."""
         if "signature" not in str(exc):
             self.stats.bad_frames += 1

@@ -18,7 +18,7 @@ from companion.contracts.frames import yaw_to_heading
 from sim_vehicles.telemetry import DEFAULT_RATES_HZ
 
 if TYPE_CHECKING:
-    from sim_vehicles.host import HostedVehicle
+    from sim_vehicles.hosted_vehicle import HostedVehicle
     from sim_vehicles.mavlink_endpoint import Address
 
 M = mavlink
