@@ -57,7 +57,9 @@ FAILSAFE_TIMEOUT_S = 10.0  # FS_LONG_TIMEOUT flown (vehicle s): 1.25 s of wall t
 
 
 def on_free_ports(mission: Mission) -> Mission:
-    """`mission` with every vehicle on a free block of loopback ports (the bundled simulator serves
+    """`mission` with every vehicle on a free block of loopback ports.
+
+    `mission` with every vehicle on a free block of loopback ports (the bundled simulator serves
     them all)."""
     bases = free_blocks(mission.n_uavs, width=6)
     ports = zip(mission.vehicles, bases, strict=True)

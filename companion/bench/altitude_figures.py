@@ -49,7 +49,9 @@ class PhaseFigures:
 
 @dataclass
 class Flight:
-    """What one autopilot's flight recorded: its phases, the observer's .tlog, the vehicle's system
+    """What one autopilot's flight recorded.
+
+    What one autopilot's flight recorded: its phases, the observer's .tlog, the vehicle's system
     id and the autopilot's altitude parameters as read."""
 
     autopilot: str
@@ -102,7 +104,9 @@ def figures(autopilot: str, phase: Phase, samples: Sequence[Sample]) -> PhaseFig
 
 
 class Sampler:
-    """Samples a link's altitude at every poll (for a link without a .tlog): hook it on `on_poll`.
+    """A link's altitude sampled at every poll, for a link without a .tlog.
+
+    Samples a link's altitude at every poll (for a link without a .tlog): hook it on `on_poll`.
     Climb rates are not sampled (NaN)."""
 
     def __init__(self, link: VehicleLink) -> None:
@@ -136,7 +140,9 @@ def format_table(rows: Sequence[PhaseFigures]) -> str:
 
 
 def proposal(rows: Sequence[PhaseFigures], margin: float) -> tuple[float, float]:
-    """(the largest one-aircraft deviation over the guarantee's phases, the vertical separation it
+    """The worst one-aircraft deviation and the vertical separation it asks for.
+
+    (the largest one-aircraft deviation over the guarantee's phases, the vertical separation it
     gives: twice that (two aircraft straying towards each other) plus `margin`)."""
     worst = max((r.max_error_m for r in rows if math.isfinite(r.max_error_m)), default=math.nan)
     return worst, 2.0 * worst + margin

@@ -67,7 +67,9 @@ def settle(
     tolerance: float = SETTLED_M,
     each: Callable[[], None] = lambda: None,
 ) -> None:
-    """Fly to CENTRE at `altitude` and circle there (or, without `reposition`, fly on as `each`
+    """Fly until settled at `altitude`.
+
+    Fly to CENTRE at `altitude` and circle there (or, without `reposition`, fly on as `each`
     steers) until settled at it (SETTLED_S within `tolerance`, slower than SETTLED_RATE)."""
     s = link.state
     if reposition:
@@ -93,7 +95,9 @@ def settle(
 
 
 class Turns:
-    """The companion's guidance: `level` steps straight on (wings level), then turning at the turn
+    """The companion's guidance turning at the turn limit, one way then the other.
+
+    The companion's guidance: `level` steps straight on (wings level), then turning at the turn
     limit, TURN_STEPS steps one way, then the other."""
 
     def __init__(self, guidance: Guidance, mission: Mission, level: int = 0) -> None:
@@ -202,7 +206,9 @@ def fly_ardupilot(
     phases: Sequence[str] = ARDUPILOT_PHASES,
     loiter_s: float = LOITER_S,
 ) -> None:
-    """The ArduPilot phases on an airborne vehicle in GUIDED (`link`: the observer; `companion_url`
+    """The ArduPilot phases on an airborne vehicle in GUIDED.
+
+    The ArduPilot phases on an airborne vehicle in GUIDED (`link`: the observer; `companion_url`
     a second link to it, for the companion whose silence fires the failsafe)."""
     frame, layer = link.frame, mission.altitude_of(uav)
     world = build_world(mission)

@@ -12,7 +12,9 @@ from companion.contracts.mission import Mission
 
 
 def signing_cost(mission: Mission, steps: int = 60) -> dict[str, float]:
-    """Microseconds per bundle to sign (`Authenticator.relayable` + `seal`) and to check (`check`,
+    """Microseconds per bundle to sign and to check, over `steps` steps of the mission's agents.
+
+    Microseconds per bundle to sign (`Authenticator.relayable` + `seal`) and to check (`check`,
     each receiver keeping its checked signatures, as the mesh does): the mission's agents step
     together in one process, everyone hearing everyone, and every outbox is sealed by its sender
     and checked by every other UAV. `mission` must name a key directory."""

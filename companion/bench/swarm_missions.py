@@ -46,7 +46,9 @@ def spread_vehicles(mission: Mission, n: int) -> list[Vehicle]:
 
 
 def bench_mission(base: Mission, n: int | None, mode: str, tag: str, keys: Path | None = None) -> Mission:
-    """`base` with n spread vehicles (None: its own), the mesh in `mode`, a unique key prefix,
+    """`base` made a trial's mission: its swarm, mesh mode, key prefix, ports and keys.
+
+    `base` with n spread vehicles (None: its own), the mesh in `mode`, a unique key prefix,
     fresh loopback ports for the seed endpoint and the router and, with `keys`, secured by them."""
     vehicles = base.vehicles if n is None else spread_vehicles(base, n)
     mesh = msgspec.structs.replace(

@@ -28,7 +28,8 @@ def _pct(values: np.ndarray | list[float], q: float) -> float:
 
 
 def trial(pool: Pool, mission: Mission, steps: int, period: float, tmp: Path, viewer: bool = False) -> dict:
-    """Run one trial (lockstep when period == 0) on mission.n_uavs workers; the raw figures.
+    """One trial on mission.n_uavs workers (lockstep when period == 0): the raw figures.
+
     With `viewer`, a `Viewer` watches the mesh from before the first step to after the last."""
     n = mission.n_uavs
     path = tmp / f"{mission.mesh.key_prefix}.json"
@@ -138,7 +139,9 @@ def summarize(t: dict) -> dict:
 
 
 def realtime_verdict(s: dict) -> tuple[bool, str]:
-    """The real-time criterion. With T the step period, "lag" a step's completion time (end of
+    """The real-time criterion: (pass, why) of a trial's summary.
+
+    With T the step period, "lag" a step's completion time (end of
     inbox -> step -> publish -> MAVLink command) minus its scheduled start k*T, a trial passes iff
 
     1. every UAV saw all N-1 peers alive before the start and finished every step;

@@ -199,7 +199,9 @@ def worker_main(argv: Sequence[str] | None = None) -> int:
 
 
 def viewer_main(argv: Sequence[str]) -> int:
-    """The view's live server on a trial's mesh (`python -m companion.bench viewer MISSION.json`):
+    """The view's live server on a trial's mesh, until SIGINT/SIGTERM.
+
+    The view's live server on a trial's mesh (`python -m companion.bench viewer MISSION.json`):
     prints its URL as a protocol line, serves until SIGINT/SIGTERM."""
     from companion.app.view.main import warm_kernels
     from companion.app.view.server import LiveSource, serve

@@ -40,7 +40,9 @@ CHROMIUM_FLAGS = (
 
 
 class Viewer:
-    """A viewer on a trial's mesh: the view server, and a headless Chromium on its page (when
+    """A viewer on a trial's mesh: the view server and a headless Chromium.
+
+    A viewer on a trial's mesh: the view server, and a headless Chromium on its page (when
     /usr/bin/chromium exists). Both stopped by PID."""
 
     def __init__(self, mission_json: Path, log: Path) -> None:
