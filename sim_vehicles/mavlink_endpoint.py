@@ -1,16 +1,9 @@
 """One vehicle's MAVLink 2 UDP endpoint: a listening socket, its peers, and the codec.
 
-Like ArduPilot SITL's UDP server: the vehicle listens on its port; every address that sends it a
-valid MAVLink frame becomes a peer and receives its telemetry until silent for PEER_TIMEOUT.
-Each datagram is split into frames independently (a truncated frame never swallows the next
-datagram); anything undecodable is counted and skipped.
-
-With a signing secret the endpoint behaves like ArduPilot once MAVLink2 signing is set up: it
-signs what it sends and accepts only frames signed with the secret, with a timestamp newer than
-the last one of their stream (replays are refused), except the radio's own RADIO_STATUS. Rejected
-frames are counted (unsigned, bad_signature) and their senders do not become peers; only a sender of
-a frame whose signature checked becomes one (pymavlink decodes a frame of an unknown message id
-before it looks at the signature: such a frame, signed or not, is counted as unsigned and dropped).
+Like ArduPilot SITL's UDP server: every address that sends the vehicle a valid frame becomes a
+peer until silent for PEER_TIMEOUT. Each datagram is split into frames on its own; anything
+undecodable is counted and skipped. With a signing secret it signs what it sends and accepts only
+frames signed with it (docs/simulator.md, "Endpoints").
 """
 
 from __future__ import annotations
@@ -21,7 +14,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.contracts.mavlink_signing import signing_timestamp
+from companion.contracts.mavlink_signing import keep_stream_timestamps, signing_timestamp
 
 PEER_TIMEOUT = 30.0  # wall seconds without traffic before a peer is forgotten
 MAX_PEERS = 16
@@ -99,6 +92,7 @@ class MavlinkEndpoint:
             signing.link_id = 0
             signing.timestamp = signing_timestamp()
             signing.allow_unsigned_callback = lambda _mav, msg_id: msg_id in UNSIGNED_ALLOWED
+            keep_stream_timestamps(self.mav)
 
     @property
     def signing(self) -> bool:
@@ -121,12 +115,10 @@ class MavlinkEndpoint:
             frames, bad = split_frames(data)
             self.stats.bad_frames += bad
             for frame in frames:
-                stream = self._stream(frame)
-                before = self.mav.signing.stream_timestamps.get(stream) if stream else None
                 try:
                     msg = self.mav.decode(bytearray(frame))
                 except Exception as exc:  # pymavlink raises MAVError, struct.error, ... on corrupt frames
-                    self._count_bad(exc, stream, before)
+                    self._count_bad(exc, frame)
                     continue
                 if self.signing and not msg.get_signed():
                     if msg.get_msgId() not in UNSIGNED_ALLOWED:  # an unknown id: never checked
@@ -140,26 +132,21 @@ class MavlinkEndpoint:
                 self._touch(addr, now)
         return out
 
-    def _stream(self, frame: bytes) -> tuple[int, int, int] | None:
-        """(link id, system, component) of a signed MAVLink2 frame when signing is on, else None."""
-        if not self.signing or frame[0] != _V2 or not frame[2] & 1 or len(frame) < 25:
-            return None
-        return frame[-13], frame[5], frame[6]
+    def _signed(self, frame: bytes) -> bool:
+        """Whether `frame` is a signed MAVLink2 frame and signing is on."""
+        return self.signing and frame[0] == _V2 and bool(frame[2] & 1) and len(frame) >= 25
 
-    def _count_bad(self, exc: Exception, stream: tuple[int, int, int] | None, before: int | None) -> None:
+    def _count_bad(self, exc: Exception, frame: bytes) -> None:
+        """Count an undecodable frame: bad, unsigned, or badly signed.
+
+        Count an undecodable frame: bad, unsigned, or badly signed (its stream's timestamp is
+        already put back by `keep_stream_timestamps`)."""
         if "signature" not in str(exc):
             self.stats.bad_frames += 1
-        elif stream is None:
+        elif not self._signed(frame):
             self.stats.unsigned += 1
         else:
             self.stats.bad_signature += 1
-            # pymavlink moves the stream's timestamp before it checks the signature: put it back,
-            # so that a forged frame cannot make the genuine stream look like a replay
-            timestamps = self.mav.signing.stream_timestamps
-            if before is None:
-                timestamps.pop(stream, None)
-            else:
-                timestamps[stream] = before
 
     def _touch(self, addr: Address, now: float) -> None:
         if addr not in self.peers and len(self.peers) >= MAX_PEERS:

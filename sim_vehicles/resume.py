@@ -26,6 +26,9 @@ STATE_VERSION = 1
 _NOT_SAVED = {"kinematics"}  # rebuilt from the mission
 
 
+UNREADABLE = (OSError, EOFError, pickle.UnpicklingError, KeyError, TypeError, AttributeError, ImportError)
+
+
 class StateError(ValueError):
     """A state file that cannot be resumed from (the message says why)."""
 
@@ -60,7 +63,7 @@ def load_state(host: Host, path: Path) -> None:
         with path.open("rb") as f:
             state = pickle.load(f)
         identity = state["identity"]
-    except (OSError, EOFError, pickle.UnpicklingError, KeyError, TypeError) as exc:
+    except UNREADABLE as exc:  # a class pickled by another version: AttributeError, ImportError
         raise StateError(f"state file {path}: unreadable ({exc}): remove it to start afresh") from None
     if identity != _identity(host):
         raise StateError(f"state file {path}: saved by another mission, seed or version: remove it")

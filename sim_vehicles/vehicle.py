@@ -2,55 +2,29 @@
 
 Pure state and rules, no sockets or clocks: every method takes the simulated time `t` (s) and,
 where it matters, the vehicle's pose in the local frame (x east, y north, heading CCW from east).
-Guidance answers with a `Turn`: the bank angle ArduPlane's laws ask for (see
-`dynamics.navigation`) with the command's own bank limit, or the turn rate of the simulator's
-direct turn-rate command; the flight model limits and integrates it (see `dynamics.flight`):
-
-- GUIDED circles its guided point: where GUIDED was entered, or the last DO_REPOSITION point;
-- a heading hold (GUIDED_CHANGE_HEADING) holds until another guidance replaces it, banking at most
-  atan(param3 / g);
-- a turn-rate command (the simulator's SET_ATTITUDE_TARGET yaw rate) holds for SIM_GUIDED_TMO
-  seconds after the last one, then the vehicle goes back to circling its guided point (as
-  ArduPlane does after a SET_ATTITUDE_TARGET expires);
-- the fence: outside an uploaded inclusion polygon, with FENCE_ENABLE and FENCE_TYPE's polygon bit
-  set, the vehicle reports the breach and, with FENCE_ACTION 1, flies RTL;
-- RTL (Return) circles home at RTL_ALTITUDE (ArduPilot; -1 keeps the altitude) or at RTL_RETURN_ALT
-  or higher (PX4: an aircraft above it returns at its own altitude; no descent to RTL_DESCEND_ALT);
-- ArduPlane's GCS failsafe: with FS_GCS_ENABL 1 or 2 (3: in AUTO only), when no HEARTBEAT from
-  system MAV_GCS_SYSID has come for FS_LONG_TIMEOUT seconds (the vehicle counts its boot as heard),
-  the long failsafe switches mode by FS_LONG_ACTN: in GUIDED and AUTO 1 RTL, 2 FBWA, 4 AUTO, 0 and 3
-  nothing; in RTL 4 AUTO; in the other modes 2 FBWA, 4 AUTO, 3 nothing, else RTL. It clears when
-  HEARTBEATs are back within FS_SHORT_TIMEOUT (FS_LONG_TIMEOUT if FS_SHORT_ACTN is 3), leaving the
-  mode as it is.
-- PX4 (the flavour's semantics, as checked on PX4 SITL): OFFBOARD needs a setpoint stream to enter,
-  and after COM_OF_LOSS_T without setpoints switches to the mode COM_OBL_RC_ACT names (Position
-  mode by default: wings level, straight on, without RC); a position setpoint is flown to and
-  orbited at the tightest turn (no acceptance radius); Hold and DO_REPOSITION circle their point at
-  NAV_LOITER_RAD, clockwise (DO_REPOSITION's radius is ignored); a DO_REPOSITION without the
-  change-mode flag is UNSUPPORTED, yet flown in Hold; a fence is in force once uploaded if it
-  contains home and the vehicle (else "Geofence invalid") and GF_ACTION is not 0, a breach
-  switching to Hold where the vehicle is (GF_ACTION 2, and 4, 5: no termination or landing here)
-  or to Return (3).
+Guidance answers with a `Turn` (`nav_targets`): the bank angle ArduPlane's laws ask for
+(`dynamics.navigation`) or the turn rate of the simulator's turn-rate command; the flight model
+limits and integrates it (`dynamics.flight`). The modes, commands, fence and failsafes of each
+flavour (ArduPilot, PX4) are described in docs/simulator.md.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.core.geometry import ConvexPolygon
 from sim_vehicles.dynamics import navigation as nav
 from sim_vehicles.modes import Behaviour, Flavour, Mode
+from sim_vehicles.nav_targets import HeadingHold, Leg, Loiter, Nav, RateHold, Turn, Waypoint
 from sim_vehicles.protocols.params import ParamStore
 
 SETPOINT_RATE_WINDOW = 1.0  # s: PX4 OFFBOARD needs > 2 setpoints in this window...
 SETPOINT_MAX_GAP = 0.5  # s: ...and the last one this recent
 FENCE_POLYGON_BIT = 4
 FENCE_ACTION_RTL = 1
-NO_BANK_LIMIT = math.pi / 2  # the airframe's roll limit applies
 GCS_HEARTBEAT, GCS_HEARTBEAT_RSSI, GCS_HEARTBEAT_AUTO = 1, 2, 3  # FS_GCS_ENABL
 LONG_RTL, LONG_GLIDE, LONG_PARACHUTE, LONG_AUTO = 1, 2, 3, 4  # FS_LONG_ACTN
 SHORT_DISABLED = 3  # FS_SHORT_ACTN
@@ -63,68 +37,6 @@ ITEM_NAMES = {  # ArduPilot's short names of mission commands ("Mission: 1 LoitU
 }
 PX4_OFFBOARD_LOSS = {0: "POSCTL", 1: "ALTCTL", 2: "MANUAL", 3: "AUTO.RTL"}  # COM_OBL_RC_ACT; else Hold
 PX4_GEOFENCE_WARN, PX4_GEOFENCE_RETURN = 1, 3  # GF_ACTION
-
-
-@dataclass(frozen=True)
-class Loiter:
-    """Circle (x, y); radius > 0 clockwise (ArduPlane's default), < 0 counter-clockwise."""
-
-    x: float
-    y: float
-    radius: float
-
-
-@dataclass
-class Leg:
-    """An AUTO leg: track the line from `start` to (x, y), which counts as reached near it."""
-
-    start: tuple[float, float]
-    x: float
-    y: float
-    arrived: bool = False
-
-
-@dataclass(frozen=True)
-class HeadingHold:
-    """Hold a heading (rad CCW from east), turning with at most `accel` m/s^2 (param3)."""
-
-    heading: float
-    accel: float
-
-
-@dataclass(frozen=True)
-class RateHold:
-    """Turn at `rate` (rad/s, CCW positive) until `expires` (simulated s)."""
-
-    rate: float
-    expires: float
-
-
-Nav = Loiter | Leg | HeadingHold | RateHold | None  # None: wings level, straight on
-
-
-@dataclass(frozen=True)
-class Turn:
-    """What guidance asks of the flight model: a bank angle (rad) or, if `bank` is None, a turn
-    rate (rad/s); both counter-clockwise positive; `limit` the command's own bank limit (rad)."""
-
-    bank: float | None = 0.0
-    rate: float = 0.0
-    limit: float = NO_BANK_LIMIT
-
-
-@dataclass(frozen=True)
-class Waypoint:
-    """A flyable mission item in the local frame; `up` None keeps the altitude; `here`: wherever the
-    vehicle is when the item starts (x, y unused); `radius` a loiter's (0: WP_LOITER_RAD)."""
-
-    seq: int
-    command: int
-    x: float
-    y: float
-    up: float | None
-    here: bool = False
-    radius: float = 0.0
 
 
 class Vehicle:
@@ -224,7 +136,9 @@ class Vehicle:
         self, x: float, y: float, target: tuple[float, float], up: float | None, radius: float,
         change_mode: bool,
     ) -> int:
-        """MAV_CMD_DO_REPOSITION: fly to `target` and circle it (ArduPlane GUIDED: `radius` 0 means
+        """MAV_CMD_DO_REPOSITION: fly to `target` and circle it.
+
+        MAV_CMD_DO_REPOSITION: fly to `target` and circle it (ArduPlane GUIDED: `radius` 0 means
         WP_LOITER_RAD, its sign the direction; PX4 Hold: at NAV_LOITER_RAD clockwise, and without the
         change-mode flag UNSUPPORTED, yet flown when in Hold)."""
         go_to = self.flavour.by_name(self.flavour.reposition)
@@ -242,7 +156,9 @@ class Vehicle:
         return result
 
     def change_heading(self, t: float, x: float, y: float, kind: int, heading: float, accel: float) -> int:
-        """MAV_CMD_GUIDED_CHANGE_HEADING (ArduPlane): hold a heading with at most `accel` m/s^2
+        """MAV_CMD_GUIDED_CHANGE_HEADING (ArduPlane): hold a heading, or cancel the hold.
+
+        MAV_CMD_GUIDED_CHANGE_HEADING (ArduPlane): hold a heading with at most `accel` m/s^2
         (kinds 0 and 1), or cancel it (kind 2: circle the guided point)."""
         if self.mode.behaviour is not Behaviour.GUIDED:
             return mavlink.MAV_RESULT_FAILED
@@ -411,7 +327,9 @@ class Vehicle:
         return watching and self.armed and not self.gcs_failsafe
 
     def awaits_gcs(self, t: float, quiet: float) -> bool:
-        """Whether the GCS failsafe, not fired, has heard nothing from its ground station for more
+        """Whether the armed GCS failsafe has not heard its ground station for over `quiet` s.
+
+        Whether the GCS failsafe, not fired, has heard nothing from its ground station for more
         than `quiet` seconds at time `t` (the simulator's clock then runs at real time: `pace`)."""
         return t - self.gcs_heard > quiet and self._watching_gcs
 
@@ -449,7 +367,9 @@ class Vehicle:
         )
 
     def _orbit_radius(self, target: tuple[float, float]) -> float:
-        """PX4 orbits an OFFBOARD position setpoint at its tightest turn, v^2 / (g tan(FW_R_LIM)), on
+        """The signed radius PX4 orbits an OFFBOARD position setpoint at.
+
+        PX4 orbits an OFFBOARD position setpoint at its tightest turn, v^2 / (g tan(FW_R_LIM)), on
         the side the point now lies (counter-clockwise: negative)."""
         radius = max(self.speed, 1.0) ** 2 / (nav.GRAVITY * math.tan(self.roll_limit))
         x, y = self.last_xy
@@ -479,7 +399,9 @@ class Vehicle:
             self._next_waypoint()
 
     def _return_altitude(self) -> float:
-        """The altitude a return flies at: ArduPlane's RTL_ALTITUDE (-1: the altitude it has), PX4's
+        """The altitude a return flies at.
+
+        The altitude a return flies at: ArduPlane's RTL_ALTITUDE (-1: the altitude it has), PX4's
         RTL_RETURN_ALT or higher (an aircraft above it returns at its own; the simulator then circles
         home there, without PX4's descent to RTL_DESCEND_ALT)."""
         rtl = self.params.value("rtl_altitude", -1.0)

@@ -42,7 +42,10 @@ class LoopbackCluster:
 
     @property
     def address(self) -> str:
-        return self.client.scheduler.address
+        """The scheduler's address (tcp://127.0.0.1:PORT)."""
+        scheduler = self.client.scheduler
+        assert scheduler is not None and scheduler.address is not None, "the client is connected"
+        return scheduler.address
 
     def start_worker(self, name: str, env: dict[str, str] | None = None) -> str:
         """One more worker (named `name`, with `env` if given); its address once it has joined."""

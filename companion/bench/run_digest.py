@@ -18,11 +18,19 @@ from __future__ import annotations
 import argparse
 import hashlib
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 
 SCENARIOS = ("scenario1", "scenario2", "scenario3", "scenario1_continuous")
 ALGORITHMS = ("proposed", "no-ta", "pheromone")
+
+
+class Faults(TypedDict, total=False):
+    """The faults of a run, as `simulate` takes them: companions killed, vehicles taken over."""
+
+    kills: dict[int, int]
+    takeovers: dict[int, int]
 
 
 def main() -> None:
@@ -36,14 +44,15 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--missions", type=Path, help="also every *.toml in this directory")
     args = parser.parse_args()
-    faulty = {"kills": {1: 100}, "takeovers": {2: 150}}
-    cases = [
-        (root / "mission_files" / f"{name}.toml", run, faulty if run == 2 else {})
+    faulty: Faults = {"kills": {1: 100}, "takeovers": {2: 150}}
+    none: Faults = {}
+    cases: list[tuple[Path, int, Faults]] = [
+        (root / "mission_files" / f"{name}.toml", run, faulty if run == 2 else none)
         for name in SCENARIOS
         for run in (0, 1, 2)
     ]
     if args.missions is not None:
-        cases += [(path, 0, {"kills": {1: 120}}) for path in sorted(args.missions.glob("*.toml"))]
+        cases += [(path, 0, Faults(kills={1: 120})) for path in sorted(args.missions.glob("*.toml"))]
     total = hashlib.sha256()
     for path, run, faults in cases:
         mission = load_mission(path)

@@ -1,28 +1,11 @@
 """The fleet's motion: constant speed, bounded turns, altitude flown to its target as ArduPlane does.
 
-Guidance asks every vehicle either for a bank angle (ArduPlane's laws: heading holds, L1
-navigation and loiters), with a bank limit of the command's own (a heading hold's param3), or for a
-turn rate (the simulator's direct turn-rate command); angles and rates are counter-clockwise
-positive. The flight models turn that into motion:
-
-- `KinematicFlight` (continuous kinematics, `sim.dynamics = "kinematic"`): eq. 2 integrated with
-  `arc_advance` at the physics rate; a bank is flown as the ideal coordinated turn g tan(bank) / v,
-  every rate clipped to the turn limit per step dT.
-- `BankedFlight` (continuous kinematics, `sim.dynamics = "arduplane"`): the roll follows its demand
-  (clipped to the bank limits) as a first-order lag of time constant `ROLL_TCONST`, at most
-  `ROLL_RATE_MAX`, and the vehicle turns at TURN_EFFICIENCY g tan(roll) / v, as ArduPlane SITL's
-  plane flies (measured: docs/simulator.md). A turn-rate demand is flown with the roll that gives
-  that rate.
-- `GridFlight` (grid kinematics): `Kinematics.advance` exactly: at each step boundary the turn
-  rate times dT is quantised to a multiple of 45 degrees within the limit, the next cell comes from
-  the core's own `advance`, and the vehicle moves linearly from cell centre to cell centre.
-
-All tick at `substeps` physics ticks per step, so step boundaries fall exactly on ticks.
-
-Altitude (`Flight._climb`, every model): a small kinematic stand-in for ArduPlane's energy
-controller, flown to the commanded altitude within ArduPlane's climb and sink limits, with the
-climb a change of bank gives in the banked model (docs/simulator.md, "Dynamics"; the figures:
-docs/companion.md, "Altitude keeping").
+Guidance asks every vehicle for a bank angle (with the command's own bank limit) or a turn rate,
+counter-clockwise positive; a flight model turns that into motion at `substeps` physics ticks per
+step: `KinematicFlight` (eq. 2 integrated with `arc_advance`), `BankedFlight` (the roll as a
+first-order lag, turning as ArduPlane SITL's plane) or `GridFlight` (`Kinematics.advance` exactly).
+Every model climbs and sinks to the commanded altitude (`Flight._climb`) within ArduPlane's limits.
+The models and their measurements: docs/simulator.md, "Dynamics".
 """
 
 from __future__ import annotations

@@ -1,22 +1,9 @@
 """ArduPlane's lateral guidance laws as the simulator imitates them, in the local frame.
 
-Every law returns a lateral acceleration demand in m/s^2, positive turning counter-clockwise (left,
-the core's sense), which ArduPlane flies as the bank angle atan(a / g) (its nav_roll).
-
-- `heading_hold` (GUIDED_CHANGE_HEADING): bank proportional to the heading error (ArduPlane's
-  GUIDED_P, 5000 centidegrees per radian), limited to atan(accel / g) where accel is the command's
-  param3 (clamped to at least 0.05 m/s^2, as ArduPlane does) and to the bank limit.
-- `track` (AUTO legs): L1 navigation after Park, Deyst and How (2004), as ArduPilot's AP_L1 uses it:
-  a = 4 zeta^2 v^2 / L1 sin(eta), L1 = zeta T v / pi, eta the angle from the velocity to a point
-  L1 ahead on the leg (|eta| <= 90 degrees).
-- `loiter` (GUIDED points, LOITER, RTL): capture with the L1 law towards the centre, then circle
-  tracking: feed-forward v_t^2 / R plus PD on the radial error and velocity (natural frequency
-  2 pi / T, damping zeta), switching to circle tracking where it turns harder in the loiter sense.
-
-T and zeta are plane.parm's NAVL1_PERIOD = 15 s and NAVL1_DAMPING = 0.75 by default; the PX4 flavour
-flies the same laws with PX4's NPFG_PERIOD = 10 s and NPFG_DAMPING = 0.7 (PX4's guidance, NPFG,
-is another law; with its period and damping these fly PX4 SITL's tracks closely enough, see
-docs/simulator.md).
+Every law returns a lateral acceleration demand in m/s^2, positive turning counter-clockwise (the
+core's sense), flown as the bank angle atan(a / g): `heading_hold` (GUIDED_CHANGE_HEADING), `track`
+(AUTO legs: L1 navigation, Park, Deyst and How 2004) and `loiter` (L1 capture, then circle
+tracking). The formulas and their parameters: docs/simulator.md, "Dynamics".
 """
 
 from __future__ import annotations

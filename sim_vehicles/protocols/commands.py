@@ -18,7 +18,7 @@ from companion.contracts.frames import yaw_to_heading
 from sim_vehicles.telemetry import DEFAULT_RATES_HZ
 
 if TYPE_CHECKING:
-    from sim_vehicles.host import HostedVehicle
+    from sim_vehicles.hosted_vehicle import HostedVehicle
     from sim_vehicles.mavlink_endpoint import Address
 
 M = mavlink
@@ -100,6 +100,7 @@ def _mission_start(hv: HostedVehicle, c: Command, addr: Address, follow: list[in
 def _reposition(hv: HostedVehicle, c: Command, addr: Address, follow: list[int]) -> int:
     lat, lon, alt = c.p[4], c.p[5], c.p[6]
     x, y, _, _ = hv.position()
+    target: tuple[float, float] | None
     if math.isnan(lat) and math.isnan(lon):
         target = (x, y)
     else:

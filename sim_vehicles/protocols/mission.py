@@ -18,10 +18,10 @@ from typing import TYPE_CHECKING
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.core.geometry import ConvexPolygon
-from sim_vehicles.vehicle import Waypoint
+from sim_vehicles.nav_targets import Waypoint
 
 if TYPE_CHECKING:
-    from sim_vehicles.host import HostedVehicle
+    from sim_vehicles.hosted_vehicle import HostedVehicle
     from sim_vehicles.mavlink_endpoint import Address
 
 M = mavlink

@@ -16,7 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.contracts.mission import Mission
 
 if TYPE_CHECKING:
-    from sim_vehicles.host import HostedVehicle
+    from sim_vehicles.hosted_vehicle import HostedVehicle
     from sim_vehicles.mavlink_endpoint import Address
 
 ROLL_LIMIT_DEG = 45.0  # ArduPlane's default bank limit

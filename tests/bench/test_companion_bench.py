@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.bench.companion_bench import bench_main, realtime_verdict
+from companion.bench.companion_bench import bench_main
+from companion.bench.trials import realtime_verdict
 
 
 def _own_children() -> set[int]:

@@ -3,7 +3,7 @@
 The same commands on both, from the same settled state (wings level at the UAV's layer): the
 companion's guidance in `heading` mode turning at the mission's turn limit, one way then the other
 (`guided-turn`), and the mission's end, handed over out of a turn to the AUTO loiter of the
-trajectory in force (`hand-over`), flown by `companion.bench.altitude_bench`. In each phase the
+trajectory in force (`hand-over`), flown by `companion.bench.altitude_phases`. In each phase the
 largest |altitude - layer| of the bundled simulator is within TOLERANCE of ArduPlane SITL's.
 """
 
@@ -12,14 +12,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from companion.bench.altitude_bench import (
-    Flight,
-    Sampler,
-    figures,
-    flight_figures,
-    fly,
-    fly_ardupilot,
-)
+from companion.bench.altitude_bench import fly
+from companion.bench.altitude_figures import Flight, Sampler, figures, flight_figures
+from companion.bench.altitude_phases import fly_ardupilot
 from tests.sitl.conftest import Airborne
 
 PHASES = ("guided-turn", "hand-over")

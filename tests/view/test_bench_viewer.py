@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.bench.companion_bench import CHROMIUM, bench_main
+from companion.bench.companion_bench import bench_main
+from companion.bench.worker_pool import CHROMIUM
 
 
 def _own_children() -> set[int]:
