@@ -19,10 +19,8 @@ from companion.contracts.mission import (
     MAX_GRID_CELLS,
     Mission,
     MissionError,
-    convert_schema,
-    parse_schema,
-    read_schema,
 )
+from companion.contracts.mission_file import convert_schema, parse_schema, read_schema
 from companion.core import safety
 from companion.core.geometry import ConvexPolygon, Grid
 from companion.core.world import build_grid, build_kinematics, build_safety

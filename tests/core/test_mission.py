@@ -102,7 +102,7 @@ def test_non_convex_polygon() -> None:
 
 
 def test_self_intersecting_star_is_not_convex() -> None:
-    """BUG (companion/contracts/mission.py, _validate): the convexity check only compares the signs of
+    """BUG (companion/contracts/mission_file.py, _validate): the convexity check only compares the signs of
     consecutive cross products. A pentagram turns the same way at every vertex (its turns add
     up to 720 degrees, not 360), so it passes as "convex" and ConvexPolygon then silently uses the
     inner pentagon's half-planes. Fix: also require the exterior angles to sum to 2 pi, or check

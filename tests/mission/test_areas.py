@@ -25,7 +25,8 @@ from companion.contracts.areas import (
     read_area,
 )
 from companion.contracts.frames import LocalFrame
-from companion.contracts.mission import MAX_FILE_BYTES, MAX_VERTICES, MissionError, Origin, read_schema
+from companion.contracts.mission import MAX_FILE_BYTES, MAX_VERTICES, MissionError, Origin
+from companion.contracts.mission_file import read_schema
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).parent / "areas"
