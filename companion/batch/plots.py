@@ -10,6 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -107,7 +108,7 @@ def _search_start(tasks: np.ndarray | None, i: int) -> int:
 
 def _trajectory_legend(ax: plt.Axes, n: int, regions: bool, loitered: bool) -> None:
     line = Line2D
-    handles = [
+    handles: list[Artist] = [
         line([], [], color=UAV_COLOURS[i % len(UAV_COLOURS)], linewidth=1.2, label=f"UAV {i}")
         for i in range(n)
     ]
@@ -160,7 +161,9 @@ def plot_trajectories(
         t = world.grid.centres[r.target_cells]
         ax.plot(t[:, 0], t[:, 1], "s", color="black", markersize=6, markerfacecolor="none")
         ax.set_title(f"{name} (run {r.run}, {r.steps} steps)")
-    _trajectory_legend(axes[0, -1], runs[next(iter(runs))].trajectory.shape[1], "proposed" in runs, loitered)
+    shown = runs[next(iter(runs))].trajectory
+    assert shown is not None
+    _trajectory_legend(axes[0, -1], shown.shape[1], "proposed" in runs, loitered)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
