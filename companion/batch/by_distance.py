@@ -78,7 +78,8 @@ def _start_centroids(out: Path, runs: Sequence[int]) -> dict[int, tuple[float, f
         with starts.open() as f:
             for row in csv.DictReader(f):
                 points[int(row["run"])].append((float(row["x"]), float(row["y"])))
-        return {r: tuple(np.mean(points[r], axis=0)) for r in runs}  # type: ignore[misc]
+        means = {r: np.mean(points[r], axis=0) for r in runs}
+        return {r: (float(m[0]), float(m[1])) for r, m in means.items()}
     mission = load_mission(out / "mission.toml")
     centre = (
         float(np.mean([v.x for v in mission.vehicles])),

@@ -32,6 +32,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, Protocol, TypeVar
 
 if TYPE_CHECKING:
+    from dask.typing import Key
     from distributed import Future
 
 T = TypeVar("T")
@@ -257,7 +258,7 @@ class DaskCluster:
         numbered = enumerate(indexed[s : s + size] for s in range(0, len(indexed), size))
         task = partial(_run_chunk, fn, code_fingerprint())
         batch = f"{fn.__name__}-{uuid.uuid4().hex}"
-        in_flight: dict[str, Future] = {}
+        in_flight: dict[Key, Future] = {}
 
         def submit(number: int, chunk: list[tuple[int, T]]) -> Future:
             future = self.client.submit(task, chunk, key=f"{batch}-{number}", pure=False)

@@ -6,6 +6,7 @@ import json
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import msgspec
 import numpy as np
@@ -38,11 +39,11 @@ def compare(
     progress: bool = True,
     executor: RunExecutor | None = None,
     layouts: tuple[str, ...] = (),
-) -> dict:
+) -> dict[str, Any]:
     """The paper's comparison (Figures 8-10): every algorithm on the same mission instances, computed
     on `executor` (default: a local pool of `workers` processes). With `layouts`, run r starts from
     the layout `starts.random_start` draws for it (starts.csv), the same for every algorithm; else
-    from the mission's."""
+    from the mission's. Returns summary.json's content (`report.write_summary`)."""
     for a in algorithms:
         if a not in ALGORITHMS:
             raise ValueError(f"unknown algorithm {a!r}; choose from {', '.join(ALGORITHMS)}")
@@ -55,7 +56,7 @@ def compare(
     specs = specs_for(mission, algorithms, runs, steps, seed, record, [m for m, _ in drawn])
     flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: {len(specs)} runs")
     results = {a: flat[i * runs : (i + 1) * runs] for i, a in enumerate(algorithms)}
-    meta = {
+    meta: dict[str, object] = {
         "mission": mission.name,
         "seed": seed,
         "runs": runs,
@@ -102,21 +103,21 @@ def sweep(
     workers: int | None = None,
     progress: bool = True,
     executor: RunExecutor | None = None,
-) -> list[dict]:
+) -> list[dict[str, Any]]:
     """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default), computed
-    on `executor` (default: a local pool of `workers` processes)."""
+    on `executor` (default: a local pool of `workers` processes). Returns sweep.json's points: each
+    value's `Summary` fields and the parameter's value."""
     out.mkdir(parents=True, exist_ok=True)
     missions = [_set_param(mission.with_algorithm("proposed"), param, v) for v in values]
     specs = [RunSpec(m, seed, r, steps) for m in missions for r in range(runs)]
     flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: sweep {param}")
-    summaries = [
-        summarize(flat[i * runs : (i + 1) * runs]) | {param: json.loads(v)} for i, v in enumerate(values)
-    ]
-    (out / "sweep.json").write_text(json.dumps({"param": param, "points": summaries}, indent=2) + "\n")
+    summaries = [summarize(flat[i * runs : (i + 1) * runs]) for i in range(len(values))]
+    points = [msgspec.to_builtins(s) | {param: json.loads(v)} for s, v in zip(summaries, values, strict=True)]
+    (out / "sweep.json").write_text(json.dumps({"param": param, "points": points}, indent=2) + "\n")
     plots.plot_sweep(
         out / f"sweep_{param}.png", param, [json.loads(v) for v in values], summaries, mission.comms.safety
     )
-    return summaries
+    return points
 
 
 def bench(
@@ -127,7 +128,7 @@ def bench(
     workers: int | None = None,
     study_runs: int = 8,
     executor: RunExecutor | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """Compute time per 1,000 sampling moments (Table 2 setting) and Monte Carlo throughput.
 
     Throughput is timed on the study's own mix: every mission x algorithm, `study_runs` runs each,
@@ -183,7 +184,8 @@ def bench(
     }
 
 
-def format_bench(result: dict) -> str:
+def format_bench(result: dict[str, Any]) -> str:
+    """`bench`'s result as the lines `uavsearch bench` prints."""
     lines = ["mission     algorithm    s / 1,000 steps (one core)"]
     for r in result["per_algorithm"]:
         lines.append(f"{r['mission']:<11} {r['algorithm']:<12} {r['seconds_per_1000_steps']:.3f}")

@@ -103,7 +103,7 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict |
     across = float(np.max(np.linalg.norm(verts[:, None] - verts[None], axis=-1)))
     k = int(rng.integers(fam.centres[0], fam.centres[1] + 1))
     lo, hi = verts.min(axis=0), verts.max(axis=0)
-    centres = []
+    centres: list[np.ndarray] = []
     while len(centres) < k:
         c = rng.uniform(lo, hi)
         if poly.contains(c[0], c[1]):
@@ -114,7 +114,7 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict |
     ys = np.arange(lo[1] + cell / 2, hi[1], cell)
     grid = np.array([(x, y) for y in ys for x in xs])
     grid = grid[np.asarray(poly.contains(grid[:, 0], grid[:, 1]))]
-    targets = int(min(rng.integers(fam.targets[0], fam.targets[1] + 1), len(grid)))
+    targets = min(int(rng.integers(fam.targets[0], fam.targets[1] + 1)), len(grid))
     peaks = _peaks(rng, grid, np.array(centres), sigmas, targets)
     n_g = int(np.clip(round(len(grid) / 50), 8, 120))
     layers = int(rng.choice(fam.layer_counts))  # drawn last: the rest is as without layers

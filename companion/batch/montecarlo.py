@@ -10,6 +10,7 @@ import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
+import msgspec
 import numpy as np
 
 from companion.batch.engine import RunResult, simulate
@@ -73,6 +74,28 @@ def ci95(values: np.ndarray) -> float:
     return float(1.96 * values.std(ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
 
 
+class Summary(msgspec.Struct, frozen=True, omit_defaults=True):
+    """The summary.json entry of one algorithm: its runs' mean metrics with 95 % half-widths (ci95)."""
+
+    runs: int
+    steps: int
+    mean_target_time: float
+    mean_target_time_ci95: float
+    targets_found_fraction: float
+    final_mean_uncertainty: float
+    final_mean_uncertainty_ci95: float
+    mean_uncertainty_over_run: float
+    mean_uncertainty_over_run_ci95: float
+    final_coverage: float
+    min_lambda2: float
+    min_distance: float
+    closest_approach: float
+    runs_with_event: int
+    seconds_per_1000_steps: float
+    # the share of the RHC's first choices the safety layer refused (docs/algorithm.md); absent: none
+    first_choice_refused_share: float | None = None
+
+
 SUMMARY_KEYS = frozenset(
     {
         "runs",
@@ -86,30 +109,29 @@ SUMMARY_KEYS = frozenset(
 )  # the keys every summary.json entry carries, batch engine and flown missions alike
 
 
-def summarize(results: list[RunResult]) -> dict[str, float | int]:
-    """The summary.json entry of one algorithm (SUMMARY_KEYS, plus confidence intervals and coverage)."""
+def summarize(results: list[RunResult]) -> Summary:
+    """The `Summary` of one algorithm's runs (SUMMARY_KEYS, plus confidence intervals and coverage)."""
     times = np.array([r.target_times().mean() if len(r.target_steps) else 0.0 for r in results])
     found = np.array([np.mean(r.target_steps >= 0) if len(r.target_steps) else 1.0 for r in results])
     final_unc = np.array([r.uncertainty[-1] for r in results])
     mean_unc = np.array([r.uncertainty.mean() for r in results])
     asked = sum(r.extras.get("first_choices", 0) for r in results)
     refused = sum(r.extras.get("first_choices_refused", 0) for r in results)
-    return {
-        "runs": len(results),
-        "steps": int(results[0].steps),
-        "mean_target_time": float(times.mean()),
-        "mean_target_time_ci95": ci95(times),
-        "targets_found_fraction": float(found.mean()),
-        "final_mean_uncertainty": float(final_unc.mean()),
-        "final_mean_uncertainty_ci95": ci95(final_unc),
-        "mean_uncertainty_over_run": float(mean_unc.mean()),
-        "mean_uncertainty_over_run_ci95": ci95(mean_unc),
-        "final_coverage": float(np.mean([r.coverage[-1] for r in results])),
-        "min_lambda2": float(min(r.lambda2.min() for r in results)),
-        "min_distance": float(min(r.min_distance.min() for r in results)),
-        "closest_approach": float(min(r.approach.min() for r in results)),
-        "runs_with_event": sum(r.separation_losses > 0 or r.link_losses > 0 for r in results),
-        "seconds_per_1000_steps": float(np.mean([1000.0 * r.seconds / r.steps for r in results])),
-        # the share of the RHC's first choices the safety layer refused (docs/algorithm.md)
-        **({"first_choice_refused_share": refused / asked} if asked else {}),
-    }
+    return Summary(
+        runs=len(results),
+        steps=int(results[0].steps),
+        mean_target_time=float(times.mean()),
+        mean_target_time_ci95=ci95(times),
+        targets_found_fraction=float(found.mean()),
+        final_mean_uncertainty=float(final_unc.mean()),
+        final_mean_uncertainty_ci95=ci95(final_unc),
+        mean_uncertainty_over_run=float(mean_unc.mean()),
+        mean_uncertainty_over_run_ci95=ci95(mean_unc),
+        final_coverage=float(np.mean([r.coverage[-1] for r in results])),
+        min_lambda2=float(min(r.lambda2.min() for r in results)),
+        min_distance=float(min(r.min_distance.min() for r in results)),
+        closest_approach=float(min(r.approach.min() for r in results)),
+        runs_with_event=sum(r.separation_losses > 0 or r.link_losses > 0 for r in results),
+        seconds_per_1000_steps=float(np.mean([1000.0 * r.seconds / r.steps for r in results])),
+        first_choice_refused_share=float(refused / asked) if asked else None,
+    )

@@ -4,20 +4,27 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from companion.batch.engine import RunResult
+from companion.batch.montecarlo import Summary
 from companion.batch.report import mean_band
 from companion.core.world import World
+
+if TYPE_CHECKING:
+    from companion.batch.heldout import MissionFeatures, PairedTable
+    from companion.batch.tune import Trial
 
 COLOURS = {"proposed": "tab:red", "no-ta": "tab:blue", "pheromone": "tab:green"}
 # one colour per UAV, none of them the regions' grey, the prior centres' red or the targets' black
@@ -107,7 +114,7 @@ def _search_start(tasks: np.ndarray | None, i: int) -> int:
 
 def _trajectory_legend(ax: plt.Axes, n: int, regions: bool, loitered: bool) -> None:
     line = Line2D
-    handles = [
+    handles: list[Artist] = [
         line([], [], color=UAV_COLOURS[i % len(UAV_COLOURS)], linewidth=1.2, label=f"UAV {i}")
         for i in range(n)
     ]
@@ -160,7 +167,9 @@ def plot_trajectories(
         t = world.grid.centres[r.target_cells]
         ax.plot(t[:, 0], t[:, 1], "s", color="black", markersize=6, markerfacecolor="none")
         ax.set_title(f"{name} (run {r.run}, {r.steps} steps)")
-    _trajectory_legend(axes[0, -1], runs[next(iter(runs))].trajectory.shape[1], "proposed" in runs, loitered)
+    shown = runs[next(iter(runs))].trajectory
+    assert shown is not None
+    _trajectory_legend(axes[0, -1], shown.shape[1], "proposed" in runs, loitered)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -202,7 +211,7 @@ def plot_found(path: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
 
 
 def plot_sweep(
-    path: Path, param: str, values: Sequence[float], summaries: Sequence[dict], safety: float
+    path: Path, param: str, values: Sequence[float], summaries: Sequence[Summary], safety: float
 ) -> None:
     """Figure 11: coverage and search efficiency, min lambda_2 and min distance against a parameter."""
     fig, axes = plt.subplots(2, 2, figsize=(10, 7))
@@ -213,8 +222,8 @@ def plot_sweep(
         ("min_distance", "min inter-UAV distance (m)", "(d) collision avoidance"),
     ]
     for ax, (key, label, title) in zip(axes.ravel(), panels, strict=True):
-        y = [s[key] for s in summaries]
-        err = [s.get(f"{key}_ci95", 0.0) for s in summaries]
+        y = [getattr(s, key) for s in summaries]
+        err = [getattr(s, f"{key}_ci95", 0.0) for s in summaries]
         ax.errorbar(values, y, yerr=err, marker="o", capsize=3)
         if key == "min_distance":
             ax.axhline(safety, color="black", linestyle="--", label="R_s")
@@ -248,27 +257,27 @@ def plot_links(path: Path, result: RunResult, safety: float) -> None:
     plt.close(fig)
 
 
-def _paired_panels(table: dict, metrics: Sequence[str], height: float) -> tuple[Figure, list[tuple]]:
+def _paired_panels(table: PairedTable, metrics: Sequence[str], height: float) -> tuple[Figure, list[tuple]]:
     """A grid of axes, a row per metric and a column per baseline, each with its per-mission rows of
     `heldout.paired_table` and their differences with 95 % intervals: (ax, baseline, metric, rows,
     difference, low, high)."""
-    baselines = list(dict.fromkeys(row["baseline"] for row in table["overall"]))
+    baselines = list(dict.fromkeys(row.baseline for row in table.overall))
     fig, axes = plt.subplots(
         len(metrics), len(baselines), figsize=(5.5 * len(baselines), height * len(metrics)), squeeze=False
     )
     panels = []
     for i, metric in enumerate(metrics):
         for j, baseline in enumerate(baselines):
-            rows = [r for r in table["missions"] if r["baseline"] == baseline and r["metric"] == metric]
-            rows.sort(key=lambda r: r["difference"])
-            d, lo, hi = (
-                np.array([r[k] for r in rows]) for k in ("difference", "difference_low", "difference_high")
-            )
+            rows = [r for r in table.missions if r.baseline == baseline and r.metric == metric]
+            rows.sort(key=lambda r: r.difference)
+            d = np.array([r.difference for r in rows])
+            lo = np.array([r.difference_low for r in rows])
+            hi = np.array([r.difference_high for r in rows])
             panels.append((axes[i, j], baseline, metric, rows, d, lo, hi))
     return fig, panels
 
 
-def plot_paired(path: Path, table: dict, metrics: Sequence[str]) -> None:
+def plot_paired(path: Path, table: PairedTable, metrics: Sequence[str]) -> None:
     """`uavsearch evaluate`: per mission, the paired difference proposed - baseline with its 95 %
     interval (sorted), the overall mean difference (band) and the win rate, per baseline and metric."""
     fig, panels = _paired_panels(table, metrics, 4.5)
@@ -277,17 +286,15 @@ def plot_paired(path: Path, table: dict, metrics: Sequence[str]) -> None:
         ax.errorbar(
             d, y, xerr=[d - lo, hi - d], fmt="o", markersize=3, color=COLOURS.get(baseline), capsize=2
         )
-        o = next(r for r in table["overall"] if r["baseline"] == baseline and r["metric"] == metric)
-        ax.axvspan(
-            o["difference_low"], o["difference_high"], color="tab:red", alpha=0.2, label="overall 95 % CI"
-        )
-        ax.axvline(o["difference"], color="tab:red", label=f"overall mean {o['difference']:.3g}")
+        o = next(r for r in table.overall if r.baseline == baseline and r.metric == metric)
+        ax.axvspan(o.difference_low, o.difference_high, color="tab:red", alpha=0.2, label="overall 95 % CI")
+        ax.axvline(o.difference, color="tab:red", label=f"overall mean {o.difference:.3g}")
         ax.axvline(0.0, color="black", linestyle="--")
         ax.set_yticks([])
         ax.set_ylabel("missions (sorted)")
         ax.set_xlabel(f"{metric}: proposed - {baseline} (lower: proposed better)")
-        p, low, high = (100 * o[k] for k in ("win_rate", "win_rate_low", "win_rate_high"))
-        ax.set_title(f"vs {baseline}: wins {o['wins']}/{o['missions']} ({p:.0f} %, {low:.0f}-{high:.0f} %)")
+        p, low, high = 100 * o.win_rate, 100 * o.win_rate_low, 100 * o.win_rate_high
+        ax.set_title(f"vs {baseline}: wins {o.wins}/{o.missions} ({p:.0f} %, {low:.0f}-{high:.0f} %)")
         ax.legend(loc="lower right", fontsize=8)
         ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -295,15 +302,17 @@ def plot_paired(path: Path, table: dict, metrics: Sequence[str]) -> None:
     plt.close(fig)
 
 
-def plot_density(path: Path, table: dict, info: Sequence[dict], metrics: Sequence[str]) -> None:
+def plot_density(
+    path: Path, table: PairedTable, info: Sequence[MissionFeatures], metrics: Sequence[str]
+) -> None:
     """`uavsearch evaluate`: each mission's paired difference proposed - baseline (95 % interval)
     against its area per UAV, per baseline and metric; the median area per UAV splits the missions
     into `heldout.by_density`'s halves."""
-    per_uav = {i["mission"]: i["km2_per_uav"] for i in info}
+    per_uav = {i.mission: i.km2_per_uav for i in info}
     median = float(np.median(list(per_uav.values())))
     fig, panels = _paired_panels(table, metrics, 4.0)
     for ax, baseline, metric, rows, d, lo, hi in panels:
-        x = np.array([per_uav[r["mission"]] for r in rows])
+        x = np.array([per_uav[r.mission] for r in rows])
         ax.errorbar(
             x, d, yerr=[d - lo, hi - d], fmt="o", markersize=3, color=COLOURS.get(baseline), capsize=2
         )
@@ -319,13 +328,13 @@ def plot_density(path: Path, table: dict, info: Sequence[dict], metrics: Sequenc
     plt.close(fig)
 
 
-def plot_study(path: Path, history: Sequence[dict], title: str) -> None:
+def plot_study(path: Path, history: Sequence[Trial], title: str) -> None:
     """`uavsearch tune`: each trial's objective and the best so far; each trial's relative change of
     the mean target time against that of the mean uncertainty (trial 0, the weights before, at 0)."""
-    trials = np.array([h["trial"] for h in history])
-    objective = np.array([h["objective"] for h in history])
-    time = 100 * np.array([h["relative_target_time"] for h in history])
-    unc = 100 * np.array([h["relative_uncertainty"] for h in history])
+    trials = np.array([h.trial for h in history])
+    objective = np.array([h.objective for h in history])
+    time = 100 * np.array([h.relative_target_time for h in history])
+    unc = 100 * np.array([h.relative_uncertainty for h in history])
     best = int(np.argmin(objective))
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.8))
     a.plot(trials, objective, "o", markersize=3, color="tab:grey", label="trial")

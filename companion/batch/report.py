@@ -8,7 +8,9 @@ import math
 import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
+import msgspec
 import numpy as np
 
 from companion.batch.engine import RunResult
@@ -21,11 +23,16 @@ TARGET_COLUMNS = ("algorithm", "run", "cell", "found_step")
 START_COLUMNS = ("run", "layout", "uav", "x", "y", "heading_deg")
 
 
-def write_summary(out: Path, results: Mapping[str, Sequence[RunResult]], extra: dict | None = None) -> dict:
-    """summary.json: one entry per algorithm (see `montecarlo.summarize`), plus optional metadata."""
-    summary: dict = {name: summarize(list(runs)) for name, runs in results.items()}
+def write_summary(
+    out: Path, results: Mapping[str, Sequence[RunResult]], extra: Mapping[str, object] | None = None
+) -> dict[str, Any]:
+    """summary.json: one `montecarlo.Summary` per algorithm, plus optional metadata ("_meta");
+    returns the file's JSON content (what the command line prints from)."""
+    summary: dict[str, Any] = {
+        name: msgspec.to_builtins(summarize(list(runs))) for name, runs in results.items()
+    }
     if extra:
-        summary["_meta"] = extra
+        summary["_meta"] = dict(extra)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 

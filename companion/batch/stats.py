@@ -20,9 +20,6 @@ class Interval:
     high: float
     n: int
 
-    def as_dict(self, prefix: str) -> dict[str, float | int]:
-        return {prefix: self.estimate, f"{prefix}_low": self.low, f"{prefix}_high": self.high}
-
 
 def mean_ci(values: ArrayLike, confidence: float = 0.95) -> Interval:
     """The mean of `values` (paired differences, say) and its Student t interval; with one value

@@ -1,19 +1,11 @@
 """`uavsearch tune`: the weights the paper does not give, chosen by optimisation on training missions.
 
-A candidate is a set of `[algorithm]` values (`SPACE`, or a `--space` file: each row names a field
-of the mission's `[algorithm]` table, its range and the algorithms that read it). Every candidate
-flies the same R runs of the same N missions (common random numbers: run r of mission m has the
-same CVT draw, targets, radio draws and start for every candidate), and is scored by its paired
-relative difference from the current weights (trial 0), mission by mission:
-
-    J = mean over missions m of [ (T_m - T0_m) / T0_m + lambda (U_m - U0_m) / U0_m ]
-
-with T_m the mean target time and U_m the mean uncertainty over the run (eq. 30) of mission m's R
-runs (T0_m, U0_m: the same under the current weights; T0_m floored at one step), and lambda the
-`uncertainty_weight` (0.5 by default: target time first, coverage second). Relative differences
-weigh a small mission as much as a large one. Optuna's TPE sampler, seeded, proposes candidates;
-the best few are flown again on fresh runs before one is chosen (`tune`). The budget counts runs,
-trial 0 and the confirmation included.
+A candidate is a set of `[algorithm]` values (`SPACE` or a `--space` file). Every candidate flies
+the same R runs of the same N missions (common random numbers) and is scored by `OBJECTIVE`, its
+paired relative difference from the current weights (trial 0) over the missions; Optuna's TPE
+sampler, seeded, proposes candidates, and the best few are flown again on fresh runs before one is
+chosen (`tune`). The budget counts runs, trial 0 and the confirmation included. The reasoning
+behind J: docs/results.md, "How the weights were chosen".
 """
 
 from __future__ import annotations
@@ -23,8 +15,9 @@ import tomllib
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import nullcontext
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import msgspec
 import numpy as np
@@ -113,13 +106,14 @@ def current_value(mission: Mission, field: str) -> object:
     return node
 
 
-def weights_table(mission: Mission, values: Mapping[str, float]) -> dict:
+def weights_table(mission: Mission, values: Mapping[str, float]) -> dict[str, Any]:
     """The `[algorithm]` entries that `values` (by field) change, whole: a pair or a nested table
     keeps its other members at the mission's values."""
     algorithm = msgspec.json.decode(msgspec.json.encode(mission.algorithm))  # lists and dicts, a copy
-    table: dict = {}
+    table: dict[str, Any] = {}
     for field, value in values.items():
         top, *rest = _path(field)
+        assert isinstance(top, str)
         table.setdefault(top, algorithm[top])
         node = table[top]
         for key in rest[:-1]:
@@ -249,18 +243,78 @@ def plan(budget: int, missions: int, runs: int, confirm: int) -> tuple[int, int]
     return trials, trials * per_trial + reserved
 
 
+class Trial(msgspec.Struct):
+    """One row of the study's history: a candidate's weights, its `Score` against trial 0 on the
+    search runs (relative differences with their t intervals), the per-mission means of each metric,
+    and, once confirmed, the same on the fresh runs."""
+
+    trial: int
+    objective: float
+    relative_target_time: float
+    relative_target_time_low: float
+    relative_target_time_high: float
+    relative_uncertainty: float
+    relative_uncertainty_low: float
+    relative_uncertainty_high: float
+    missions_sooner: int
+    confirmation_objective: float | None
+    weights: dict[str, float]
+    per_mission: dict[str, list[float]]
+    confirmation_per_mission: dict[str, list[float]] | None = None
+
+
+HISTORY_EXTRA = ("weights", "per_mission", "confirmation_per_mission")  # not columns of history.csv
+
+
+class Chosen(msgspec.Struct, frozen=True):
+    """The chosen trial and the `[algorithm]` entries its weights change (weights.toml)."""
+
+    trial: int
+    objective: float
+    confirmation_objective: float | None
+    algorithm: dict[str, Any]
+
+
+class Study(msgspec.Struct, frozen=True):
+    """What study.json holds: the setup, the runs planned and used, the caller's metadata, the
+    search space, the chosen trial and the whole history."""
+
+    setup: Setup
+    trials_planned: int
+    runs_per_trial: int
+    runs_used: int
+    meta: dict[str, Any]
+    space: tuple[Weight, ...]
+    chosen: Chosen
+    history: list[Trial]
+
+    def to_json(self) -> dict[str, Any]:
+        """study.json's content: the setup's fields and the metadata at the top level."""
+        return {
+            **msgspec.to_builtins(self.setup),
+            "objective": OBJECTIVE,
+            "trials_planned": self.trials_planned,
+            "runs_per_trial": self.runs_per_trial,
+            "runs_used": self.runs_used,
+            **self.meta,
+            "space": msgspec.to_builtins(self.space),
+            "chosen": msgspec.to_builtins(self.chosen),
+            "history": msgspec.to_builtins(self.history),
+        }
+
+
 def tune(
     missions: Sequence[Mission],
     space: Sequence[Weight],
     setup: Setup,
     out: Path,
     executor: RunExecutor | None = None,
-    meta: dict | None = None,
+    meta: dict[str, Any] | None = None,
     advance: Callable[[], object] | None = None,
-) -> dict:
+) -> Study | None:
     """Run the study on `executor` (default: a local pool of every core, kept for the whole study)
-    and write weights.toml, history.csv, study.json and tune.png into `out`; returns the study.json
-    content. An interrupted study writes what it has.
+    and write weights.toml, history.csv, study.json and tune.png into `out`; returns the `Study`
+    (None when no trial was flown). An interrupted study writes what it has.
 
     The search scores each trial on runs 0..R-1 of every mission. The best `setup.confirm`
     candidates and trial 0 then fly runs R..2R-1 (new targets, CVT draws and starts), and the
@@ -278,7 +332,7 @@ def tune(
     current = {w.field: current_value(missions[0], w.field) for w in space}
     distributions = {w.field: _distribution(w, current[w.field]) for w in space}
     study.enqueue_trial(current)
-    history: list[dict] = []
+    history: list[Trial] = []
     reference = np.empty(0)
     out.mkdir(parents=True, exist_ok=True)
     try:
@@ -302,30 +356,35 @@ def tune(
                 history.append(_row(number, values, s, got))
                 _write_history(out / "history.csv", history, space)
             if setup.confirm:
-                fresh = fly(history[0]["weights"], setup.runs, "trial 0, confirmation")
-                history[0] |= {"confirmation_objective": 0.0, "confirmation_per_mission": _means(fresh)}
-                for row in sorted(history[1:], key=lambda r: r["objective"])[: setup.confirm]:
-                    got = fly(row["weights"], setup.runs, f"trial {row['trial']}, confirmation")
-                    row["confirmation_objective"] = score(got, fresh, setup.uncertainty_weight).objective
-                    row["confirmation_per_mission"] = _means(got)
+                fresh = fly(history[0].weights, setup.runs, "trial 0, confirmation")
+                history[0].confirmation_objective = 0.0
+                history[0].confirmation_per_mission = _means(fresh)
+                for row in sorted(history[1:], key=lambda r: r.objective)[: setup.confirm]:
+                    got = fly(row.weights, setup.runs, f"trial {row.trial}, confirmation")
+                    row.confirmation_objective = score(got, fresh, setup.uncertainty_weight).objective
+                    row.confirmation_per_mission = _means(got)
                     _write_history(out / "history.csv", history, space)
     finally:
-        result = _finish(out, history, space, missions[0], setup, trials, meta or {}) if history else {}
+        result = _finish(out, history, space, missions[0], setup, trials, meta or {}) if history else None
     return result
 
 
-def _row(number: int, values: dict[str, float], s: Score, got: np.ndarray) -> dict:
-    return {
-        "trial": number,
-        "objective": s.objective,
-        **{f"relative_target_time{k}": v for k, v in _parts(s.target_time).items()},
-        **{f"relative_uncertainty{k}": v for k, v in _parts(s.uncertainty).items()},
-        "missions_sooner": s.wins,
-        "confirmation_objective": None,
-        "weights": values,
-        "per_mission": _means(got),
-        "confirmation_per_mission": None,
-    }
+def _row(number: int, values: dict[str, float], s: Score, got: np.ndarray) -> Trial:
+    t, u = s.target_time, s.uncertainty
+    return Trial(
+        number,
+        s.objective,
+        t.estimate,
+        t.low,
+        t.high,
+        u.estimate,
+        u.low,
+        u.high,
+        s.wins,
+        None,
+        values,
+        _means(got),
+    )
 
 
 def _means(got: np.ndarray) -> dict[str, list[float]]:
@@ -333,54 +392,50 @@ def _means(got: np.ndarray) -> dict[str, list[float]]:
     return {metric: got[:, :, q].mean(axis=1).tolist() for q, metric in enumerate(METRICS)}
 
 
-def chosen_trial(history: Sequence[dict]) -> dict:
+def chosen_trial(history: Sequence[Trial]) -> Trial:
     """The confirmed trial with the lowest objective on the fresh runs (trial 0 scores 0 there), or
     without a confirmation the trial with the lowest objective."""
-    confirmed = [r for r in history if r["confirmation_objective"] is not None]
+    confirmed = [(r.confirmation_objective, r) for r in history if r.confirmation_objective is not None]
     if confirmed:
-        return min(confirmed, key=lambda r: (r["confirmation_objective"], r["trial"]))
-    return min(history, key=lambda r: (r["objective"], r["trial"]))
+        return min(confirmed, key=lambda c: (c[0], c[1].trial))[1]
+    return min(history, key=lambda r: (r.objective, r.trial))
 
 
-def _parts(ci: Interval) -> dict[str, float]:
-    return {"": ci.estimate, "_low": ci.low, "_high": ci.high}
-
-
-def _write_history(path: Path, history: list[dict], space: Sequence[Weight]) -> None:
-    scalar = [k for k in history[0] if k not in ("weights", "per_mission", "confirmation_per_mission")]
+def _write_history(path: Path, history: list[Trial], space: Sequence[Weight]) -> None:
+    scalar = [k for k in Trial.__struct_fields__ if k not in HISTORY_EXTRA]
     with path.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow([*scalar, *(s.field for s in space)])
         for row in history:
-            w.writerow([*(row[k] for k in scalar), *(row["weights"][s.field] for s in space)])
+            w.writerow([*(getattr(row, k) for k in scalar), *(row.weights[s.field] for s in space)])
 
 
 def _finish(
     out: Path,
-    history: list[dict],
+    history: list[Trial],
     space: Sequence[Weight],
     mission: Mission,
     setup: Setup,
     trials: int,
-    meta: dict,
-) -> dict:
+    meta: dict[str, Any],
+) -> Study:
     """Write weights.toml (the chosen trial's), study.json and tune.png."""
     chosen = chosen_trial(history)
-    table = weights_table(mission, chosen["weights"])
-    per_trial = len(chosen["per_mission"][METRICS[0]]) * setup.runs
-    confirmed = sum(r["confirmation_objective"] is not None for r in history)
+    table = weights_table(mission, chosen.weights)
+    per_trial = len(chosen.per_mission[METRICS[0]]) * setup.runs
+    confirmed = sum(r.confirmation_objective is not None for r in history)
     used = (len(history) + confirmed) * per_trial
-    if chosen["trial"] == 0:
+    if chosen.trial == 0:
         verdict = "no candidate beat the weights before" + (" on fresh runs" if confirmed else "")
         verdict += ": these are they"
     else:
         verdict = (
-            f"chosen: trial {chosen['trial']}, objective {chosen['objective']:+.4f} on the search runs (mean "
-            f"target time {100 * chosen['relative_target_time']:+.1f} %, mean uncertainty "
-            f"{100 * chosen['relative_uncertainty']:+.1f} %)"
+            f"chosen: trial {chosen.trial}, objective {chosen.objective:+.4f} on the search runs (mean "
+            f"target time {100 * chosen.relative_target_time:+.1f} %, mean uncertainty "
+            f"{100 * chosen.relative_uncertainty:+.1f} %)"
         )
-        if chosen["confirmation_objective"] is not None:
-            verdict += f", {chosen['confirmation_objective']:+.4f} on fresh runs"
+        if chosen.confirmation_objective is not None:
+            verdict += f", {chosen.confirmation_objective:+.4f} on fresh runs"
     header = [
         f"uavsearch tune: {setup.algorithm}, {len(history)} of {trials} trials x {per_trial} runs, "
         f"{max(confirmed - 1, 0)} confirmed on fresh runs ({used} of a budget of {setup.budget} runs), "
@@ -392,22 +447,8 @@ def _finish(
     ]
     snippet = "".join(f"# {line}\n" for line in header) + "[algorithm]\n" + toml_snippet(table)
     (out / "weights.toml").write_text(snippet)
-    result = {
-        **asdict(setup),
-        "objective": OBJECTIVE,
-        "trials_planned": trials,
-        "runs_per_trial": per_trial,
-        "runs_used": used,
-        **meta,
-        "space": [asdict(w) for w in space],
-        "chosen": {
-            "trial": chosen["trial"],
-            "objective": chosen["objective"],
-            "confirmation_objective": chosen["confirmation_objective"],
-            "algorithm": table,
-        },
-        "history": history,
-    }
-    write_json(out / "study.json", result)
+    best = Chosen(chosen.trial, chosen.objective, chosen.confirmation_objective, table)
+    result = Study(setup, trials, per_trial, used, meta, tuple(space), best, history)
+    write_json(out / "study.json", result.to_json())
     plots.plot_study(out / "tune.png", history, f"tune {setup.algorithm}")
     return result

@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from companion.batch.engine import RunResult
@@ -102,7 +103,10 @@ def test_mc_sweep_and_soak_on_the_cluster_equal_the_local_pool(
 
 def _summaries(results: list[RunResult], runs: int) -> dict:
     return _without_timing(
-        {a: summarize(results[i * runs : (i + 1) * runs]) for i, a in enumerate(ALGORITHMS)}
+        {
+            a: msgspec.to_builtins(summarize(results[i * runs : (i + 1) * runs]))
+            for i, a in enumerate(ALGORITHMS)
+        }
     )
 
 

@@ -5,8 +5,11 @@ per-mission and overall paired comparison, and the tuning objective."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -61,32 +64,32 @@ def _synthetic() -> np.ndarray:
     return v
 
 
-def _row(rows: list[dict], **match: str) -> dict:
-    (found,) = [r for r in rows if all(r[k] == v for k, v in match.items())]
+def _row(rows: Sequence[msgspec.Struct], **match: str) -> dict[str, Any]:
+    (found,) = [r for r in msgspec.to_builtins(rows) if all(r[k] == v for k, v in match.items())]
     return found
 
 
 def test_paired_table_per_mission_and_overall() -> None:
     t = paired_table(_synthetic(), ("proposed", "no-ta", "pheromone"), ["A", "B"])
-    assert len(t["missions"]) == 2 * 2 * 2 and len(t["overall"]) == 2 * 2
+    assert len(t.missions) == 2 * 2 * 2 and len(t.overall) == 2 * 2
     # no-ta, mission A: differences -4, -2 -> mean -3, s = sqrt(2), half-width t_1 * sqrt(2) / sqrt(2)
-    a = _row(t["missions"], mission="A", baseline="no-ta", metric="target_time")
+    a = _row(t.missions, mission="A", baseline="no-ta", metric="target_time")
     assert (a["proposed"], a["baseline_value"], a["difference"]) == (15.0, 18.0, -3.0)
     assert (a["difference_low"], a["difference_high"]) == pytest.approx((-3 - T1, -3 + T1))
-    o = _row(t["overall"], baseline="no-ta", metric="target_time")
+    o = _row(t.overall, baseline="no-ta", metric="target_time")
     assert (o["difference"], o["difference_low"], o["difference_high"]) == (-3.0, -3.0, -3.0)
     assert o["relative_difference"] == pytest.approx(-(3 / 18 + 3 / 38) / 2)
     assert (o["wins"], o["ties"], o["losses"]) == (2, 0, 0)
     assert o["win_rate"] == 1.0 and o["win_rate_low"] == pytest.approx(0.3424, abs=5e-5)  # Wilson, 2 of 2
     assert o["significantly_better"] == 0  # each mission's interval holds 0
     # pheromone: A +1, +1 (an interval [1, 1]: significantly worse); B -5, -1 (mean -3, s = 2 sqrt(2))
-    b = _row(t["missions"], mission="B", baseline="pheromone", metric="target_time")
+    b = _row(t.missions, mission="B", baseline="pheromone", metric="target_time")
     assert (b["difference_low"], b["difference_high"]) == pytest.approx((-3 - 2 * T1, -3 + 2 * T1))
-    o = _row(t["overall"], baseline="pheromone", metric="target_time")
+    o = _row(t.overall, baseline="pheromone", metric="target_time")
     assert o["difference"] == -1.0  # mean of the mission means 1 and -3, s = 2 sqrt(2), se = 2
     assert (o["difference_low"], o["difference_high"]) == pytest.approx((-1 - 2 * T1, -1 + 2 * T1))
     assert (o["wins"], o["losses"], o["significantly_worse"], o["win_rate"]) == (1, 1, 1, 0.5)
-    u = _row(t["overall"], baseline="no-ta", metric="mean_uncertainty")
+    u = _row(t.overall, baseline="no-ta", metric="mean_uncertainty")
     assert (u["wins"], u["ties"], u["losses"], u["win_rate"], u["difference"]) == (0, 2, 0, 0.0, 0.0)
 
 

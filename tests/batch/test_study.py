@@ -28,8 +28,8 @@ def test_the_study_on_scenario3_stays_connected_and_separated() -> None:
     results = list(run_specs(specs_for(mission, algorithms, runs, 300, 7, lambda r: False), workers=2))
     summary = {a: summarize(results[i * runs : (i + 1) * runs]) for i, a in enumerate(algorithms)}
     for s in summary.values():
-        assert s["min_lambda2"] > 0
-        assert s["min_distance"] > mission.comms.safety
+        assert s.min_lambda2 > 0
+        assert s.min_distance > mission.comms.safety
     assert all(r.separation_losses == 0 and r.link_losses == 0 for r in results)
     assert min(r.approach.min() for r in results) > mission.comms.safety + mission.safety.buffer
 

@@ -10,6 +10,7 @@ import multiprocessing
 import tomllib
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -165,7 +166,8 @@ def test_tune_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
     setup = Setup("proposed", 1, 30, 24, 8, confirm=2)
     result = tune(missions, select(SPACE, "proposed", None), setup, again, LocalPool(1))
     for key in ("objective", "weights", "confirmation_objective"):
-        assert [t[key] for t in result["history"]] == [t[key] for t in trials]
+        assert result is not None
+        assert [msgspec.to_builtins(t)[key] for t in result.history] == [t[key] for t in trials]
 
 
 def test_evaluate_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:

@@ -50,8 +50,8 @@ def run_view(args: argparse.Namespace) -> int:
     """Serve until SIGINT/SIGTERM: 0 then, 1 if the address cannot be bound, 2 for bad input."""
     source: Source
     if args.replay:
-        mission = Path(args.mission) if args.mission else None
-        source = ReplaySource(Path(args.replay), mission, args.algorithm, args.run)
+        mission_file = Path(args.mission) if args.mission else None
+        source = ReplaySource(Path(args.replay), mission_file, args.algorithm, args.run)
     elif args.mission:
         mission = load_mission(args.mission)
         seed = mission.seed if args.seed is None else args.seed

@@ -2,17 +2,9 @@
 
 Bundles arrive in any order; `SwarmModel` holds them by stamp and closes step k (turns it into a
 frame) once every UAV expected at k has reported, or a later step is well under way, or k has
-waited `hold_s` seconds. Closing step k:
-
-- positions, headings, tasks and plans are the UAVs' own `StateMsg`s (the bundle header when a
-  bundle carries none); a UAV that stopped reporting keeps its last pose and is marked silent
-  once its liveliness token is gone or it is `peer_timeout_steps` steps behind;
-- the fused map is the union of what the UAVs report: every `CoverageMsg` cell is one look (eqs.
-  10-11), and each UAV's own map is rebuilt as its agent builds it (its own looks at k plus the
-  looks of step k-1 of every UAV within R_c at k-1, as the mesh gates them), for eq. 30;
-- a target is found at the first step a `CoverageMsg` reports it.
-
-Pure: no I/O and no clock (the caller hands in `now`).
+waited `hold_s` seconds; what closing a step makes of the bundles (poses, the fused map for eq.
+30, targets found): docs/view.md, "Closing a step". Pure: no I/O and no clock (the caller hands in
+`now`).
 """
 
 from __future__ import annotations
