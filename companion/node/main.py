@@ -27,7 +27,9 @@ from companion.core.world import Stream, build_world, instance_rng
 from companion.node.camera_feed import CameraFeed
 from companion.node.journal import JournalError, journal_run
 from companion.node.mesh import Mesh
-from companion.node.process import Companion, CompanionOptions, Refused, camera_key_of, default_vehicle_url
+from companion.node.pilot import CompanionOptions
+from companion.node.preflight import Refused
+from companion.node.process import Companion, camera_key_of, default_vehicle_url
 from companion.node.vehicle_link import COMPANION_SYSTEM, VEHICLE_WAIT_S, LinkError, LinkNotOpen, open_link
 
 log = logging.getLogger("companion")
