@@ -234,7 +234,7 @@ def settle(
     s = link.state
     if reposition:
         lat, lon, _ = frame.to_geodetic(*CENTRE)
-        link.reposition(lat, lon, altitude)
+        link.commands.reposition(lat, lon, altitude)
     since = [math.inf]
     last_climb = [0.0]
     prev = [(s.time_s, s.up)]
@@ -335,7 +335,7 @@ def guided(link: VehicleLink) -> None:
         link,
         lambda: link.state.custom_mode == ARDUPILOT_GUIDED,
         "GUIDED",
-        _every(1.0, lambda: link.set_mode(ARDUPILOT_GUIDED)),
+        _every(1.0, lambda: link.commands.set_mode(ARDUPILOT_GUIDED)),
     )
 
 
@@ -363,7 +363,7 @@ def fly_ardupilot(
     a second link to it, for the companion whose silence fires the failsafe)."""
     frame, layer = link.frame, mission.altitude_of(uav)
     world = build_world(mission)
-    flight.params = link.read_params(ARDUPILOT_PARAMS)
+    flight.params = link.params.read(ARDUPILOT_PARAMS)
     if "guided-turn" in phases:
         guided(link)
         settle(link, frame, layer)
@@ -385,7 +385,7 @@ def fly_ardupilot(
             _failsafe(flight, link, companion, mission, uav, world)
         finally:
             companion.close()
-        link.set_param("FS_GCS_ENABL", 0.0)
+        link.params.set("FS_GCS_ENABL", 0.0)
     if "hand-over" in phases:
         guided(link)
         settle(link, frame, layer)
@@ -407,7 +407,7 @@ def fly_ardupilot(
 
         def change() -> None:
             for target in (layer + LAYER_CHANGE_M, layer):
-                link.change_altitude(target)
+                link.commands.change_altitude(target)
                 wait(
                     link,
                     lambda t=target: abs(link.state.up - t) < REACHED_M,
@@ -475,7 +475,7 @@ def fly_px4(flight: Flight, link: VehicleLink, mission: Mission, uav: int) -> No
             link,
             lambda: link.state.custom_mode == PX4_HOLD,
             "Hold",
-            _every(1.0, lambda: link.set_mode(PX4_HOLD)),
+            _every(1.0, lambda: link.commands.set_mode(PX4_HOLD)),
         )
         fly_for(link, LOITER_S)
 
@@ -493,7 +493,7 @@ def fly_px4(flight: Flight, link: VehicleLink, mission: Mission, uav: int) -> No
             raise BenchError(f"offboard loss: not in Hold (mode {link.state.custom_mode:#x})")
 
     _phase(flight, link, "offboard-loss", layer, lost)
-    flight.params = link.read_params(PX4_PARAMS)  # as the companion's take-over left them
+    flight.params = link.params.read(PX4_PARAMS)  # as the companion's take-over left them
 
 
 # -- the autopilots' processes ----------------------------------------------------------------------
@@ -620,7 +620,7 @@ def fly(
 def bundled_like_sitl(link: VehicleLink) -> None:
     """The bundled simulator set up as plane.parm sets ArduPlane SITL up (cruise, bank and loiter)."""
     for name, value in (("AIRSPEED_CRUISE", 22.0), ("ROLL_LIMIT_DEG", 65.0), ("WP_LOITER_RAD", 80.0)):
-        if not link.set_param(name, value):
+        if not link.params.set(name, value):
             raise BenchError(f"the bundled simulator: {name} = {value:g} not confirmed")
 
 

@@ -46,7 +46,7 @@ from companion.contracts.frames import LocalFrame
 from companion.contracts.mission import Mission
 from companion.core.trajectory import Trajectory
 from companion.core.world import World
-from companion.node.mission_upload import Item, upload
+from companion.node.mission_upload import Item
 from companion.node.vehicle_link import ARDUPILOT_AUTO, VehicleLink
 
 GCS_SYSID_PARAMS = ("MAV_GCS_SYSID", "SYSID_MYGCS")  # ArduPilot 4.7 on, and before
@@ -98,7 +98,7 @@ class FailsafeLoiter:
         if self.current is not None and _same(loiter, self.current):
             return None
         items = failsafe_mission(self.world.mission, self.uav, self.frame, loiter)
-        error = upload(self.link, mavlink.MAV_MISSION_TYPE_MISSION, items, "failsafe mission")
+        error = self.link.mission.upload(mavlink.MAV_MISSION_TYPE_MISSION, items, "failsafe mission")
         if error is None:
             self.current = loiter
             self.uploads += 1
@@ -124,16 +124,16 @@ def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
     """Set up ArduPlane's GCS failsafe (on `loiter`'s link) as the silent companion's failsafe,
     circling the loiter of `trajectory` (the trajectory in force); the reason on failure."""
     link, mission = loiter.link, loiter.world.mission
-    names = link.read_params([GCS_SYSID_PARAMS[0]], timeout=RENAMED_PARAM_WAIT_S)
+    names = link.params.read([GCS_SYSID_PARAMS[0]], timeout=RENAMED_PARAM_WAIT_S)
     if not names:
-        names = link.read_params([GCS_SYSID_PARAMS[1]], timeout=RENAMED_PARAM_WAIT_S)
+        names = link.params.read([GCS_SYSID_PARAMS[1]], timeout=RENAMED_PARAM_WAIT_S)
     if not names:
         return f"the autopilot has no {' or '.join(GCS_SYSID_PARAMS)}: no GCS failsafe to use"
     error = loiter.follow(trajectory)
     if error:
         return error
     sysid_param = next(iter(names))
-    if not link.set_param(sysid_param, float(link.system_id)):
+    if not link.params.set(sysid_param, float(link.system_id)):
         return f"{sysid_param} = {link.system_id} not confirmed"
     link.send_heartbeat()  # heard before the failsafe is enabled: it must not fire on an old silence
     settings = {
@@ -142,7 +142,7 @@ def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
         "FS_GCS_ENABL": float(FS_GCS_HEARTBEAT),
     }
     for name, value in settings.items():
-        if not link.set_param(name, value):
+        if not link.params.set(name, value):
             return f"{name} = {value:g} not confirmed"
     return None
 
@@ -161,7 +161,7 @@ def hand_over(loiter: FailsafeLoiter, trajectory: Trajectory, abort: threading.E
         if abort.is_set() or time.monotonic() > deadline:
             return f"AUTO not confirmed (mode {link.state.custom_mode})"
         if time.monotonic() - asked > 1.0:
-            link.set_mode(ARDUPILOT_AUTO)
+            link.commands.set_mode(ARDUPILOT_AUTO)
             asked = time.monotonic()
         link.poll(0.1)
     return None

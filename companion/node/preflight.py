@@ -58,8 +58,8 @@ class Preflight:
         """Read the airframe's parameters, warn about what the mission asks beyond them, refuse
         what the autopilot cannot fly."""
         flavour = "px4" if self.link.state.px4 else "ardupilot"
-        values = self.link.read_params(Airframe.names(flavour))
-        values |= self.link.read_params([SIMULATOR_PARAM], timeout=SIMULATOR_PARAM_WAIT_S)
+        values = self.link.params.read(Airframe.names(flavour))
+        values |= self.link.params.read([SIMULATOR_PARAM], timeout=SIMULATOR_PARAM_WAIT_S)
         airframe = Airframe.from_params(flavour, values)
         problem = refusal(self.opts.mission, airframe, self.opts.command_mode)
         if problem:
@@ -103,7 +103,7 @@ class Preflight:
         """PX4: note its own offboard-loss timeout; ArduPilot: arm the failsafe loiter for our silence."""
         if self.link.state.px4:
             if self.opts.command_mode == "position-target":
-                loss = self.link.read_params([PX4_OFFBOARD_LOSS]).get(PX4_OFFBOARD_LOSS)
+                loss = self.link.params.read([PX4_OFFBOARD_LOSS]).get(PX4_OFFBOARD_LOSS)
                 self.watch.offboard_loss_s = loss
             if self.watch.offboard_loss_s is None:
                 log.info("uav %d: failsafe: PX4's own failsafes apply", self.uav)

@@ -86,7 +86,7 @@ class Companion:
             "found_cells": sorted(int(c) for c in pilot.agent.found),
             "task": pilot.agent.task,
             "rejected_mavlink": link.rejected,
-            "mavlink_signed": link.signed,
+            "mavlink_signed": link.signing.enabled,
             "mavlink_unauthenticated": link.unauthenticated,
             "mavlink_wrong_system": link.wrong_system,
             "refused": {"mesh": self.mesh.refusals.summary(), "mavlink": link.refusals.summary()},

@@ -99,7 +99,7 @@ class VehicleWatch:
             log.warning("uav %d: mode %d chosen since: not taking it back", self.uav, s.custom_mode)
             self._texts_steering, self._retake_asked = s.text_count, None
         elif time.monotonic() - self._retake_asked >= RETAKE_PERIOD_S:
-            self.link.set_mode(guided_mode(self.link, self.pilot.opts.command_mode))
+            self.link.commands.set_mode(guided_mode(self.link, self.pilot.opts.command_mode))
             self._retake_asked = time.monotonic()
 
     def _our_failsafe_fired(self) -> bool:
