@@ -5,7 +5,7 @@
 1. **Step latency** (observation in to command out) of the 4 UAVs of a mission: one process per
    UAV, each with a real Zenoh peer session and the real `Agent`, stepping in lockstep (each step
    waits, untimed, until every peer's bundle of the previous step is held). The timed part is
-   what `Companion.step` does once the pose and camera frame are in: `Mesh.inbox` + `Agent.step`
+   what `Pilot.step` does once the pose and camera frame are in: `Mesh.inbox` + `Agent.step`
    + `Mesh.publish` + packing the MAVLink command (SET_ATTITUDE_TARGET, the default turn-rate
    mode). Poses advance with the core's `Kinematics` and detections come from the batch engine's
    targets, so the swarm flies as in the batch engine.
@@ -153,7 +153,7 @@ class _Uav:
         return tuple(map(tuple, self.targets[d2 <= self.r_a2].tolist()))
 
     def command_bytes(self, heading_rate: float) -> bytes:
-        """SET_ATTITUDE_TARGET with the body yaw rate, as VehicleLink.turn_rate sends it."""
+        """SET_ATTITUDE_TARGET with the body yaw rate, as `link.commands.turn_rate` sends it."""
         msg = self.mavlink.MAVLink_set_attitude_target_message(
             0,
             1,

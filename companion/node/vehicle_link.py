@@ -5,7 +5,7 @@ messages into `state`, `link_telemetry`), `params` (`link_params`), `commands` (
 `mission` (`mission_upload`) and `signing` (`link_signing`). Any pymavlink connection string works;
 a .tlog records everything received and sent. It never changes the vehicle's mode or arms it unless
 asked to (`companion.node.takeover`). What the link hides of PX4, signing and the frames it refuses:
-docs/companion.md ("The vehicle link").
+docs/companion.md, "The vehicle link".
 """
 
 from __future__ import annotations
