@@ -144,7 +144,7 @@ class CameraNode:
     def _frames(self, uav: int, url: str, link: VehicleLink, stop: threading.Event) -> None:
         """Publish the camera's frames of vehicle `uav` until `stop`."""
         if self.signing_secrets is not None:
-            link.provision_signing(self.signing_secrets[uav])
+            link.signing.provision(self.signing_secrets[uav])
         link.request_streams({mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: POSITION_HZ})
         signed = ", MAVLink signing set up" if self.signing_secrets is not None else ""
         print(f"camera: vehicle {uav} up at {url}{signed}", flush=True)

@@ -181,7 +181,7 @@ def fly(
 def bundled_like_sitl(link: VehicleLink) -> None:
     """The bundled simulator set up as plane.parm sets ArduPlane SITL up (cruise, bank and loiter)."""
     for name, value in (("AIRSPEED_CRUISE", 22.0), ("ROLL_LIMIT_DEG", 65.0), ("WP_LOITER_RAD", 80.0)):
-        if not link.set_param(name, value):
+        if not link.params.set(name, value):
             raise BenchError(f"the bundled simulator: {name} = {value:g} not confirmed")
 
 

@@ -74,7 +74,7 @@ def settle(
     s = link.state
     if reposition:
         lat, lon, _ = frame.to_geodetic(*CENTRE)
-        link.reposition(lat, lon, altitude)
+        link.commands.reposition(lat, lon, altitude)
     since = [math.inf]
     last_climb = [0.0]
     prev = [(s.time_s, s.up)]
@@ -177,7 +177,7 @@ def guided(link: VehicleLink) -> None:
         link,
         lambda: link.state.custom_mode == ARDUPILOT_GUIDED,
         "GUIDED",
-        every(1.0, lambda: link.set_mode(ARDUPILOT_GUIDED)),
+        every(1.0, lambda: link.commands.set_mode(ARDUPILOT_GUIDED)),
     )
 
 
@@ -212,7 +212,7 @@ def fly_ardupilot(
     a second link to it, for the companion whose silence fires the failsafe)."""
     frame, layer = link.frame, mission.altitude_of(uav)
     world = build_world(mission)
-    flight.params = link.read_params(ARDUPILOT_PARAMS)
+    flight.params = link.params.read(ARDUPILOT_PARAMS)
     if "guided-turn" in phases:
         guided(link)
         settle(link, frame, layer)
@@ -234,7 +234,7 @@ def fly_ardupilot(
             _failsafe(flight, link, companion, mission, uav, world)
         finally:
             companion.close()
-        link.set_param("FS_GCS_ENABL", 0.0)
+        link.params.set("FS_GCS_ENABL", 0.0)
     if "hand-over" in phases:
         guided(link)
         settle(link, frame, layer)
@@ -256,7 +256,7 @@ def fly_ardupilot(
 
         def change() -> None:
             for target in (layer + LAYER_CHANGE_M, layer):
-                link.change_altitude(target)
+                link.commands.change_altitude(target)
                 wait(link, reached(link, target), f"layer change to {target:.0f} m")
             fly_for(link, 5.0)
 
@@ -320,7 +320,7 @@ def fly_px4(flight: Flight, link: VehicleLink, mission: Mission, uav: int) -> No
             link,
             lambda: link.state.custom_mode == PX4_HOLD,
             "Hold",
-            every(1.0, lambda: link.set_mode(PX4_HOLD)),
+            every(1.0, lambda: link.commands.set_mode(PX4_HOLD)),
         )
         fly_for(link, LOITER_S)
 
@@ -338,5 +338,5 @@ def fly_px4(flight: Flight, link: VehicleLink, mission: Mission, uav: int) -> No
             raise BenchError(f"offboard loss: not in Hold (mode {link.state.custom_mode:#x})")
 
     record_phase(flight, link, "offboard-loss", layer, lost)
-    flight.params = link.read_params(PX4_PARAMS)  # as the companion's take-over left them
+    flight.params = link.params.read(PX4_PARAMS)  # as the companion's take-over left them
 

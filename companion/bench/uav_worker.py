@@ -64,7 +64,7 @@ class UavCompanion:
         return tuple(map(tuple, self.targets[d2 <= self.r_a2].tolist()))
 
     def command_bytes(self, heading_rate: float) -> bytes:
-        """SET_ATTITUDE_TARGET with the body yaw rate, as VehicleLink.turn_rate sends it."""
+        """SET_ATTITUDE_TARGET with the body yaw rate, as `link.commands.turn_rate` sends it."""
         msg = self.mavlink.MAVLink_set_attitude_target_message(
             0,
             1,

@@ -1,37 +1,13 @@
 """The silent companion's failsafe: if the companion dies, its aircraft circles the loiter its
 trajectory in force ends in, the loiter every other UAV's trajectory already keeps clear of.
 
-ArduPlane knows its ground station by system id only (MAV_GCS_SYSID; SYSID_MYGCS before 4.7) and,
-with FS_GCS_ENABL = 1, starts its long failsafe when no HEARTBEAT from that system has come for
-FS_LONG_TIMEOUT seconds. What the long failsafe does in GUIDED is FS_LONG_ACTN: 0 nothing (a
-heading hold flies straight on until the fence), 1 RTL (home, across the region), 2 glide, 4 AUTO;
-FS_SHORT_ACTN (CIRCLE) acts on RC loss only, never on the GCS's silence. So with `--takeover` the
-companion makes itself the autopilot's ground station and arms:
-
-- a mission of one item (after ArduPilot's home, item 0): NAV_LOITER_UNLIM about the centre of the
-  loiter of its trajectory in force (`Limits.loiter_circle`: the circle, or the loiter octagon's
-  circumscribed circle in grid mode), with its radius and direction, at the UAV's altitude layer;
-  `FailsafeLoiter` uploads it again whenever the trajectory in force's loiter changes, after the
-  step's state went out to the mesh and its guidance to the autopilot (so the loiter the aircraft
-  would fly is always one its peers know: that of the last trajectory in force they heard or of
-  the one they heard before it; the state before the upload would not do, since the trajectory in
-  force is re-anchored at the aircraft's pose, which moves its loiter by the tracking error);
-- MAV_GCS_SYSID = the companion's own system id (`COMPANION_SYSTEM`), FS_LONG_TIMEOUT =
-  `safety.failsafe_timeout`, FS_LONG_ACTN = 4 (AUTO), FS_GCS_ENABL = 1.
-
-At the mission's end the companion does not wait for that: once it has flown out its trajectory in
-force (`Companion._close`) it hands the aircraft over at once (`hand_over`): the loiter uploaded
-again if it moved, and the mode set to AUTO.
-
-When the companion falls silent the aircraft flies its last guidance for FS_LONG_TIMEOUT, then
-switches to AUTO and circles that loiter, at its layer. The survivors' model of a silent UAV
-(`Commitments.failsafe_loiters`, `safety.failsafe_reach`) is built on this. When its HEARTBEATs
-come back the autopilot clears the failsafe but stays in AUTO. A companion that was only stalled
-(its process not scheduled, a long pause) sees that it was its own failsafe (ArduPlane's
-STATUSTEXT "GCS Failsafe On: AUTO", `fired_by_our_silence`) and takes the aircraft back into
-GUIDED (`Companion._check_mode`); a mode anyone else chose is left alone. While the aircraft is not
-steered the loiter is never moved: it stays the one its peers keep clear of. The bundled
-simulator imitates all of it (docs/simulator.md).
+With `--takeover` the companion makes itself ArduPlane's ground station (MAV_GCS_SYSID =
+`COMPANION_SYSTEM`) and arms its GCS failsafe (FS_LONG_ACTN = AUTO) on a one-item mission,
+NAV_LOITER_UNLIM about that loiter (`FailsafeLoiter`, uploaded again whenever the loiter changes).
+At the mission's end it hands the aircraft over at once (`hand_over`); a companion that was only
+stalled sees its own failsafe fired (`fired_by_our_silence`) and takes GUIDED back
+(`watch.VehicleWatch`). Why each parameter, and what ArduPlane does: docs/companion.md, "The
+failsafe for a silent companion".
 """
 
 from __future__ import annotations
@@ -46,7 +22,7 @@ from companion.contracts.frames import LocalFrame
 from companion.contracts.mission import Mission
 from companion.core.trajectory import Trajectory
 from companion.core.world import World
-from companion.node.mission_upload import Item, upload
+from companion.node.mission_upload import Item
 from companion.node.vehicle_link import ARDUPILOT_AUTO, VehicleLink
 
 GCS_SYSID_PARAMS = ("MAV_GCS_SYSID", "SYSID_MYGCS")  # ArduPilot 4.7 on, and before
@@ -98,7 +74,7 @@ class FailsafeLoiter:
         if self.current is not None and _same(loiter, self.current):
             return None
         items = failsafe_mission(self.world.mission, self.uav, self.frame, loiter)
-        error = upload(self.link, mavlink.MAV_MISSION_TYPE_MISSION, items, "failsafe mission")
+        error = self.link.mission.upload(mavlink.MAV_MISSION_TYPE_MISSION, items, "failsafe mission")
         if error is None:
             self.current = loiter
             self.uploads += 1
@@ -124,16 +100,16 @@ def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
     """Set up ArduPlane's GCS failsafe (on `loiter`'s link) as the silent companion's failsafe,
     circling the loiter of `trajectory` (the trajectory in force); the reason on failure."""
     link, mission = loiter.link, loiter.world.mission
-    names = link.read_params([GCS_SYSID_PARAMS[0]], timeout=RENAMED_PARAM_WAIT_S)
+    names = link.params.read([GCS_SYSID_PARAMS[0]], timeout=RENAMED_PARAM_WAIT_S)
     if not names:
-        names = link.read_params([GCS_SYSID_PARAMS[1]], timeout=RENAMED_PARAM_WAIT_S)
+        names = link.params.read([GCS_SYSID_PARAMS[1]], timeout=RENAMED_PARAM_WAIT_S)
     if not names:
         return f"the autopilot has no {' or '.join(GCS_SYSID_PARAMS)}: no GCS failsafe to use"
     error = loiter.follow(trajectory)
     if error:
         return error
     sysid_param = next(iter(names))
-    if not link.set_param(sysid_param, float(link.system_id)):
+    if not link.params.set(sysid_param, float(link.system_id)):
         return f"{sysid_param} = {link.system_id} not confirmed"
     link.send_heartbeat()  # heard before the failsafe is enabled: it must not fire on an old silence
     settings = {
@@ -142,7 +118,7 @@ def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
         "FS_GCS_ENABL": float(FS_GCS_HEARTBEAT),
     }
     for name, value in settings.items():
-        if not link.set_param(name, value):
+        if not link.params.set(name, value):
             return f"{name} = {value:g} not confirmed"
     return None
 
@@ -161,7 +137,7 @@ def hand_over(loiter: FailsafeLoiter, trajectory: Trajectory, abort: threading.E
         if abort.is_set() or time.monotonic() > deadline:
             return f"AUTO not confirmed (mode {link.state.custom_mode})"
         if time.monotonic() - asked > 1.0:
-            link.set_mode(ARDUPILOT_AUTO)
+            link.commands.set_mode(ARDUPILOT_AUTO)
             asked = time.monotonic()
         link.poll(0.1)
     return None

@@ -23,7 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.contracts.frames import LocalFrame
 from companion.contracts.mission import Mission
 from companion.core.geometry import ConvexPolygon, FloatArray
-from companion.node.mission_upload import Item, upload
+from companion.node.mission_upload import Item
 from companion.node.vehicle_link import VehicleLink
 
 log = logging.getLogger("companion")
@@ -92,19 +92,19 @@ def upload_fence(link: VehicleLink, frame: LocalFrame, polygon: ConvexPolygon) -
         Item(mavlink.MAV_FRAME_GLOBAL, VERTEX, (count, 0, 0, 0), round(lat * 1e7), round(lon * 1e7))
         for lat, lon in corners
     ]
-    error = upload(link, mavlink.MAV_MISSION_TYPE_FENCE, items, "fence")
+    error = link.mission.upload(mavlink.MAV_MISSION_TYPE_FENCE, items, "fence")
     if error:
         return error
     if link.state.px4:
         return _px4_fence_in_force(link, seen)
-    params = link.read_params(["FENCE_TYPE", "FENCE_ACTION"])
+    params = link.params.read(["FENCE_TYPE", "FENCE_ACTION"])
     if "FENCE_TYPE" in params and not int(params["FENCE_TYPE"]) & FENCE_TYPE_POLYGON:
-        link.set_param("FENCE_TYPE", float(int(params["FENCE_TYPE"]) | FENCE_TYPE_POLYGON))
+        link.params.set("FENCE_TYPE", float(int(params["FENCE_TYPE"]) | FENCE_TYPE_POLYGON))
     if params.get("FENCE_ACTION") == FENCE_ACTION_REPORT:
         log.info("fence: FENCE_ACTION was 'report only'; setting RTL")
-        link.set_param("FENCE_ACTION", FENCE_ACTION_RTL)
+        link.params.set("FENCE_ACTION", FENCE_ACTION_RTL)
     result = link.command_ack(mavlink.MAV_CMD_DO_FENCE_ENABLE, 1)
-    if result != mavlink.MAV_RESULT_ACCEPTED and not link.set_param("FENCE_ENABLE", 1.0):
+    if result != mavlink.MAV_RESULT_ACCEPTED and not link.params.set("FENCE_ENABLE", 1.0):
         return (
             f"the autopilot did not enable the fence (DO_FENCE_ENABLE result {result}, FENCE_ENABLE not set)"
         )
@@ -113,10 +113,10 @@ def upload_fence(link: VehicleLink, frame: LocalFrame, polygon: ConvexPolygon) -
 
 def _px4_fence_in_force(link: VehicleLink, seen: int) -> str | None:
     """PX4, after the upload: GF_ACTION none/warning becomes Return; the reason if PX4 rejects the fence."""
-    action = link.read_params(["GF_ACTION"]).get("GF_ACTION")
+    action = link.params.read(["GF_ACTION"]).get("GF_ACTION")
     if action is not None and action <= GF_ACTION_WARNING:
         log.info("fence: GF_ACTION was %d (no action); setting Return", action)
-        link.set_param("GF_ACTION", GF_ACTION_RETURN)
+        link.params.set("GF_ACTION", GF_ACTION_RETURN)
     deadline = time.monotonic() + PX4_VERDICT_S
     while time.monotonic() < deadline:
         link.poll(0.1)

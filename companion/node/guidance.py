@@ -81,9 +81,9 @@ class Guidance:
 
     def assert_flight(self) -> None:
         if self.mode in WITHOUT_ALTITUDE:
-            self.link.change_altitude(self.altitude)
+            self.link.commands.change_altitude(self.altitude)
         if self.set_speed:
-            self.link.change_speed(self.speed)
+            self.link.commands.change_speed(self.speed)
 
     def go_to(self, x: float, y: float) -> None:
         """Fly to local (x, y) at the UAV's altitude and circle there, instead of the plan.
@@ -98,7 +98,7 @@ class Guidance:
             return
         self.point = None
         lat, lon, _ = self.frame.to_geodetic(x, y)
-        self.link.reposition(lat, lon, self.altitude)
+        self.link.commands.reposition(lat, lon, self.altitude)
         self.last_send = self.link.state.time_s
 
     def hold_course(self, x: float, y: float, heading: float) -> None:
@@ -114,15 +114,15 @@ class Guidance:
     def hold(self, x: float, y: float) -> None:
         """A position setpoint at (x, y)."""
         lat, lon, _ = self.frame.to_geodetic(x, y)
-        self.link.position_target(lat, lon, self.altitude)
+        self.link.commands.position_target(lat, lon, self.altitude)
         self.last_send = self.link.state.time_s
 
     def _send(self, command: Command, position: tuple[float, float]) -> None:
         if self.mode == "turn-rate":
-            self.link.turn_rate(-command.heading_rate)  # MAVLink yaw rate is clockwise-positive
+            self.link.commands.turn_rate(-command.heading_rate)  # MAVLink yaw rate is clockwise-positive
         elif self.mode == "heading":
             heading = command.heading + heading_lead(self.kinematics, command.heading_rate)
-            self.link.change_heading(math.degrees(heading_to_yaw(heading)), self.accel)
+            self.link.commands.change_heading(math.degrees(heading_to_yaw(heading)), self.accel)
         elif self.mode == "reposition":
             self.go_to(*self.lead_point(command, position))
         else:

@@ -1,22 +1,11 @@
 """The companion's journal: what its agent knew, on disk, so that a restarted companion goes on.
 
-An append-only file of records, each `length (u32 LE) | CRC-32 of the payload (u32 LE) | payload`
-(msgpack of a `Record`). The first record is a `Header` naming the mission (a digest of the whole
-mission), the UAV, the seed and the run identity (`keys.run_id`: a restarted companion rejoins
-the run its journal names, and a journal of another run is refused); then, after every step,
-either a `Checkpoint` (the agent's whole `AgentSnapshot`: the first step and every
-`CHECKPOINT_STEPS` steps) or the step's `StepDelta` (the FOV cells applied, the targets learnt,
-task and trajectory in force: about 200 bytes).
-
-Durability: each record goes to the file with one `write` and `fdatasync` before the step's bundle
-is published, so nothing a peer heard of is lost by a kill (SIGKILL keeps what was written) or by a
-power cut (what was synced). Reading stops at the first record that is short, too long, fails its
-CRC or does not decode: a record torn by a kill mid-write is ignored, and the file is cut back to
-the last whole record before anything is appended to it.
-
-Recovery restores the agent from the last checkpoint and replays the deltas after it
-(`Agent.restore`, `Agent.replay`): the uncertainty map, the cells seen, the targets found, the task,
-the tethers and the trajectory in force of the last journaled step, bit for bit.
+An append-only file of CRC-checked records (`length | CRC-32 | msgpack payload`): a `Header` naming
+the mission, UAV, seed and run, then after every step a `Checkpoint` (the agent's snapshot, every
+`CHECKPOINT_STEPS` steps) or the step's `StepDelta`, each written and `fdatasync`ed before the step's
+bundle is published. A record torn by a kill is cut off; recovery restores the last checkpoint and
+replays the deltas after it, bit for bit. Format, durability and rejoining: docs/reliability.md,
+"Restart without loss".
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Uploading items to the autopilot with the MAVLink mission protocol (missions and fences).
+"""The vehicle link's mission protocol: uploading items to the autopilot (missions and fences).
 
 The client sends MISSION_COUNT; the autopilot asks for each item (MISSION_REQUEST_INT, or the older
 MISSION_REQUEST) and ends with MISSION_ACK. A lost message is recovered by starting again.
@@ -7,10 +7,12 @@ MISSION_REQUEST) and ends with MISSION_ACK. A lost message is recovered by start
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.node.vehicle_link import VehicleLink
+if TYPE_CHECKING:
+    from companion.node.vehicle_link import VehicleLink
 
 UPLOAD_TRIES = 3
 REPLY_TIMEOUT_S = 2.0
@@ -28,28 +30,44 @@ class Item:
     z: float = 0.0
 
 
-def upload(link: VehicleLink, mission_type: int, items: list[Item], what: str) -> str | None:
-    """Upload `items` as the autopilot's list of `mission_type`; the reason on failure.
+class MissionUpload:
+    """The mission protocol over one link (`link.mission`)."""
 
-    `what` names the list in the reason.
-    """
-    count = len(items)
+    def __init__(self, link: VehicleLink) -> None:
+        self.link = link
 
-    def reply(m: mavlink.MAVLink_message) -> bool:
-        return (
-            m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK")
-            and m.mission_type == mission_type
+    def upload(self, mission_type: int, items: list[Item], what: str) -> str | None:
+        """Upload `items` as the autopilot's list of `mission_type`; the reason on failure (`what`
+        names the list in it)."""
+        count = len(items)
+
+        def reply(m: mavlink.MAVLink_message) -> bool:
+            return (
+                m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK")
+                and m.mission_type == mission_type
+            )
+
+        for _ in range(UPLOAD_TRIES):
+            self._count(count, mission_type)
+            while (msg := self.link.await_reply(reply, REPLY_TIMEOUT_S)) is not None:
+                if msg.get_type() == "MISSION_ACK":
+                    if msg.type == mavlink.MAV_MISSION_ACCEPTED:
+                        return None
+                    return f"the autopilot refused the {what} (MISSION_ACK {msg.type})"
+                if not 0 <= msg.seq < count:
+                    return f"the autopilot asked for {what} item {msg.seq} of {count}"
+                self._item(msg.seq, mission_type, items[msg.seq])
+        return f"no answer to the {what} upload"
+
+    def _count(self, count: int, mission_type: int) -> None:
+        """MISSION_COUNT: starts an upload of `count` items of `mission_type`."""
+        self.link.mav.mission_count_send(
+            self.link.state.system, mavlink.MAV_COMP_ID_AUTOPILOT1, count, mission_type
         )
 
-    for _ in range(UPLOAD_TRIES):
-        link.mission_count(count, mission_type)
-        while (msg := link.await_reply(reply, REPLY_TIMEOUT_S)) is not None:
-            if msg.get_type() == "MISSION_ACK":
-                if msg.type == mavlink.MAV_MISSION_ACCEPTED:
-                    return None
-                return f"the autopilot refused the {what} (MISSION_ACK {msg.type})"
-            if not 0 <= msg.seq < count:
-                return f"the autopilot asked for {what} item {msg.seq} of {count}"
-            it = items[msg.seq]
-            link.mission_item(msg.seq, mission_type, it.frame, it.command, it.params, it.x, it.y, it.z)
-    return f"no answer to the {what} upload"
+    def _item(self, seq: int, mission_type: int, it: Item) -> None:
+        """MISSION_ITEM_INT `seq` of an upload of `mission_type` (autocontinue on)."""
+        system, autopilot = self.link.state.system, mavlink.MAV_COMP_ID_AUTOPILOT1
+        self.link.mav.mission_item_int_send(
+            system, autopilot, seq, it.frame, it.command, 0, 1, *it.params, it.x, it.y, it.z, mission_type
+        )

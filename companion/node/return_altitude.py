@@ -28,19 +28,19 @@ PARAM_WAIT_S = 3.0
 def return_settings(link: VehicleLink, altitude: float) -> dict[str, float] | str:
     """The parameters that make this autopilot return at `altitude` m above home, or why none."""
     if link.state.px4:
-        have = link.read_params([*PX4_RTL, PX4_CONE], timeout=PARAM_WAIT_S)
+        have = link.params.read([*PX4_RTL, PX4_CONE], timeout=PARAM_WAIT_S)
         if PX4_RTL[0] not in have:
             return f"the autopilot has no {PX4_RTL[0]}"
         out = {name: altitude for name in PX4_RTL if name in have}
         if have.get(PX4_CONE, 0.0) != 0.0:
             out[PX4_CONE] = 0.0
         return out
-    have = link.read_params([ARDUPILOT_RTL[0], ARDUPILOT_CLIMB_MIN], timeout=PARAM_WAIT_S)
+    have = link.params.read([ARDUPILOT_RTL[0], ARDUPILOT_CLIMB_MIN], timeout=PARAM_WAIT_S)
     if ARDUPILOT_RTL[0] in have:
         name, scale = ARDUPILOT_RTL
     else:
         name, scale = ARDUPILOT_RTL_OLD
-        if not link.read_params([name], timeout=PARAM_WAIT_S):
+        if not link.params.read([name], timeout=PARAM_WAIT_S):
             return f"the autopilot has neither {ARDUPILOT_RTL[0]} nor {ARDUPILOT_RTL_OLD[0]}"
     out = {name: round(altitude * scale, 2)}
     if have.get(ARDUPILOT_CLIMB_MIN, 0.0) != 0.0:
@@ -54,6 +54,6 @@ def set_return_altitude(link: VehicleLink, altitude: float) -> str | None:
     if isinstance(settings, str):
         return settings
     for name, value in settings.items():
-        if not link.set_param(name, value):
+        if not link.params.set(name, value):
             return f"{name} = {value:g} not confirmed"
     return None

@@ -1,20 +1,11 @@
 """End-to-end signatures on the mesh: which UAV said what, however many hops it travelled.
 
 Each bundle travels in an `Envelope`: the encoded bundle, its sender's Ed25519 signature over it,
-and one originator signature per UAV state it carries (the sender's own `StateMsg` state first,
-then every state relayed in a `ClaimsMsg`, in order). A receiver checks the bundle's signature with
-the public key of the sender it names, and every state's with the key of the UAV the state is
-about, so a state relayed over any number of UAVs still proves its origin, and a member cannot put
-words in another's mouth. The signed texts name the mission's key space and the run (`keys.run_id`),
-so nothing signed for one mission, or in another run of it, is accepted. Detections and bids are
-first-hand only: the bundle's signature covers them.
-
-Signatures are kept (bounded) so that a state relayed by several neighbours is checked once, and
-so that this UAV can relay a state with its originator's signature. What a sender says about
-itself is vouched for by its bundle's signature, so the signature of its own state is only checked
-when that state is about to be relayed (one Ed25519 check per received bundle in the common case).
-A state whose signature is not held (none ever arrived, or the state came back from a restart
-journal) or does not check is not relayed. See docs/reliability.md.
+and one originator signature per UAV state it carries (the sender's own first, then every relayed
+one), over texts naming the mission's key space and the run. Signatures are kept (bounded) so that
+a relayed state is checked once and can be relayed on with its originator's signature; a state
+whose signature is not held or does not check is not relayed. See docs/reliability.md,
+"Signatures: who said what, over any number of hops".
 """
 
 from __future__ import annotations

@@ -81,22 +81,19 @@ def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.E
             guidance.hold_course(s.x, s.y, s.heading)
             last_wall, sent = now, sent + 1
         if (not offboard or sent >= 3) and now - last_try >= 1.0:
-            link.set_mode(want)
-            link.arm()
+            link.commands.set_mode(want)
+            link.commands.arm()
             last_try = now
         link.poll(0.02)
     return not stop.is_set()
 
 
 def hold_on_offboard_loss(link: VehicleLink, uav: int) -> None:
-    """PX4: make the OFFBOARD-loss failsafe Hold (COM_OBL_RC_ACT 5) where it is a stick mode.
-
-    That is, where it is Position, Altitude or Manual mode (0-2): flown from sticks, without them a
-    fixed-wing flies straight on.
-    """
-    action = link.read_params([OFFBOARD_LOSS]).get(OFFBOARD_LOSS)
+    """PX4: make the OFFBOARD-loss failsafe Hold (COM_OBL_RC_ACT 5) where it is Position, Altitude or
+    Manual mode (0-2): flown from sticks, without them a fixed-wing flies straight on."""
+    action = link.params.read([OFFBOARD_LOSS]).get(OFFBOARD_LOSS)
     if action is not None and action <= OFFBOARD_LOSS_MANUAL:
-        link.set_param(OFFBOARD_LOSS, OFFBOARD_LOSS_HOLD)
+        link.params.set(OFFBOARD_LOSS, OFFBOARD_LOSS_HOLD)
         log.info(
             "uav %d: %s was %d; set to Hold (5): the vehicle circles if the companion stops",
             uav,
@@ -109,7 +106,7 @@ def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event
     """ArduPilot: TAKEOFF mode to `altitude` metres above home; True once it has climbed."""
     s = link.state
     log.info("uav %d: on the ground: taking off to %.0f m", uav, altitude)
-    if not link.set_param("TKOFF_ALT", altitude):
+    if not link.params.set("TKOFF_ALT", altitude):
         log.warning("uav %d: TKOFF_ALT not confirmed; taking off anyway", uav)
     deadline = time.monotonic() + TAKEOFF_TIMEOUT_S
     last_try = -math.inf
@@ -118,8 +115,8 @@ def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event
             log.warning("uav %d: take-off failed: GPS fix %d, pre-arm checks %s", uav, s.gps_fix, s.prearm_ok)
             return False
         if s.gps_fix >= 3 and s.prearm_ok and time.monotonic() - last_try >= 1.0:
-            link.set_mode(ARDUPILOT_TAKEOFF)
-            link.arm()
+            link.commands.set_mode(ARDUPILOT_TAKEOFF)
+            link.commands.arm()
             last_try = time.monotonic()
         link.poll(0.1)
     return climb(link, altitude, uav, stop, deadline)
@@ -158,7 +155,7 @@ def take_off_px4(link: VehicleLink, altitude: float, uav: int, stop: threading.E
             log.warning("uav %d: take-off failed: GPS fix %d", uav, s.gps_fix)
             return False
         link.poll(0.1)
-    rate = link.read_params([PX4_REFERENCE_RATE]).get(PX4_REFERENCE_RATE, 3.0)
+    rate = link.params.read([PX4_REFERENCE_RATE]).get(PX4_REFERENCE_RATE, 3.0)
     ready = px4_ready_at(s.home_amsl, rate)
     if s.time_s < ready:
         log.info(
@@ -179,8 +176,8 @@ def take_off_px4(link: VehicleLink, altitude: float, uav: int, stop: threading.E
         if s.time_s >= ready and time.monotonic() - last_try >= 1.0:
             last_try = time.monotonic()
             if not s.armed:
-                link.arm()
+                link.commands.arm()
             else:
-                link.takeoff(altitude)
+                link.commands.takeoff(altitude)
         link.poll(0.1)
     return climb(link, altitude, uav, stop, deadline)

@@ -1,19 +1,10 @@
 """Plan versus flight, and what the companion does when the vehicle leaves the area.
 
-`PlanTracker`: every steered step k the plan puts the UAV at a point and heading at time k·dT
-(the Agent's command of step k-1: its next path point and the heading after the step). The tracker
-measures how far the vehicle is from it at that time (position in metres, heading in degrees),
-from the last telemetry sample before it (the vehicle has not yet taken step k's guidance; in grid
-mode the heading changes at the step boundary) or, without one, the first after it; it keeps the
-figures for the report (median, p95) and warns when the position error stays beyond a bound for
-several steps.
-
-`RegionGuard`: when the vehicle is outside the region plus its safety margin (the fence) the
-companion stops flying the plan and repositions the vehicle back inside (the nearest point one
-margin inside the region, where the autopilot circles); when the vehicle is back inside the region
-it flies the plan again. If it is not back within the steps the way back takes at the mission's
-speed plus `patience` steps, the companion stops steering for good and leaves the vehicle to the
-autopilot (its fence and failsafes).
+`PlanTracker`: every steered step k it measures how far the vehicle is, at time k·dT, from where
+the plan put it (position in metres, heading in degrees), keeps the figures for the report and
+warns when the error stays beyond a bound. `RegionGuard`: outside the region plus its margin the
+companion stops flying the plan and brings the vehicle back inside; not back in time, it leaves the
+vehicle to the autopilot for good. Details: docs/companion.md, "Plan versus flight".
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ horizon + 1 steps, is in its loiter; flown on forever, those loiters keep the sw
 equal times and, by the safety layer's contingency clause, at any phases and at the wider radius
 ArduPlane flies them, between UAVs on near layers (those a layer apart are apart vertically:
 docs/algorithm.md, "Separation in three dimensions"). This is what the companion's hand-over
-(`Companion._close`, `failsafe.hand_over`) relies on."""
+(`flyout.fly_out`, `failsafe.hand_over`) relies on."""
 
 from __future__ import annotations
 

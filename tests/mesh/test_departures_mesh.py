@@ -42,7 +42,7 @@ def _fly(stack: ExitStack) -> None:
     back: list[int] = []
 
     def step(k: int, silent: frozenset[int] = frozenset()) -> None:
-        """Step k of every flying UAV (UAV 0's departures first, as `Companion.step` does); the
+        """Step k of every flying UAV (UAV 0's departures first, as `Pilot.step` does); the
         bundles of those `silent` come too late for step k + 1 (they are not sent)."""
         change = departures.update(k, meshes[0].alive_peers(), agents[0].peers)
         back.extend(change.back)

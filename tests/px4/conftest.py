@@ -111,7 +111,7 @@ class Px4Airborne:
         deadline = time.monotonic() + timeout
         while (s.x - x) ** 2 + (s.y - y) ** 2 > within**2 or s.custom_mode != PX4_HOLD:
             assert time.monotonic() < deadline, f"PX4 did not reach ({x}, {y}): at ({s.x:.0f}, {s.y:.0f})"
-            self.link.reposition(lat, lon, self.mission.mission.altitude_of(0))
+            self.link.commands.reposition(lat, lon, self.mission.mission.altitude_of(0))
             self.link.poll(1.0)
 
     def close(self) -> None:

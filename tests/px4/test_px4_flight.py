@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.node.mission_upload import upload
 from companion.node.vehicle_link import PX4_HOLD, PX4_OFFBOARD, VehicleLink
 from tests.e2e.conftest import PY, ROOT, Proc, assert_flown_out, assert_follows, read_csv, searched
 from tests.px4.conftest import Px4Airborne
@@ -148,11 +147,11 @@ class Script:
         """The script, after straight flight north and then `before`."""
         link, s = self.link, self.link.state
         lat, lon, _ = link.frame.to_geodetic(s.x, s.y + 1200.0)
-        link.reposition(lat, lon, self.altitude)  # straight north (inside a companion's fence)
+        link.commands.reposition(lat, lon, self.altitude)  # straight north (inside a companion's fence)
         self.run(25.0, lambda: None)
         before()
         self.t0, self.x0, self.y0, self.h0 = s.time_s, s.x, s.y, s.heading
-        link.set_mode(PX4_OFFBOARD)  # no setpoint stream yet
+        link.commands.set_mode(PX4_OFFBOARD)  # no setpoint stream yet
         ack = link.await_reply(lambda m: m.get_type() == "COMMAND_ACK" and m.command == 176, 2.0)
         self.events["refused"] = ack.result if ack is not None else -1
         p1, sent = self.world(*SCRIPT_P1), [-math.inf]
@@ -160,11 +159,11 @@ class Script:
         def stream() -> None:
             self.log()
             if s.time_s - sent[0] >= 0.1:
-                link.position_target(*p1, self.altitude)
+                link.commands.position_target(*p1, self.altitude)
                 sent[0] = s.time_s
 
         self.run(1.0, stream)
-        link.set_mode(PX4_OFFBOARD)
+        link.commands.set_mode(PX4_OFFBOARD)
         self.until(STREAM_END, stream)
         self.events["offboard"] = s.custom_mode == PX4_OFFBOARD
         self.leg_flown.set()
@@ -177,7 +176,7 @@ class Script:
 
         self.until(REPOSITION_AT, lost)
         self.events["hold"] = s.custom_mode == PX4_HOLD
-        link.reposition(*self.world(*SCRIPT_P2), self.altitude)
+        link.commands.reposition(*self.world(*SCRIPT_P2), self.altitude)
         self.until(SCRIPT_END)
 
     def track(self) -> np.ndarray:
@@ -186,8 +185,8 @@ class Script:
 
 def _prepare(link: VehicleLink) -> None:
     """What the script needs of both: COM_OF_LOSS_T, and Hold when the stream is lost."""
-    link.read_params(["COM_OF_LOSS_T", "COM_OBL_RC_ACT"])  # their types, for setting them
-    assert link.set_param("COM_OF_LOSS_T", LOSS_S) and link.set_param("COM_OBL_RC_ACT", 5)
+    link.params.read(["COM_OF_LOSS_T", "COM_OBL_RC_ACT"])  # their types, for setting them
+    assert link.params.set("COM_OF_LOSS_T", LOSS_S) and link.params.set("COM_OBL_RC_ACT", 5)
 
 
 def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tmp_path: Path) -> None:
@@ -198,7 +197,7 @@ def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tm
     _prepare(px4_airborne.link)
     # the fence the module's companions uploaded is not part of the script (the simulator has none):
     # a breach would end the script in PX4's geofence failsafe ("Reposition is outside geofence")
-    assert upload(px4_airborne.link, M.MAV_MISSION_TYPE_FENCE, [], "fence") is None
+    assert px4_airborne.link.mission.upload(M.MAV_MISSION_TYPE_FENCE, [], "fence") is None
     px4 = Script(px4_airborne.link, altitude)
 
     m = px4_airborne.mission
@@ -233,7 +232,7 @@ def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tm
                     bundled.poll(0.05)
                 speeds.append(_leg_speed(px4.track()))
                 assert 9.0 < speeds[0] < 16.0, speeds
-                assert bundled.set_param("FW_AIRSPD_TRIM", round(speeds[0], 2))
+                assert bundled.params.set("FW_AIRSPD_TRIM", round(speeds[0], 2))
 
             ours = Script(bundled, altitude)
             ours.fly(before=at_px4s_speed)

@@ -81,7 +81,7 @@ def test_silent_companion_makes_the_vehicle_circle_its_committed_loiter(flying) 
     link, ground, path, _ = flying
     mission = load_mission(path)
     world = build_world(mission)
-    link.change_heading(90.0, 5.0)  # east, straight on
+    link.commands.change_heading(90.0, 5.0)  # east, straight on
     while not link.state.has_pose:
         link.poll(0.1)
     s = link.state  # committed: straight on for the plan's steps, then a clockwise loiter
@@ -120,7 +120,7 @@ def test_silent_companion_makes_the_vehicle_circle_its_committed_loiter(flying) 
     assert ground.need("HEARTBEAT").custom_mode == AUTO  # ...and the mode stays
 
     assert ground.command(M.MAV_CMD_DO_SET_MODE, 1, GUIDED) == M.MAV_RESULT_ACCEPTED
-    assert link.set_param("FS_LONG_ACTN", 0.0)  # continue: the failsafe changes nothing in GUIDED
+    assert link.params.set("FS_LONG_ACTN", 0.0)  # continue: the failsafe changes nothing in GUIDED
     _poll_for(link, 1.0)
     _text(ground, "GCS Failsafe On: GUIDED")
     assert ground.need("HEARTBEAT").custom_mode == GUIDED
@@ -129,7 +129,7 @@ def test_silent_companion_makes_the_vehicle_circle_its_committed_loiter(flying) 
 def _armed_on_a_heading(link: VehicleLink, path: Path) -> Mission:
     """Fly east on a heading, the failsafe armed on a loiter straight ahead, 3 s heard."""
     mission = load_mission(path)
-    link.change_heading(90.0, 5.0)
+    link.commands.change_heading(90.0, 5.0)
     while not link.state.has_pose:
         link.poll(0.1)
     s = link.state

@@ -32,13 +32,13 @@ def test_return_flies_the_layer(flavour: str, tmp_path: Path) -> None:
         assert link.wait_heartbeat(30)
         link.request_streams()
         assert set_return_altitude(link, LAYER) is None
-        assert link.read_params(list(NAMES[flavour])) == dict.fromkeys(NAMES[flavour], LAYER)
+        assert link.params.read(list(NAMES[flavour])) == dict.fromkeys(NAMES[flavour], LAYER)
         s = link.state
         deadline = time.monotonic() + 30
         while not (s.armed and s.custom_mode == RTL_MODES[flavour]):
             assert time.monotonic() < deadline, f"not armed in RTL: mode {s.custom_mode:#x}"
-            link.arm()
-            link.set_mode(RTL_MODES[flavour])
+            link.commands.arm()
+            link.commands.set_mode(RTL_MODES[flavour])
             link.poll(0.5)
         start = s.up
         end = s.time_s + 60.0  # 45 m at 5 m/s and the height loop's settling, with room

@@ -156,21 +156,21 @@ class Airborne:
         deadline = time.monotonic() + 30
         while s.custom_mode != ARDUPILOT_GUIDED:
             assert time.monotonic() < deadline, "SITL did not take GUIDED"
-            self.link.set_mode(ARDUPILOT_GUIDED)
+            self.link.commands.set_mode(ARDUPILOT_GUIDED)
             self.link.poll(1.0)
 
     def fly_to(self, x: float, y: float, within: float = 250.0, timeout: float = 120.0) -> None:
         """Fence and GCS failsafe off (a companion may have enabled them), GUIDED, DO_REPOSITION
         to (x, y) at the mission altitude; returns once within `within` m (call it inside `use()`)."""
         assert self.link.command_ack(mavlink.MAV_CMD_DO_FENCE_ENABLE, 0) == mavlink.MAV_RESULT_ACCEPTED
-        assert self.link.set_param("FS_GCS_ENABL", 0.0)
+        assert self.link.params.set("FS_GCS_ENABL", 0.0)
         self.guided()
         lat, lon, _ = self.frame.to_geodetic(x, y)
         s = self.link.state
         deadline = time.monotonic() + timeout
         while (s.x - x) ** 2 + (s.y - y) ** 2 > within**2:
             assert time.monotonic() < deadline, f"SITL did not reach ({x}, {y}): at ({s.x:.0f}, {s.y:.0f})"
-            self.link.reposition(lat, lon, self.mission.mission.altitude_of(0))
+            self.link.commands.reposition(lat, lon, self.mission.mission.altitude_of(0))
             self.link.poll(1.0)
 
     def close(self) -> None:

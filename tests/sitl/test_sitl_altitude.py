@@ -27,7 +27,7 @@ def test_simulator_altitude_error_like_arduplane(airborne: Airborne, tmp_path: P
     mission = airborne.mission.mission
     ports = airborne.mission.ports(0)
     with airborne.use() as link:
-        link.set_param("FS_GCS_ENABL", 0.0)  # a companion of another test may have armed it
+        link.params.set("FS_GCS_ENABL", 0.0)  # a companion of another test may have armed it
         sampler = Sampler(link)
         flight = Flight("ardupilot-sitl", tmp_path / "sitl.tlog", link.state.system)
         try:

@@ -153,7 +153,7 @@ def _hold(link: VehicleLink, yaw_deg: float, accel: float, seconds: float, log) 
     end, last = s.time_s + seconds, -math.inf
     while s.time_s < end:
         if s.time_s - last >= 0.5:
-            link.change_heading(yaw_deg, accel)
+            link.commands.change_heading(yaw_deg, accel)
             last = s.time_s
         link.poll(0.02)
         log()
@@ -182,7 +182,7 @@ def _fly_script(link: VehicleLink) -> tuple[np.ndarray, float]:
     _hold(link, 330.0, 8.0, 25.0, log)  # left, hard: bank 39 deg
     ahead, left = SCRIPT_TARGET
     lat, lon, _ = link.frame.to_geodetic(x0 + c * ahead - sn * left, y0 + sn * ahead + c * left)
-    link.reposition(lat, lon, 100.0)
+    link.commands.reposition(lat, lon, 100.0)
     end = s.time_s + 80.0
     while s.time_s < end:
         link.poll(0.02)
@@ -206,7 +206,7 @@ def _bundled_in_guided(airborne: Airborne, tmp_path: Path, speed: float) -> Iter
         bundled.wait_heartbeat(60)
         bundled.request_streams()
         for name, value in (("AIRSPEED_CRUISE", speed), ("ROLL_LIMIT_DEG", 65.0), ("WP_LOITER_RAD", 80.0)):
-            assert bundled.set_param(name, value), name  # plane.parm's, and SITL's ground speed
+            assert bundled.params.set(name, value), name  # plane.parm's, and SITL's ground speed
         while not bundled.state.has_pose:
             bundled.poll(0.2)
         guidance = Guidance(bundled, airborne.frame, airborne.mission.mission, 0, "heading")
@@ -220,7 +220,7 @@ def _bundled_in_guided(airborne: Airborne, tmp_path: Path, speed: float) -> Iter
 def test_simulator_flies_a_command_script_like_arduplane(airborne: Airborne, tmp_path: Path) -> None:
     with airborne.use() as link:
         airborne.fly_to(0.0, -900.0)  # the script flies about 1.7 km north
-        link.change_speed(22.0)  # plane.parm's AIRSPEED_CRUISE, whatever a companion set before
+        link.commands.change_speed(22.0)  # plane.parm's AIRSPEED_CRUISE, whatever a companion set before
         sitl, speed = _fly_script(link)
     assert 18.0 < speed < 28.0, speed
 
@@ -266,7 +266,7 @@ def _silence_script(companion: VehicleLink, observer: VehicleLink, mission: Miss
     end, last, step = s.time_s + 20.0, -math.inf, s.time_s
     while s.time_s < end:
         if s.time_s - last >= 0.5:
-            companion.change_heading(0.0, 9.8)
+            companion.commands.change_heading(0.0, 9.8)
             last = s.time_s
         if s.time_s - step >= mission.kinematics.step:
             assert loiter.follow(committed()) is None
@@ -323,7 +323,7 @@ def test_simulator_failsafe_for_a_silent_companion_like_arduplane(airborne: Airb
     ports = airborne.mission.ports(0)
     with airborne.use() as observer:
         airborne.fly_to(0.0, -900.0)
-        observer.change_speed(22.0)  # plane.parm's AIRSPEED_CRUISE, which AUTO flies
+        observer.commands.change_speed(22.0)  # plane.parm's AIRSPEED_CRUISE, which AUTO flies
         companion = VehicleLink(
             ports.url(ports.serial1), airborne.frame, system=COMPANION_SYSTEM, heartbeat=True
         )

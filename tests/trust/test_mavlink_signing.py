@@ -79,7 +79,7 @@ def test_signing_on_only_signed_commands_are_answered(
     local = LocalFrame(load_mission(path).region.origin)
     link = VehicleLink(f"udpout:127.0.0.1:{ports[0]}", local, signing_secret=secret)
     link.wait_heartbeat(30.0)
-    assert link.signed and link.unauthenticated == 0
+    assert link.signing.enabled and link.unauthenticated == 0
     link.close()
     stranger = VehicleLink(f"udpout:127.0.0.1:{ports[0]}", local, signing_secret=secrets.token_bytes(32))
     with pytest.raises(LinkError):

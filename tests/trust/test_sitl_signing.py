@@ -57,7 +57,7 @@ def test_arduplane_sitl_answers_only_signed_commands_once_signing_is_set_up(
         usb = _connect(ports.url(ports.serial0), frame)
         links.append(usb)
         secret = secrets.token_bytes(32)
-        usb.provision_signing(secret)
+        usb.signing.provision(secret)
         signed = _connect(ports.url(ports.serial1), frame, secret)
         links.append(signed)
         assert signed.command_ack(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_SYSTEM_TIME, 1e6) == 0
