@@ -1,13 +1,13 @@
-"""The silent companion's failsafe: if the companion dies, its aircraft circles the loiter its
-trajectory in force ends in, the loiter every other UAV's trajectory already keeps clear of.
+"""The silent companion's failsafe: a dead companion's aircraft circles its trajectory's last loiter.
 
-With `--takeover` the companion makes itself ArduPlane's ground station (MAV_GCS_SYSID =
-`COMPANION_SYSTEM`) and arms its GCS failsafe (FS_LONG_ACTN = AUTO) on a one-item mission,
-NAV_LOITER_UNLIM about that loiter (`FailsafeLoiter`, uploaded again whenever the loiter changes).
-At the mission's end it hands the aircraft over at once (`hand_over`); a companion that was only
-stalled sees its own failsafe fired (`fired_by_our_silence`) and takes GUIDED back
-(`watch.VehicleWatch`). Why each parameter, and what ArduPlane does: docs/companion.md, "The
-failsafe for a silent companion".
+If the companion dies, its aircraft circles the loiter its trajectory in force ends in, the loiter
+every other UAV's trajectory already keeps clear of. With `--takeover` the companion makes itself
+ArduPlane's ground station (MAV_GCS_SYSID = `COMPANION_SYSTEM`) and arms its GCS failsafe
+(FS_LONG_ACTN = AUTO) on a one-item mission, NAV_LOITER_UNLIM about that loiter (`FailsafeLoiter`,
+uploaded again whenever the loiter changes). At the mission's end it hands the aircraft over at
+once (`hand_over`); a companion that was only stalled sees its own failsafe fired
+(`fired_by_our_silence`) and takes GUIDED back (`watch.VehicleWatch`). Why each parameter, and what
+ArduPlane does: docs/companion.md, "The failsafe for a silent companion".
 """
 
 from __future__ import annotations
@@ -37,9 +37,11 @@ Circle = tuple[float, float, float, int]  # local centre x, y (m), radius (m), +
 
 
 def failsafe_mission(mission: Mission, uav: int, frame: LocalFrame, loiter: Circle) -> list[Item]:
-    """The failsafe's mission: ArduPilot's home (item 0, replaced by the autopilot) and an unlimited
-    loiter about the circle `loiter`, at the UAV's altitude layer (a negative radius is ArduPilot's
-    counter-clockwise)."""
+    """The failsafe's mission: ArduPilot's home, then an unlimited loiter about the circle `loiter`.
+
+    Item 0 is the home, which the autopilot replaces; item 1 loiters at the UAV's altitude layer (a
+    negative radius is ArduPilot's counter-clockwise).
+    """
     home = Item(mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, (0, 0, 0, 0))
     cx, cy, radius, side = loiter
     lat, lon, _ = frame.to_geodetic(cx, cy)
@@ -82,8 +84,10 @@ class FailsafeLoiter:
 
 
 def fired_by_our_silence(link: VehicleLink, texts_before: int) -> bool:
-    """Whether the aircraft is in AUTO because the GCS failsafe fired (ArduPlane said so in a
-    STATUSTEXT after the first `texts_before` it sent): the companion's own HEARTBEATs stopped."""
+    """Whether the aircraft is in AUTO because the GCS failsafe fired: our own HEARTBEATs stopped.
+
+    ArduPlane says so in a STATUSTEXT after the first `texts_before` it sent.
+    """
     s = link.state
     return (
         not s.px4
@@ -97,8 +101,10 @@ def _same(a: Circle, b: Circle) -> bool:
 
 
 def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
-    """Set up ArduPlane's GCS failsafe (on `loiter`'s link) as the silent companion's failsafe,
-    circling the loiter of `trajectory` (the trajectory in force); the reason on failure."""
+    """Set up ArduPlane's GCS failsafe as the silent companion's failsafe; the reason on failure.
+
+    It runs on `loiter`'s link and circles the loiter of `trajectory` (the trajectory in force).
+    """
     link, mission = loiter.link, loiter.world.mission
     names = link.params.read([GCS_SYSID_PARAMS[0]], timeout=RENAMED_PARAM_WAIT_S)
     if not names:
@@ -124,9 +130,11 @@ def arm_failsafe(loiter: FailsafeLoiter, trajectory: Trajectory) -> str | None:
 
 
 def hand_over(loiter: FailsafeLoiter, trajectory: Trajectory, abort: threading.Event) -> str | None:
-    """The mission's end: the aircraft circles the loiter of `trajectory` (the trajectory in force)
-    in AUTO, as the failsafe would after FS_LONG_TIMEOUT of silence, but now; the reason on
-    failure."""
+    """The mission's end: hand the aircraft over to AUTO now; the reason on failure.
+
+    The aircraft circles the loiter of `trajectory` (the trajectory in force) in AUTO, as the
+    failsafe would after FS_LONG_TIMEOUT of silence, but now.
+    """
     link = loiter.link
     error = loiter.follow(trajectory)
     if error:

@@ -17,10 +17,13 @@ FLY_OUT_SLACK_S = 10.0  # wall seconds the fly-out may take beyond twice its veh
 
 
 def fly_out(pilot: Pilot, loop: RealtimeLoop | LockstepLoop, stopped: bool, abort: threading.Event) -> None:
-    """Fly out the trajectory in force (horizon + 1 steps without a new proposal, so that every turn
-    it planned is flown and it is in its loiter), then hand the aircraft to that loiter
-    (`hand_over`); docs/companion.md. In lockstep every companion takes those steps, steering or
-    not, and a swarm stopped by a signal stops its simulated time with it: nothing to fly out."""
+    """Fly out the trajectory in force, then hand the aircraft to its loiter (`hand_over`).
+
+    The fly-out is horizon + 1 steps without a new proposal, so that every turn it planned is flown
+    and the aircraft is in its loiter; docs/companion.md. In lockstep every companion takes those
+    steps, steering or not, and a swarm stopped by a signal stops its simulated time with it:
+    nothing to fly out.
+    """
     uav, lockstep = pilot.opts.uav, isinstance(loop, LockstepLoop)
     if (stopped and lockstep) or (not lockstep and not (pilot.steering and pilot.steerable())):
         return

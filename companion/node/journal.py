@@ -98,8 +98,11 @@ def read_records(data: bytes) -> tuple[list[Record], int]:
 
 @dataclass(frozen=True)
 class Recovered:
-    """What a journal gave back: the last step journaled, how many steps it holds, and the records
-    read and the bytes of a torn tail cut off."""
+    """What a journal gave back on opening.
+
+    The last step journaled, how many steps it holds, the records read and the bytes of a torn tail
+    cut off.
+    """
 
     step: int
     steps: int
@@ -116,9 +119,11 @@ class Journal:
 
     @classmethod
     def open(cls, path: Path, header: Header, agent: Agent) -> tuple[Journal, Recovered | None]:
-        """Open (or create) the journal at `path` for `header`'s mission, UAV and seed; if it holds
-        steps, restore `agent` to the last of them. Raises JournalError for another mission's journal
-        or one that does not fit the agent."""
+        """Open (or create) the journal at `path`, restoring `agent` to its last step if it holds any.
+
+        The journal is for `header`'s mission, UAV and seed. Raises JournalError for another
+        mission's journal or one that does not fit the agent.
+        """
         data = path.read_bytes() if path.exists() else b""
         records, good = read_records(data)
         if data and not records:
@@ -165,8 +170,10 @@ class Journal:
         return journal, recovered
 
     def append(self, agent: Agent) -> None:
-        """Journal the agent's latest step (a checkpoint when one is due, else its delta); durable on
-        return."""
+        """Journal the agent's latest step, durable on return.
+
+        A checkpoint is written when one is due, else the step's delta.
+        """
         delta = agent.last
         if delta is None:
             return

@@ -12,9 +12,11 @@ if TYPE_CHECKING:
 
 
 class Commands:
-    """What the companion tells the autopilot over one link (`link.commands`). PX4 differs where
-    the methods say: it reads DO_REPOSITION's altitude as AMSL whatever the frame and answers it
-    UNSUPPORTED without the change-mode flag."""
+    """What the companion tells the autopilot over one link (`link.commands`).
+
+    PX4 differs where the methods say: it reads DO_REPOSITION's altitude as AMSL whatever the frame
+    and answers it UNSUPPORTED without the change-mode flag.
+    """
 
     def __init__(self, link: VehicleLink) -> None:
         self.link = link
@@ -33,8 +35,10 @@ class Commands:
         self.link.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
     def takeoff(self, up: float) -> int | None:
-        """MAV_CMD_NAV_TAKEOFF to `up` metres above home (PX4: AMSL in param7; it switches to
-        AUTO.TAKEOFF); the MAV_RESULT, or None."""
+        """MAV_CMD_NAV_TAKEOFF to `up` metres above home; the MAV_RESULT, or None.
+
+        PX4 reads AMSL in param7 and switches to AUTO.TAKEOFF.
+        """
         z = self.link.state.home_amsl + up
         return self.link.command_ack(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, z)
 
@@ -56,14 +60,19 @@ class Commands:
         )
 
     def change_heading(self, yaw_deg: float, accel: float) -> None:
-        """MAV_CMD_GUIDED_CHANGE_HEADING: heading type 1 (heading), 0-360 degrees clockwise from north,
-        param3 the largest centripetal acceleration (m/s^2) the turn may use (ArduPlane: bank limit
-        atan(accel / g); it clamps the value to at least 0.05, so 0 means "do not turn")."""
+        """MAV_CMD_GUIDED_CHANGE_HEADING to `yaw_deg`, turning with at most `accel` m/s^2.
+
+        Heading type 1 (heading), 0-360 degrees clockwise from north; param3 is the largest
+        centripetal acceleration (m/s^2) the turn may use (ArduPlane: bank limit atan(accel / g); it
+        clamps the value to at least 0.05, so 0 means "do not turn").
+        """
         self.link.command_long(mavlink.MAV_CMD_GUIDED_CHANGE_HEADING, 1, yaw_deg % 360.0, accel)
 
     def change_altitude(self, up: float) -> None:
-        """MAV_CMD_GUIDED_CHANGE_ALTITUDE (COMMAND_INT, relative altitude; param3 0: the autopilot's
-        own climb rate)."""
+        """MAV_CMD_GUIDED_CHANGE_ALTITUDE to `up` metres above home, at the autopilot's climb rate.
+
+        Sent as COMMAND_INT, relative altitude; param3 0 means the autopilot's own climb rate.
+        """
         self.link.command_int(
             mavlink.MAV_CMD_GUIDED_CHANGE_ALTITUDE,
             mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
@@ -74,10 +83,12 @@ class Commands:
         )
 
     def reposition(self, lat: float, lon: float, up: float) -> None:
-        """MAV_CMD_DO_REPOSITION as COMMAND_INT to `up` metres above home. ArduPilot: relative
-        altitude, without the change-mode flag (it flies it in GUIDED). PX4: AMSL (it reads the
-        altitude as AMSL whatever the frame) with the change-mode flag (without it PX4 answers
-        UNSUPPORTED; with it, it switches to Hold)."""
+        """MAV_CMD_DO_REPOSITION as COMMAND_INT to `up` metres above home.
+
+        ArduPilot: relative altitude, without the change-mode flag (it flies it in GUIDED). PX4:
+        AMSL (it reads the altitude as AMSL whatever the frame) with the change-mode flag (without
+        it PX4 answers UNSUPPORTED; with it, it switches to Hold).
+        """
         s = self.link.state
         if s.px4:
             frame, flags, z = (

@@ -25,8 +25,11 @@ INTEGER_PARAMS = frozenset(
 
 
 class Parameters:
-    """The autopilot's parameters over one link (`link.params`). PX4 sends integer parameters
-    byte-wise in PARAM_VALUE's float, ArduPilot casts them: both read back as their values."""
+    """The autopilot's parameters over one link (`link.params`).
+
+    PX4 sends integer parameters byte-wise in PARAM_VALUE's float, ArduPilot casts them: both read
+    back as their values.
+    """
 
     def __init__(self, link: VehicleLink) -> None:
         self.link = link
@@ -37,8 +40,10 @@ class Parameters:
         self.types[msg.param_id] = msg.param_type
 
     def read(self, names: list[str], timeout: float = 6.0) -> dict[str, float]:
-        """PARAM_REQUEST_READ by name, re-asked every second; the values that came within `timeout`
-        (an autopilot ignores names it does not have)."""
+        """PARAM_REQUEST_READ by name, re-asked every second; the values that came within `timeout`.
+
+        An autopilot ignores names it does not have.
+        """
         link = self.link
         found: dict[str, float] = {}
         deadline = time.monotonic() + timeout
@@ -57,8 +62,10 @@ class Parameters:
         return found
 
     def set(self, name: str, value: float, timeout: float = 1.5, tries: int = 3) -> bool:
-        """PARAM_SET (in the parameter's own type, once it has been read) until the PARAM_VALUE echo
-        shows `value`."""
+        """PARAM_SET until the PARAM_VALUE echo shows `value`; whether it did.
+
+        The value goes in the parameter's own type once it has been read.
+        """
         link = self.link
         kind = self.types.get(name, mavlink.MAV_PARAM_TYPE_REAL32)
         for _ in range(tries):

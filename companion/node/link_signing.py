@@ -16,8 +16,11 @@ UNSIGNED_ALLOWED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS, mavlink.MAVLI
 
 
 def frame_sender(data: bytes) -> tuple[str, str]:
-    """(kind, sender) of a frame refused for its signature: "bad signature" if it was signed,
-    "unsigned" if not; the sender as "system S component C" from its header."""
+    """(kind, sender) of a frame refused for its signature.
+
+    The kind is "bad signature" if it was signed, "unsigned" if not; the sender is
+    "system S component C" from its header.
+    """
     if len(data) >= 10 and data[0] == 0xFD:
         kind = "bad signature" if data[2] & 1 else "unsigned"
         return kind, f"system {data[5]} component {data[6]}"
@@ -27,12 +30,17 @@ def frame_sender(data: bytes) -> tuple[str, str]:
 
 
 class Signing:
-    """One link's signing (`link.signing`), as between ArduPilot and a ground station once signing
-    is set up: the radio's RADIO_STATUS is the only unsigned frame accepted (docs/companion.md)."""
+    """One link's signing (`link.signing`), as between ArduPilot and a ground station.
+
+    Once signing is set up, the radio's RADIO_STATUS is the only unsigned frame accepted
+    (docs/companion.md).
+    """
 
     def __init__(self, conn: mavutil.mavfile, state: VehicleState, secret: bytes | None) -> None:
-        """With a `secret`, sign every frame sent and refuse frames not signed with it; a frame whose
-        signature fails never moves its stream's timestamp (`keep_stream_timestamps`)."""
+        """With a `secret`, sign every frame sent and refuse frames not signed with it.
+
+        A frame whose signature fails never moves its stream's timestamp (`keep_stream_timestamps`).
+        """
         self._conn, self._state = conn, state
         if secret is not None:
             conn.setup_signing(
@@ -49,8 +57,11 @@ class Signing:
         return self._conn.mav.signing.secret_key is not None
 
     def provision(self, secret: bytes) -> None:
-        """SETUP_SIGNING: give the autopilot its signing secret (ArduPilot stores it and
-        from then on refuses unsigned commands on every link but its first, the USB one). The secret
-        travels in clear: only over a link that cannot be overheard (USB, or SITL on loopback)."""
+        """SETUP_SIGNING: give the autopilot its signing secret.
+
+        ArduPilot stores it and from then on refuses unsigned commands on every link but its first,
+        the USB one. The secret travels in clear: only over a link that cannot be overheard (USB, or
+        SITL on loopback).
+        """
         autopilot = mavlink.MAV_COMP_ID_AUTOPILOT1
         self._conn.mav.setup_signing_send(self._state.system, autopilot, secret, signing_timestamp())

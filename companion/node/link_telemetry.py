@@ -56,8 +56,10 @@ class VehicleState:
 
     def update(self, msg: mavlink.MAVLink_message, frame: LocalFrame) -> bool:
         """Take in one of the autopilot's telemetry messages; False for a message of another kind.
+
         On PX4 the heading is the course over ground while the vehicle moves (its fixed-wing flies
-        with sideslip), ATTITUDE's yaw otherwise."""
+        with sideslip), ATTITUDE's yaw otherwise.
+        """
         kind = msg.get_type()
         if kind == "HEARTBEAT":
             if msg.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1 or msg.type == mavlink.MAV_TYPE_GCS:

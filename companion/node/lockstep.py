@@ -19,8 +19,10 @@ PEER_WAIT_S = 30.0  # how long to wait for a live peer's messages before going o
 
 
 class LockstepLoop:
-    """Steps in lockstep with the bundled simulator, which advances only when every companion has
-    reported its step done (docs/simulator.md), so a distributed run reproduces the batch engine's."""
+    """Steps in lockstep with the bundled simulator, so a distributed run reproduces the batch engine's.
+
+    The simulator advances only when every companion has reported its step done (docs/simulator.md).
+    """
 
     def __init__(
         self, pilot: Pilot, watch: VehicleWatch, link: VehicleLink, mesh: Mesh, camera: CameraFeed
@@ -43,9 +45,12 @@ class LockstepLoop:
         return round(self.link.state.time_s / self.pilot.dt)
 
     def _start(self) -> int:
-        """The first step to fly: the simulator's current step, or the one after the last journaled
-        step when the journal already holds the current one (its bundle may not have gone out: an
-        empty bundle stands in, so that no peer waits for it)."""
+        """The first step to fly: the simulator's current step, or the one after the last journaled.
+
+        The step after the last journaled one applies when the journal already holds the current
+        step (its bundle may not have gone out: an empty bundle stands in, so that no peer waits
+        for it).
+        """
         now = self._vehicle_step()
         k = max(now, self.pilot.journaled + 1)
         if k > now:
@@ -80,8 +85,11 @@ class LockstepLoop:
             k = self.k = k + 1
 
     def _wait_for_vehicle(self, stop: Callable[[], bool], k: int) -> None:
-        """Poll until the vehicle's telemetry reaches step k, staying its peer however long the swarm
-        waits, and saying "ready" again after a lost link."""
+        """Poll until the vehicle's telemetry reaches step k.
+
+        Meanwhile the companion stays the vehicle's peer however long the swarm waits, and says
+        "ready" again after a lost link.
+        """
         said = time.monotonic()
         while not stop() and self.link.state.time_s + 1e-6 < k * self.pilot.dt:
             self.link.poll(0.05)
@@ -97,10 +105,13 @@ class LockstepLoop:
                 self._let_a_rewound_vehicle_catch_up(k)
 
     def _let_a_rewound_vehicle_catch_up(self, k: int) -> None:
-        """After a lost link: a restarted simulator that resumed from a step before the one we flew
-        last (it was killed after its telemetry of a step went out and before it saved that step)
-        flies on, on the commands in force, until it is at step k again: we say "ready" for its next
-        step (the other companions do the same)."""
+        """After a lost link: release a simulator that resumed behind us, one step at a time, to step k.
+
+        A restarted simulator may resume from a step before the one we flew last (it was killed
+        after its telemetry of a step went out and before it saved that step). It flies on, on the
+        commands in force, until it is at step k again: we say "ready" for its next step (the other
+        companions do the same).
+        """
         now = self._vehicle_step()
         if now < k - 1:
             log.warning(
@@ -112,9 +123,11 @@ class LockstepLoop:
             self.link.command_long(LOCKSTEP_COMMAND, now + 1)
 
     def _catch_up(self, k: int) -> int:
-        """After a lost link: the step the vehicle is at now (it may have flown on without its
-        companion), announced to the peers by an empty bundle of the step before, then join the mesh
-        again."""
+        """After a lost link: rejoin the mesh at the step the vehicle is at now; that step.
+
+        The vehicle may have flown on without its companion; the step is announced to the peers by
+        an empty bundle of the step before, then the companion joins the mesh again.
+        """
         now = self._vehicle_step()
         if now > k:
             log.warning(

@@ -51,8 +51,10 @@ NO_RUN_WARNING = (
 
 
 def run_of(explicit: str | None, journal: Path | None) -> str:
-    """The companion's run identity: `--run`, else $UAVSEARCH_RUN, else the one its journal names
-    (a restart rejoins its run), else none. KeyDirectoryError for a malformed one."""
+    """The companion's run identity: `--run`, else $UAVSEARCH_RUN, else its journal's, else none.
+
+    The journal's run lets a restart rejoin its run. KeyDirectoryError for a malformed one.
+    """
     if explicit is None and RUN_ENV not in os.environ and journal is not None:
         kept = journal_run(journal)
         if kept is not None:
@@ -92,8 +94,10 @@ def run_companion(args: argparse.Namespace) -> int:
 def _options(
     args: argparse.Namespace, mission: Mission
 ) -> tuple[CompanionOptions, SwarmKeys | None, bytes | None]:
-    """The companion's options, its keys and the MAVLink signing secret (KeyDirectoryError for a
-    malformed run identity or key directory)."""
+    """The companion's options, its keys and the MAVLink signing secret.
+
+    KeyDirectoryError for a malformed run identity or key directory.
+    """
     journal = Path(args.journal) if args.journal else None
     run = run_of(args.run, journal)
     keys = for_mission(mission, uav_identity(args.uav), run)

@@ -37,8 +37,10 @@ class MissionUpload:
         self.link = link
 
     def upload(self, mission_type: int, items: list[Item], what: str) -> str | None:
-        """Upload `items` as the autopilot's list of `mission_type`; the reason on failure (`what`
-        names the list in it)."""
+        """Upload `items` as the autopilot's list of `mission_type`; the reason on failure.
+
+        `what` names the list in the reason.
+        """
         count = len(items)
 
         def reply(m: mavlink.MAVLink_message) -> bool:

@@ -51,8 +51,11 @@ class CompanionOptions:
 
 
 class Pilot:
-    """The per-step decision: the core's Agent on the vehicle's pose, its command to the vehicle,
-    its outbox to the mesh, its state to the journal and the logs."""
+    """The per-step decision: the core's Agent run on the vehicle's pose.
+
+    Each step sends the agent's command to the vehicle, its outbox to the mesh, and its state to the
+    journal and the logs.
+    """
 
     def __init__(self, opts: CompanionOptions, link: VehicleLink, mesh: Mesh, camera: CameraFeed) -> None:
         """The agent (restored from the journal when there is one), its guidance and its guards."""
@@ -111,10 +114,12 @@ class Pilot:
         return steerable(self.link, self.opts.command_mode)
 
     def pose(self, ahead: float = 0.0) -> tuple[float, float, float]:
-        """The vehicle's pose `ahead` seconds from its latest telemetry, by eq. 2 at the turn rate it
-        is flying: the commanded one on the simulator's turn-rate command, the measured one
-        (ATTITUDE) with an autopilot's guidance; grid mode: on the cell centre it is flying to,
-        heading a multiple of 45 deg."""
+        """The vehicle's pose `ahead` seconds from its latest telemetry, by eq. 2 (kinematics).
+
+        Eq. 2 runs at the turn rate the vehicle is flying: the commanded one on the simulator's
+        turn-rate command, the measured one (ATTITUDE) with an autopilot's guidance. Grid mode: on
+        the cell centre it is flying to, heading a multiple of 45 deg.
+        """
         s, kin = self.link.state, self.world.kinematics
         if kin.mode == "grid":  # grid UAVs sit on cell centres, headings on 45 deg
             g = self.world.grid
@@ -137,8 +142,10 @@ class Pilot:
         return float(ax), float(ay), float(ah)
 
     def _forget_departed(self, k: int) -> None:
-        """Forget the peers whose liveliness token vanished (`departures.Departures`), so that their
-        tasks go back to the auction without waiting for the agent's peer timeout."""
+        """Forget the peers whose liveliness token vanished (`departures.Departures`).
+
+        Their tasks go back to the auction without waiting for the agent's peer timeout.
+        """
         me, change = self.opts.uav, self.departures.update(k, self.mesh.alive_peers(), self.agent.peers)
         for uav in change.left:
             log.warning("uav %d: uav %d left the mesh; its task is free", me, uav)
@@ -175,8 +182,10 @@ class Pilot:
         return command
 
     def _fly(self, k: int, command: Command, position: tuple[float, float], steered: bool) -> None:
-        """Step k's command to the vehicle (at `position`) when it flies the plan (else guidance
-        pauses), and the failsafe loiter kept on the trajectory in force."""
+        """Send step k's command to the vehicle and keep the failsafe loiter on the trajectory in force.
+
+        The command goes to the vehicle (at `position`) when it flies the plan; else guidance pauses.
+        """
         if steered:
             self.guidance.step(command, position)
             self.tracker.expect(k + 1, command.waypoint[0], command.waypoint[1], command.heading)

@@ -34,15 +34,20 @@ class Preflight:
         self.fence_uploaded = False
 
     def connect(self) -> None:
-        """The vehicle answered: ask for its telemetry, keep the setpoints streaming whatever waits
-        from now on, and check its airframe (Refused if it cannot fly the mission)."""
+        """The vehicle answered: ask for its telemetry, keep the setpoints streaming, check its airframe.
+
+        The setpoints stream whatever waits from now on; Refused if the airframe cannot fly the
+        mission.
+        """
         self.link.request_streams()
         self.link.on_poll = self.watch.keep_streaming  # from the take-over on, whatever waits
         self._check_airframe()
 
     def prepare(self, stop: threading.Event) -> None:
-        """Wait for the vehicle's pose, then take it over, set its fence, return altitude and
-        failsafe as the options say (fence and failsafe default to the take-over's choice)."""
+        """Wait for the vehicle's pose, then take it over and set its fence, return altitude and failsafe.
+
+        Each is done as the options say; fence and failsafe default to the take-over's choice.
+        """
         opts = self.opts
         while not stop.is_set() and not self.link.state.has_pose:
             self.link.poll(0.2)
@@ -55,8 +60,11 @@ class Preflight:
             self._arm_failsafe()
 
     def _check_airframe(self) -> None:
-        """Read the airframe's parameters, warn about what the mission asks beyond them, refuse
-        what the autopilot cannot fly."""
+        """Check the mission against the airframe's parameters: warn, or refuse (Refused).
+
+        It reads the airframe's parameters, warns about what the mission asks beyond them and
+        refuses what the autopilot cannot fly.
+        """
         flavour = "px4" if self.link.state.px4 else "ardupilot"
         values = self.link.params.read(Airframe.names(flavour))
         values |= self.link.params.read([SIMULATOR_PARAM], timeout=SIMULATOR_PARAM_WAIT_S)
@@ -74,8 +82,11 @@ class Preflight:
         )
 
     def _upload_fence(self) -> None:
-        """The autopilot's fence: the planning fence (region plus margin) plus one step of slack for
-        the vehicle's tracking error; the companion's own guard acts at the planning fence."""
+        """Upload the autopilot's fence: the planning fence plus one step of slack.
+
+        The planning fence is the region plus margin; the step of slack is for the vehicle's
+        tracking error. The companion's own guard acts at the planning fence.
+        """
         m = self.opts.mission
         margin = fence_margin(m) + m.kinematics.speed * m.kinematics.step
         error = upload_fence(self.link, self.pilot.frame, fence_polygon(m, margin))

@@ -42,8 +42,10 @@ def camera_key_of(mission: Mission, uav: int) -> str:
 
 
 class Companion:
-    """One UAV's companion: its pilot, vehicle watch, loop and preflight wired together; `run`
-    returns when `stop` is set or the step budget is spent."""
+    """One UAV's companion: its pilot, vehicle watch, loop and preflight wired together.
+
+    `run` returns when `stop` is set or the step budget is spent.
+    """
 
     def __init__(self, opts: CompanionOptions, link: VehicleLink, mesh: Mesh, camera: CameraFeed) -> None:
         """Wire the pieces (JournalError for a journal of another mission)."""
@@ -58,8 +60,10 @@ class Companion:
         self.preflight = Preflight(self.pilot, self.watch, link)
 
     def run(self, stop: threading.Event, abort: threading.Event | None = None) -> int:
-        """Fly the mission until its step budget is spent or `stop`, then close it (`flyout`) unless
-        `abort` (a second signal) cuts that short."""
+        """Fly the mission until its step budget is spent or `stop`, then close it (`flyout`); 0.
+
+        `abort` (a second signal) cuts the closing short.
+        """
         abort = abort if abort is not None else threading.Event()
         seconds = warm_up(self.opts.mission)  # no compiling inside the first real steps
         log.info("uav %d: algorithm ready in %.1f s", self.opts.uav, seconds)

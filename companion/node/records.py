@@ -86,8 +86,11 @@ class RunLogs:
         up: float,
         closing: bool,
     ) -> None:
-        """One row of the step log: step k (of `dt` seconds), the pose it was planned from, the
-        command, what the agent knows, whether the vehicle flies it, its height and the phase."""
+        """Write step k's row of the step log.
+
+        The row holds step k (of `dt` seconds), the pose it was planned from, the command, what the
+        agent knows, whether the vehicle flies it, its height and the phase.
+        """
         x, y, heading = pose
         self._steps.write(
             [

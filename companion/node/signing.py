@@ -36,8 +36,11 @@ class Forged(MessageError):
 
 
 class Envelope(msgspec.Struct, frozen=True, array_like=True):
-    """What goes on the wire in a secured mesh: the encoded bundle, its sender's signature and the
-    originators' signatures of the states in it (an insecure mesh sends the bare bundle)."""
+    """What goes on the wire in a secured mesh: a bundle with its signatures.
+
+    It holds the encoded bundle, its sender's signature and the originators' signatures of the
+    states in it. An insecure mesh sends the bare bundle.
+    """
 
     body: bytes
     sig: bytes
@@ -92,8 +95,11 @@ class Authenticator:
 
     # -- sending -------------------------------------------------------------------------------
     def relayable(self, messages: list[Message]) -> list[Message]:
-        """`messages` without the relayed states whose originator's signature we do not hold, or
-        which does not check."""
+        """`messages` without the relayed states whose originator's signature is missing or bad.
+
+        A state is dropped when we do not hold its originator's signature, or the signature does
+        not check.
+        """
         out: list[Message] = []
         for msg in messages:
             if isinstance(msg, ClaimsMsg):
@@ -124,9 +130,12 @@ class Authenticator:
 
     # -- receiving -----------------------------------------------------------------------------
     def check(self, envelope: Envelope, sender: int, messages: Sequence[Message]) -> None:
-        """Raise Unauthenticated unless `sender` signed the envelope's body, Forged unless every
-        carried state about another UAV is signed by that UAV; keep the states' signatures for
-        relaying (the sender's own unchecked)."""
+        """Check an envelope's signatures: Unauthenticated or Forged if one fails.
+
+        Raises Unauthenticated unless `sender` signed the envelope's body, Forged unless every
+        carried state about another UAV is signed by that UAV. Keeps the states' signatures for
+        relaying (the sender's own unchecked).
+        """
         if not self._checks(sender, envelope.sig, self._bundle_domain + envelope.body):
             raise Unauthenticated(f"bundle not signed by uav {sender}")
         states = carried_states(messages)
@@ -162,8 +171,10 @@ class Authenticator:
         return self._checks(uav, sig, self._state_domain + data)
 
     def _checks(self, uav: int, sig: bytes, text: bytes) -> bool:
-        """Whether `sig` is UAV `uav`'s signature of `text` under a key accepted for it (reading
-        the accepted keys again, rate-limited, before saying no)."""
+        """Whether `sig` is UAV `uav`'s signature of `text` under a key accepted for it.
+
+        Before saying no it reads the accepted keys again, rate-limited.
+        """
         if _signed_by(self.public[uav], sig, text):
             return True
         with self._lock:

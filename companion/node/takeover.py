@@ -2,16 +2,14 @@
 
 Without `--takeover` the companion never arms the vehicle or changes its mode. With it:
 
-- a vehicle that is disarmed on the ground (relative altitude below `ON_GROUND_M`) takes off first,
-  then climbs until `CLIMBED` of the UAV's altitude. ArduPilot: TKOFF_ALT = the UAV's altitude,
-  mode TAKEOFF, arm (retried until the pre-arm checks pass). PX4: arm (retried until PX4 accepts),
-  MAV_CMD_NAV_TAKEOFF to that altitude (AUTO.TAKEOFF, a runway take-off for a fixed-wing); first
-  it waits, if need be, until PX4's altitude reference has climbed to the ground (`px4_ready_at`);
+- a vehicle disarmed on the ground (below `ON_GROUND_M`) takes off, arming retried, and climbs to
+  `CLIMBED` of the UAV's altitude: ArduPilot by TKOFF_ALT and mode TAKEOFF; PX4 by
+  MAV_CMD_NAV_TAKEOFF (AUTO.TAKEOFF) once its altitude reference reached the ground (`px4_ready_at`);
 - PX4 OFFBOARD: the OFFBOARD-loss failsafe becomes Hold if it was a stick-flown mode;
 - then the guided mode (ArduPilot GUIDED; PX4 OFFBOARD, or Hold for `reposition`) and arming,
-  retried every second until the HEARTBEAT shows both. PX4 refuses OFFBOARD without a setpoint
-  stream, so for OFFBOARD a point ahead on the current heading is streamed first, while waiting,
-  and on until the first step replaces it.
+  retried every second until the HEARTBEAT shows both; for OFFBOARD (PX4 needs a setpoint stream)
+  a point ahead on the current heading streams first, and on until the first step replaces it.
+Each step in detail, and why: docs/companion.md, "--takeover".
 """
 
 from __future__ import annotations
@@ -89,8 +87,11 @@ def take_over(link: VehicleLink, guidance: Guidance, uav: int, stop: threading.E
 
 
 def hold_on_offboard_loss(link: VehicleLink, uav: int) -> None:
-    """PX4: make the OFFBOARD-loss failsafe Hold (COM_OBL_RC_ACT 5) where it is Position, Altitude or
-    Manual mode (0-2): flown from sticks, without them a fixed-wing flies straight on."""
+    """PX4: make the OFFBOARD-loss failsafe Hold (COM_OBL_RC_ACT 5) where it is a stick-flown mode.
+
+    The stick-flown modes are Position, Altitude and Manual (0-2): without sticks a fixed-wing flies
+    straight on in them.
+    """
     action = link.params.read([OFFBOARD_LOSS]).get(OFFBOARD_LOSS)
     if action is not None and action <= OFFBOARD_LOSS_MANUAL:
         link.params.set(OFFBOARD_LOSS, OFFBOARD_LOSS_HOLD)

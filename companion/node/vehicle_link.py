@@ -86,8 +86,10 @@ class TlogWriter:
 
 
 class VehicleLink:
-    """One autopilot over MAVLink: its state, and its capabilities `params`, `commands`, `mission`
-    and `signing`."""
+    """One autopilot over MAVLink: its state and its capabilities.
+
+    The capabilities are `params`, `commands`, `mission` and `signing`.
+    """
 
     def __init__(
         self,
@@ -99,9 +101,12 @@ class VehicleLink:
         system: int | None = None,
         heartbeat: bool = False,
     ) -> None:
-        """`system`: the link's own system id (None: the vehicle's, once its HEARTBEAT is heard);
+        """Open the link to the autopilot at `url` (LinkNotOpen if it cannot be opened).
+
+        `system`: the link's own system id (None: the vehicle's, once its HEARTBEAT is heard);
         `heartbeat`: `poll` sends our HEARTBEAT whenever one is due; `signing_secret`: the link signs
-        and accepts only signed frames."""
+        and accepts only signed frames.
+        """
         self.url, self.frame = url, frame
         self.state = VehicleState()
         self.rejected = 0
@@ -146,8 +151,11 @@ class VehicleLink:
 
     @staticmethod
     def _bind_loopback(conn: mavutil.mavfile) -> None:
-        """A udpout link to a loopback address: bind its socket to loopback before it sends (the
-        OS would bind it to every interface, where anyone on the network could write to it)."""
+        """A udpout link to a loopback address: bind its socket to loopback before it sends.
+
+        Otherwise the OS would bind it to every interface, where anyone on the network could write
+        to it.
+        """
         if isinstance(conn, mavutil.mavudp) and not conn.udp_server and _loopback(conn.destination_addr[0]):
             conn.port.bind(("127.0.0.1", 0))
 
@@ -172,8 +180,11 @@ class VehicleLink:
 
     # -- connection --------------------------------------------------------------------------------
     def wait_heartbeat(self, timeout: float, should_stop: Callable[[], bool] = lambda: False) -> bool:
-        """Block until the autopilot's HEARTBEAT arrives (sending ours so udpout links open): True;
-        False if `should_stop` says so first; LinkError if `timeout` seconds pass first."""
+        """Block until the autopilot's HEARTBEAT arrives: True; False if `should_stop` says so first.
+
+        It sends ours meanwhile, so that udpout links open. LinkError if `timeout` seconds pass
+        first.
+        """
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if should_stop():
@@ -198,8 +209,10 @@ class VehicleLink:
         self._beat_wall, self._beat_vehicle = time.monotonic(), self.state.time_s
 
     def _beat_if_due(self) -> None:
-        """Our HEARTBEAT, when one is due in wall time or in vehicle time (so the autopilot hears it
-        in every phase of the flight, whatever the simulator's speed-up)."""
+        """Send our HEARTBEAT when one is due in wall time or in vehicle time.
+
+        So the autopilot hears it in every phase of the flight, whatever the simulator's speed-up.
+        """
         wall_due = time.monotonic() - self._beat_wall >= HEARTBEAT_WALL_S
         vehicle_due = self.state.time_s - self._beat_vehicle >= HEARTBEAT_VEHICLE_S
         if wall_due or vehicle_due:
@@ -309,10 +322,12 @@ def open_link(
     on_retry: Callable[[LinkNotOpen], None] | None = None,
     **options: Any,
 ) -> VehicleLink | None:
-    """A `VehicleLink(url, frame, **options)`, tried again every `RETRY_OPEN_S` while the link
-    cannot be opened (an autopilot's TCP port not listening yet, a serial device not there yet;
-    `on_retry` hears the first failure): None if `should_stop` says so first; LinkError naming the
-    link and the reason once `timeout` seconds have passed."""
+    """A `VehicleLink(url, frame, **options)`, tried again every `RETRY_OPEN_S` until it opens.
+
+    It is tried again while the link cannot be opened (an autopilot's TCP port not listening yet, a
+    serial device not there yet; `on_retry` hears the first failure). None if `should_stop` says so
+    first; LinkError naming the link and the reason once `timeout` seconds have passed.
+    """
     deadline = time.monotonic() + timeout
     while not should_stop():
         try:

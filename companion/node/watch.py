@@ -20,8 +20,11 @@ RETAKE_PERIOD_S = 1.0  # wall seconds between requests for GUIDED after our own 
 
 
 class VehicleWatch:
-    """Watches the vehicle between steps: the link (leaving and joining the mesh with it), the mode
-    (taking GUIDED back after our own failsafe fired) and the setpoint stream PX4 must not lose."""
+    """Watches the vehicle between steps: its link, its mode and the setpoint stream.
+
+    The link: leaving and joining the mesh with it. The mode: taking GUIDED back after our own
+    failsafe fired. The setpoint stream: the one PX4 must not lose.
+    """
 
     def __init__(self, pilot: Pilot, link: VehicleLink, mesh: Mesh, lockstep: bool) -> None:
         """Watch `pilot`'s vehicle over `link`; in `lockstep` the loop itself joins the mesh again."""
@@ -35,9 +38,11 @@ class VehicleWatch:
         self._silent_at = -math.inf  # PX4 OFFBOARD: vehicle time our setpoints last paused that long
 
     def keep_streaming(self) -> None:
-        """Repeat the streamed guidance when due, also while a request waits for its reply (PX4
-        leaves OFFBOARD when its setpoints stop for COM_OF_LOSS_T), and while it asks PX4 for
-        OFFBOARD back (PX4 accepts it only while setpoints stream)."""
+        """Repeat the streamed guidance when due, also while a request waits for its reply.
+
+        PX4 leaves OFFBOARD when its setpoints stop for COM_OF_LOSS_T. The guidance streams also
+        while the companion asks PX4 for OFFBOARD back (PX4 accepts it only while setpoints stream).
+        """
         s, pilot = self.link.state, self.pilot
         loss = self.offboard_loss_s
         silent = s.time_s - pilot.guidance.last_send
@@ -52,9 +57,12 @@ class VehicleWatch:
             pilot.guidance.repeat()  # the plan's command, or the way back inside
 
     def check_link(self) -> bool:
-        """Whether the vehicle link is up. A companion whose link is lost cannot steer: it leaves the
-        mesh (its peers take its UAV as gone, flying its last commitments and then its failsafe)
-        and joins again when the link is back (in lockstep, once it has caught up: `lockstep`)."""
+        """Whether the vehicle link is up; leave the mesh when it is lost, join again when it is back.
+
+        A companion whose link is lost cannot steer: it leaves the mesh (its peers take its UAV as
+        gone, flying its last commitments and then its failsafe) and joins again when the link is
+        back (in lockstep, once it has caught up: `lockstep`).
+        """
         self._check_mode()
         alive = self.link.link_alive(time.monotonic(), LINK_TIMEOUT_S)
         if alive != self.pilot.steering:
@@ -72,8 +80,11 @@ class VehicleWatch:
         return alive
 
     def _check_mode(self) -> None:
-        """Say when the vehicle leaves the mode the companion steers in (a failsafe, a pilot); take it
-        back into GUIDED if it left for the GCS failsafe this companion armed (it was stalled)."""
+        """Say when the vehicle leaves the mode the companion steers in; retake it from our own failsafe.
+
+        The vehicle may leave for a failsafe or a pilot. It is taken back into GUIDED if it left for
+        the GCS failsafe this companion armed (the companion was stalled).
+        """
         steerable, s = self.pilot.steerable(), self.link.state
         if self._was_steerable and not steerable:
             log.warning(
@@ -103,11 +114,14 @@ class VehicleWatch:
             self._retake_asked = time.monotonic()
 
     def _our_failsafe_fired(self) -> bool:
-        """Whether the vehicle left its guided mode for the failsafe this companion's own silence set
-        off: ArduPilot's GCS failsafe it armed (ArduPlane said so), or PX4's offboard-loss failsafe
-        (Hold, found at most COM_OF_LOSS_T of vehicle time after our setpoints, streamed in OFFBOARD,
-        had paused that long: a Hold a pilot chose while they flowed is not ours); never once the
-        region guard has given the aircraft up to the autopilot's fence."""
+        """Whether the vehicle left its guided mode for the failsafe our own silence set off.
+
+        That is ArduPilot's GCS failsafe this companion armed (ArduPlane said so), or PX4's
+        offboard-loss failsafe (Hold, found at most COM_OF_LOSS_T of vehicle time after our
+        setpoints, streamed in OFFBOARD, had paused that long: a Hold a pilot chose while they
+        flowed is not ours); never once the region guard has given the aircraft up to the
+        autopilot's fence.
+        """
         s = self.link.state
         if self.pilot.guard.state is Guard.RELEASED:  # it gave the aircraft up for good
             return False
