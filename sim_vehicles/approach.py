@@ -1,16 +1,15 @@
 """Ground truth of separation: the closest approach of every pair of vehicles, at the physics rate.
 
-Every physics tick the simulator hands in all vehicles' positions; the recorder keeps, for the
-current sampling step (dT), each pair's smallest horizontal distance and, over the ticks in which
-the pair was horizontally closer than `conflict_within` (R_s), its smallest vertical separation.
-When the step ends it appends to a CSV file one row per pair that came within `report_within`
-metres (and always the step's closest pair): `step,i,j,distance_m,vertical_m`, `vertical_m` empty
-when the pair was never within `conflict_within` in the step (or no altitudes were given), and
-without that column when no `conflict_within` is given (a horizontal record); a simulator resumed
-from its state file appends. Two aircraft are separated in three dimensions when
-they are R_s apart horizontally or `vertical_separation` apart vertically: a step whose
-`vertical_m` is below that lost 3D separation. The flown mission's evaluation and the fault
-matrix read it (`companion.app.evaluation.read_approach`, `read_vertical`).
+Each physics tick brings every vehicle's position; for the current sampling step (dT) the recorder
+keeps each pair's smallest horizontal distance and, over the ticks in which the pair was
+horizontally closer than `conflict_within` (R_s), its smallest vertical separation. When the step
+ends it appends to a CSV file one row per pair that came within `report_within` metres (and always
+the step's closest pair): `step,i,j,distance_m,vertical_m`; `vertical_m` is empty when the pair was
+never within `conflict_within` in the step (or no altitudes were given), and the column is absent
+when no `conflict_within` is given (a horizontal record). A simulator resumed from its state file
+appends. A step whose `vertical_m` is below `vertical_separation` lost 3D separation
+(docs/simulator.md); `companion.app.evaluation` reads the file (`read_approach`, `read_vertical`)
+for the flown mission's evaluation and the fault matrix.
 """
 
 from __future__ import annotations
@@ -24,8 +23,11 @@ from companion.core.geometry import FloatArray
 
 
 class ApproachRecorder:
-    """Per-step minimum pairwise horizontal distances of `n` vehicles, and vertical separations while
-    horizontally within `conflict_within`, written to `path` as they end."""
+    """Per-step closest approaches of `n` vehicles, written to `path` as each step ends.
+
+    It records the minimum pairwise horizontal distances, and the vertical separations while
+    horizontally within `conflict_within`.
+    """
 
     def __init__(
         self, path: Path, n: int, step_s: float, report_within: float, conflict_within: float = 0.0
@@ -44,8 +46,10 @@ class ApproachRecorder:
             self._file.flush()
 
     def update(self, t: float, x: FloatArray, y: FloatArray, z: FloatArray | None = None) -> None:
-        """Positions at vehicle time `t` (seconds; altitudes `z` in metres, if known): the tick belongs
-        to step floor(t / dT)."""
+        """Take in the positions at vehicle time `t` (seconds); the tick belongs to step floor(t / dT).
+
+        Altitudes `z` are in metres, if known.
+        """
         if not len(self.minimum):
             return
         step = math.floor(t / self.step_s + 1e-9)

@@ -14,8 +14,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 
 class RealTimeClock:
-    """Ticks of `tick_dt` simulated seconds, `speedup` times faster than the wall clock, counted from
-    tick `origin_tick` at `wall_start` (a resumed simulator starts from its saved tick).
+    """Ticks of `tick_dt` simulated seconds, `speedup` times faster than the wall clock.
+
+    They are counted from tick `origin_tick` at `wall_start` (a resumed simulator starts from its
+    saved tick).
 
     Simulated time never runs ahead in a burst: when the host falls more than `max_lag` simulated
     seconds behind (the process was not scheduled, the machine is busy), the clock slips, as
@@ -26,7 +28,8 @@ class RealTimeClock:
     While a vehicle's GCS failsafe waits on a ground station that has fallen silent (`pace`), the
     clock runs at real time (at most): a client that was not scheduled for d wall seconds then
     misses at most d simulated seconds beyond the quiet spell, as it would on a real aircraft,
-    instead of S d at speedup S. `paced` is the wall time run so."""
+    instead of S d at speedup S. `paced` is the wall time run so.
+    """
 
     def __init__(self, tick_dt: float, speedup: float, wall_start: float, max_lag: float = 0.5) -> None:
         self.tick_dt, self.speedup, self.wall_start = tick_dt, speedup, wall_start
@@ -43,8 +46,10 @@ class RealTimeClock:
             self.origin_tick, self.wall_start = tick + self.max_lag_ticks, wall
 
     def pace(self, wall: float, tick: int, waiting: bool) -> None:
-        """Run at real time (or slower, if `speedup` < 1) while `waiting`, else at `speedup`;
-        re-anchored at tick `tick` whenever the rate changes."""
+        """Run at real time (or slower, if `speedup` < 1) while `waiting`, else at `speedup`.
+
+        The clock is re-anchored at tick `tick` whenever the rate changes.
+        """
         rate = min(self.speedup, 1.0) if waiting else self.speedup
         if rate != self.rate:
             if waiting:

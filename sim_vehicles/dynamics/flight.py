@@ -103,8 +103,10 @@ class KinematicFlight(Flight):
 
 
 class BankedFlight(Flight):
-    """Coordinated turns with a lagged, rate-limited roll (ArduPlane-like), and the roll's effect on
-    the altitude."""
+    """Coordinated turns with a lagged, rate-limited roll (ArduPlane-like).
+
+    The model includes the roll's effect on the altitude.
+    """
 
     def __init__(self, poses: FloatArray, alt: FloatArray, step: float, substeps: int) -> None:
         super().__init__(poses, alt, step, substeps)
@@ -125,7 +127,10 @@ class BankedFlight(Flight):
 
 
 class GridFlight(Flight):
-    """One cell per step exactly as `Kinematics.advance`, interpolated linearly within the step."""
+    """Eq. 2's grid mode: one cell per step, exactly as `Kinematics.advance`.
+
+    Within the step the pose is interpolated linearly.
+    """
 
     def __init__(
         self, poses: FloatArray, alt: FloatArray, step: float, substeps: int, kinematics: Kinematics

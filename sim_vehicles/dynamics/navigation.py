@@ -79,8 +79,10 @@ def loiter(
     period: float = L1_PERIOD,
     damping: float = L1_DAMPING,
 ) -> float:
-    """Lateral acceleration circling `centre`; `radius` > 0 clockwise (ArduPlane's default), < 0
-    counter-clockwise."""
+    """Lateral acceleration circling `centre` at `radius`.
+
+    `radius` > 0 circles clockwise (ArduPlane's default), < 0 counter-clockwise.
+    """
     sense = -1.0 if radius > 0 else 1.0  # +1: counter-clockwise
     r = max(abs(radius), 1.0)
     dx, dy = x - centre[0], y - centre[1]

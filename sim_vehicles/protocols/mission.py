@@ -256,8 +256,11 @@ def _validate(msg: mavlink.MAVLink_message) -> tuple[Item | None, int]:
 
 
 def _polygons(hv: HostedVehicle, items: list[Item]) -> list[ConvexPolygon] | None:
-    """The inclusion polygons of a fence (local frame); None if a polygon is malformed (vertex
-    counts that disagree, fewer than 3 vertices, or not convex)."""
+    """The inclusion polygons of a fence (local frame); None if a polygon is malformed.
+
+    A polygon is malformed when its vertex counts disagree, it has fewer than 3 vertices, or it is
+    not convex.
+    """
     out, i = [], 0
     while i < len(items):
         it = items[i]

@@ -28,8 +28,11 @@ PX4_GEOFENCE_HOLD = 2  # GF_ACTION: 0 none, 1 warning, 2 Hold, 3 Return, 4 termi
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter: internal key, its name in each flavour (None: the flavour has none), default
-    (`px4_default`: another one in the PX4 flavour) and accepted range."""
+    """One simulator parameter: its key, names, default and accepted range.
+
+    The internal key, its name in each flavour (None: the flavour has none), the default
+    (`px4_default`: another one in the PX4 flavour) and the accepted range.
+    """
 
     key: str
     ardupilot: str | None
