@@ -14,6 +14,7 @@ import json
 import math
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
 from companion.batch.engine import RunResult, Scorer
@@ -21,7 +22,30 @@ from companion.contracts.mission import Mission
 from companion.core.geometry import ConvexPolygon
 from companion.core.world import World
 from companion.node.fence import fence_margin, fence_polygon
-from companion.node.tracking import percentiles
+from companion.node.tracking import Percentiles, percentiles
+
+
+class UavTracking(msgspec.Struct, frozen=True):
+    """One UAV's plan versus flight in tracking.json: its measured steps and error percentiles."""
+
+    steps: int
+    position_m: Percentiles
+    heading_deg: Percentiles
+
+
+class FlightReport(msgspec.Struct, frozen=True):
+    """tracking.json: plan versus flight over the swarm and each UAV, and how the poses kept to the
+    fence; the steps with a pair within R_s horizontally and their closest vertical separation."""
+
+    steps: int
+    position_m: Percentiles
+    heading_deg: Percentiles
+    per_uav: dict[int, UavTracking]
+    fence_margin_m: float
+    outside_fence: int
+    max_beyond_region_m: float
+    steps_within_rs: int
+    closest_vertical_within_rs_m: float | None
 
 
 class CompanionLogs:
@@ -210,26 +234,31 @@ def _plan_rows(path: Path) -> list[dict[str, float]]:
         return rows
 
 
-def flight_report(mission: Mission, out: Path, logs: dict[int, dict[int, dict[str, float]]]) -> dict:
+def flight_report(
+    mission: Mission, out: Path, logs: dict[int, dict[int, dict[str, float]]], vertical: dict[int, float]
+) -> FlightReport:
     """Plan versus flight over the swarm (median, p95, max of the per-step position and heading
-    errors, all UAVs and each) and the logged poses outside the fence (region plus margin)."""
+    errors, all UAVs and each), the logged poses outside the fence (region plus margin), and the
+    vertical separation of the steps with a pair within R_s horizontally (`read_vertical`)."""
     per_uav, position, heading = {}, [], []
     for i in range(mission.n_uavs):
         rows = _plan_rows(out / f"uav{i}_plan.csv")
         p, h = [r["error_m"] for r in rows], [r["error_deg"] for r in rows]
         position += p
         heading += h
-        per_uav[i] = {"steps": len(rows), "position_m": percentiles(p), "heading_deg": percentiles(h)}
+        per_uav[i] = UavTracking(len(rows), percentiles(p), percentiles(h))
     region = ConvexPolygon.from_vertices(mission.region.polygon)
     fence = fence_polygon(mission)
     poses = np.array([(r["x"], r["y"]) for rows in logs.values() for r in rows.values()]).reshape(-1, 2)
     beyond = (poses @ region.normals.T - region.offsets).max(axis=1) if len(poses) else np.zeros(0)
-    return {
-        "steps": len(position),
-        "position_m": percentiles(position),
-        "heading_deg": percentiles(heading),
-        "per_uav": per_uav,
-        "fence_margin_m": fence_margin(mission),
-        "outside_fence": int(np.count_nonzero(~np.asarray(fence.contains(poses[:, 0], poses[:, 1])))),
-        "max_beyond_region_m": float(max(beyond.max(), 0.0)) if len(beyond) else 0.0,
-    }
+    return FlightReport(
+        steps=len(position),
+        position_m=percentiles(position),
+        heading_deg=percentiles(heading),
+        per_uav=per_uav,
+        fence_margin_m=fence_margin(mission),
+        outside_fence=int(np.count_nonzero(~np.asarray(fence.contains(poses[:, 0], poses[:, 1])))),
+        max_beyond_region_m=float(max(beyond.max(), 0.0)) if len(beyond) else 0.0,
+        steps_within_rs=len(vertical),
+        closest_vertical_within_rs_m=min(vertical.values()) if vertical else None,
+    )

@@ -15,7 +15,6 @@ from __future__ import annotations
 import csv
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import msgspec
 import numpy as np
@@ -106,6 +105,46 @@ class MissionFeatures(msgspec.Struct, frozen=True):
     km2_per_uav: float
     centres: int
     targets: int
+
+
+class EvaluationMeta(msgspec.Struct, frozen=True):
+    """evaluate.json's "meta": the study's size and how its figures read."""
+
+    missions: int
+    runs: int
+    steps: int
+    algorithms: list[str]
+    start_layouts: list[str] | str  # the layouts drawn from, or "each mission's"
+    metrics: dict[str, str] = msgspec.field(
+        default_factory=lambda: {
+            "target_time": "mean over targets of the step each was first seen (unfound: steps)",
+            "mean_uncertainty": "eq. 30 averaged over the run's steps",
+        }
+    )
+    difference: str = "proposed - baseline (negative: the proposed method is better)"
+    win: str = "the proposed method's mean over the mission's runs is below the baseline's"
+
+
+class Evaluation(msgspec.Struct, frozen=True):
+    """What evaluate.json holds: the meta (and how the missions were made: `origin`), the missions'
+    features, the per-mission, overall and by-density tables."""
+
+    meta: EvaluationMeta
+    origin: dict[str, object]  # the caller's: generated (count, seed, family) or a folder, weights
+    mission_info: list[MissionFeatures]
+    missions: list[MissionRow]
+    overall: list[OverallRow]
+    by_density: list[DensityRow]
+
+    def to_json(self) -> dict[str, object]:
+        """evaluate.json's content: `origin` goes into "meta", after its own fields."""
+        return {
+            "meta": msgspec.to_builtins(self.meta) | self.origin,
+            "mission_info": msgspec.to_builtins(self.mission_info),
+            "missions": msgspec.to_builtins(self.missions),
+            "overall": msgspec.to_builtins(self.overall),
+            "by_density": msgspec.to_builtins(self.by_density),
+        }
 
 
 def _overall(
@@ -216,10 +255,10 @@ def evaluate(
     layouts: tuple[str, ...] = (),
     meta: Mapping[str, object] | None = None,
     advance: Callable[[], object] | None = None,
-) -> dict[str, Any]:
+) -> Evaluation:
     """Run the three algorithms on the missions (on `executor`, default a local pool) and write
     evaluate.json, missions.csv, overall.csv, runs.csv, evaluate.png and evaluate_density.png into
-    `out`; returns the evaluate.json content (what the command line prints)."""
+    `out`; returns what evaluate.json holds (what the command line prints)."""
     if runs < MIN_RUNS:
         raise ValueError(f"--runs must be at least {MIN_RUNS} (a per-mission interval needs two paired runs)")
     algorithms = (PROPOSED, *(a for a in ALGORITHMS if a != PROPOSED))
@@ -228,29 +267,12 @@ def evaluate(
     names = [m.name for m in missions]
     table = paired_table(values, algorithms, names)
     info = [mission_features(m) for m in missions]
-    header: dict[str, object] = {
-        "missions": len(missions),
-        "runs": runs,
-        "steps": steps,
-        "algorithms": list(algorithms),
-        "start_layouts": list(layouts) or "each mission's",
-        "metrics": {
-            "target_time": "mean over targets of the step each was first seen (unfound: steps)",
-            "mean_uncertainty": "eq. 30 averaged over the run's steps",
-        },
-        "difference": "proposed - baseline (negative: the proposed method is better)",
-        "win": "the proposed method's mean over the mission's runs is below the baseline's",
-        **(meta or {}),
-    }
-    result = {
-        "meta": header,
-        "mission_info": msgspec.to_builtins(info),
-        "missions": msgspec.to_builtins(table.missions),
-        "overall": msgspec.to_builtins(table.overall),
-        "by_density": msgspec.to_builtins(by_density(table.missions, info)),
-    }
+    header = EvaluationMeta(len(missions), runs, steps, list(algorithms), list(layouts) or "each mission's")
+    result = Evaluation(
+        header, dict(meta or {}), info, table.missions, table.overall, by_density(table.missions, info)
+    )
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "evaluate.json", result)
+    write_json(out / "evaluate.json", result.to_json())
     _write_csv(out / "missions.csv", table.missions)
     _write_csv(out / "overall.csv", table.overall)
     with (out / "runs.csv").open("w", newline="") as f:

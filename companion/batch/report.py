@@ -8,13 +8,12 @@ import math
 import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import msgspec
 import numpy as np
 
 from companion.batch.engine import RunResult
-from companion.batch.montecarlo import summarize
+from companion.batch.montecarlo import Summary, summarize
 from companion.contracts.mission import Mission
 
 TRAJECTORY_COLUMNS = ("algorithm", "run", "step", "uav", "x", "y", "heading", "task")
@@ -23,17 +22,27 @@ TARGET_COLUMNS = ("algorithm", "run", "cell", "found_step")
 START_COLUMNS = ("run", "layout", "uav", "x", "y", "heading_deg")
 
 
+class StudySummary(msgspec.Struct, frozen=True):
+    """summary.json: one `montecarlo.Summary` per algorithm and the study's metadata (its "_meta")."""
+
+    algorithms: dict[str, Summary]
+    meta: msgspec.Struct | None = None
+
+    def to_json(self) -> dict[str, object]:
+        """summary.json's content: the algorithms' summaries by name, then "_meta"."""
+        content: dict[str, object] = {name: msgspec.to_builtins(s) for name, s in self.algorithms.items()}
+        if self.meta is not None:
+            content["_meta"] = msgspec.to_builtins(self.meta)
+        return content
+
+
 def write_summary(
-    out: Path, results: Mapping[str, Sequence[RunResult]], extra: Mapping[str, object] | None = None
-) -> dict[str, Any]:
-    """summary.json: one `montecarlo.Summary` per algorithm, plus optional metadata ("_meta");
-    returns the file's JSON content (what the command line prints from)."""
-    summary: dict[str, Any] = {
-        name: msgspec.to_builtins(summarize(list(runs))) for name, runs in results.items()
-    }
-    if extra:
-        summary["_meta"] = dict(extra)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    out: Path, results: Mapping[str, Sequence[RunResult]], meta: msgspec.Struct | None = None
+) -> StudySummary:
+    """Write summary.json: one `montecarlo.Summary` per algorithm, plus optional metadata ("_meta");
+    returns it (what the command line prints from)."""
+    summary = StudySummary({name: summarize(list(runs)) for name, runs in results.items()}, meta)
+    (out / "summary.json").write_text(json.dumps(summary.to_json(), indent=2) + "\n")
     return summary
 
 

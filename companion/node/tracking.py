@@ -23,6 +23,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 from enum import Enum
+from typing import TypedDict
 
 import numpy as np
 
@@ -46,7 +47,30 @@ class PlanError:
     heading_deg: float
 
 
-def percentiles(values: list[float]) -> dict[str, float | None]:
+class Percentiles(TypedDict):
+    """The median, 95th percentile and maximum of a series of errors (None: no error measured).
+
+    A TypedDict, not a Struct: it goes into the companion's report (uav{i}.json), which
+    `companion.node.process` writes with `json.dumps`."""
+
+    median: float | None
+    p95: float | None
+    max: float | None
+
+
+class PlanSummary(TypedDict):
+    """One UAV's plan versus flight (the "plan_vs_flight" of its report; a TypedDict as `Percentiles`)."""
+
+    steps: int
+    missed: int
+    bound_m: float
+    warnings: int
+    position_m: Percentiles
+    heading_deg: Percentiles
+
+
+def percentiles(values: list[float]) -> Percentiles:
+    """The `Percentiles` of `values`."""
     if not values:
         return {"median": None, "p95": None, "max": None}
     a = np.asarray(values)
@@ -117,7 +141,8 @@ class PlanTracker:
             )
         return error
 
-    def summary(self) -> dict[str, object]:
+    def summary(self) -> PlanSummary:
+        """The figures of the errors measured so far, for the companion's report."""
         return {
             "steps": len(self.errors),
             "missed": self.missed,
