@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any
 
 import msgspec
 import zenoh
@@ -34,6 +33,23 @@ RING_PER_UAV = 64  # samples buffered per UAV before the oldest are dropped
 RETRY_S = 1.0  # between attempts to open the session (a client waiting for its router)
 TICK_S = 0.2  # how often steps waiting for silent UAVs are re-examined
 MAX_FRAMES = 100_000  # steps kept for the pages (about 10 MB for 4 UAVs)
+
+
+class ListenerStatus(msgspec.Struct, frozen=True):
+    """What the listener has seen (/api/status): the session, the UAVs alive, the bundles received,
+    dropped (malformed, unauthenticated) and refused (kind -> sender -> count), the reports that
+    came after their step closed (`late`) and the last closed step."""
+
+    connected: bool
+    error: str
+    alive: list[int]
+    received: int
+    malformed: int
+    unauthenticated: int
+    refused: dict[str, dict[str, int]]
+    secured: bool
+    late: int
+    step: int
 
 
 def listener_config(world: World, keys: SwarmKeys | None = None) -> MeshConfig:
@@ -168,20 +184,21 @@ class MeshListener:
             start = max(n, self._first)
             return self._first + len(self._frames), self._frames[start - self._first :]
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> ListenerStatus:
+        """The listener's counters (`ListenerStatus`)."""
         with self._lock:
-            return {
-                "connected": self.session is not None,
-                "error": self.error,
-                "alive": sorted(self.alive),
-                "received": self.received,
-                "malformed": self.malformed,
-                "unauthenticated": self.unauthenticated,
-                "refused": self.refusals.summary(),
-                "secured": self.keys is not None,
-                "late": self.model.late,
-                "step": self.model.closed,
-            }
+            return ListenerStatus(
+                connected=self.session is not None,
+                error=self.error,
+                alive=sorted(self.alive),
+                received=self.received,
+                malformed=self.malformed,
+                unauthenticated=self.unauthenticated,
+                refused=self.refusals.summary(),
+                secured=self.keys is not None,
+                late=self.model.late,
+                step=self.model.closed,
+            )
 
     def close(self) -> None:
         """End the session (idempotent) and the listener's threads."""

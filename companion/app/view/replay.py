@@ -14,13 +14,13 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
+import msgspec
 import numpy as np
 
 from companion.app.evaluation import CompanionLogs, logged_span
 from companion.app.view.frames import Figures, UavPose, frame_json, links
-from companion.app.view.scene import scene_json
+from companion.app.view.scene import Scene, build_scene
 from companion.contracts.mission import Mission
 from companion.core.feasibility import load_mission
 from companion.core.world import World, build_world
@@ -36,7 +36,7 @@ class ReplayError(ValueError):
 class Replay:
     """One run of a replay directory: its scene and its frames (JSON strings)."""
 
-    scene: dict[str, Any]
+    scene: Scene
     frames: list[str]
 
 
@@ -112,14 +112,12 @@ def load_replay(
         raise ReplayError(f"{directory / 'steps.csv'}: not one row per step of {algorithm} run {run}")
     frames = _frames(world, poses, tasks, figures, found, _silent_after(directory, n, n_steps))
     truth = [[c, *np.round(world.grid.centres[c], 3).tolist(), s] for c, s in sorted(found.items())]
-    scene = scene_json(
-        world,
-        "replay",
-        seed=seed,
+    scene = msgspec.structs.replace(
+        build_scene(world, "replay", seed),
+        targets=len(found),
         run=run,
         runs=[list(key) for key in runs],
         truth=truth,
-        targets=len(found),
         steps=n_steps,
     )
     return Replay(scene, frames)
