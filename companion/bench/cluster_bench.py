@@ -41,30 +41,25 @@ def _wall(executor: RunExecutor, specs: list[RunSpec]) -> float:
     return time.perf_counter() - started
 
 
-class DaskCpu(msgspec.Struct, frozen=True):
-    """A Dask row's CPU time per run: the workers' (s), the scheduler's and the client's (ms)."""
-
-    worker_cpu_seconds_per_run: float
-    scheduler_cpu_ms_per_run: float
-    client_cpu_ms_per_run: float
-
-
-class ScalingRow(msgspec.Struct, frozen=True):
-    """One executor and worker count: the study mix's wall time and runs per minute, the runs per
-    minute per worker against the first row's (`efficiency`), and for Dask the CPU time per run."""
+class ScalingRow(msgspec.Struct, frozen=True, omit_defaults=True):
+    """One executor and worker count (a row of `uavsearch cluster-bench --json`): the study mix's
+    wall time and runs per minute; for Dask the CPU time per run of the workers (s), the scheduler
+    and the client (ms); the runs per minute per worker against the first row's (`efficiency`)."""
 
     executor: str
     workers: int
     runs: int
     wall_seconds: float
     runs_per_minute: float
-    cpu: DaskCpu | None = None
-    efficiency: float = 1.0
+    worker_cpu_seconds_per_run: float | None = None
+    scheduler_cpu_ms_per_run: float | None = None
+    client_cpu_ms_per_run: float | None = None
+    efficiency: float | None = None  # set by `cluster_bench` once the first row is in
 
 
-def _row(kind: str, workers: int, runs: int, wall: float, cpu: DaskCpu | None = None) -> ScalingRow:
-    """A row from the wall time of `runs` runs (its efficiency set by `cluster_bench`)."""
-    return ScalingRow(kind, workers, runs, wall, 60 * runs / wall, cpu)
+def _row(kind: str, workers: int, runs: int, wall: float) -> ScalingRow:
+    """A row from the wall time of `runs` runs."""
+    return ScalingRow(kind, workers, runs, wall, 60 * runs / wall)
 
 
 def measure_local(workers: int, specs: list[RunSpec]) -> ScalingRow:
@@ -91,8 +86,12 @@ def measure_dask(workers: int, specs: list[RunSpec], directory: Path) -> Scaling
             executor.close()
     n = len(specs)
     worker_cpu = sum(after[0][w] - before[0][w] for w in after[0])
-    cpu = DaskCpu(worker_cpu / n, 1000 * (after[1] - before[1]) / n, 1000 * own / n)
-    return _row("Dask", workers, n, wall, cpu)
+    return msgspec.structs.replace(
+        _row("Dask", workers, n, wall),
+        worker_cpu_seconds_per_run=worker_cpu / n,
+        scheduler_cpu_ms_per_run=1000 * (after[1] - before[1]) / n,
+        client_cpu_ms_per_run=1000 * own / n,
+    )
 
 
 def cluster_bench(
@@ -125,10 +124,10 @@ def format_cluster_bench(rows: list[ScalingRow]) -> str:
             f"{r.executor:<11} {r.workers:>7} {r.runs:>5} {r.wall_seconds:>9.1f} "
             f"{r.runs_per_minute:>9.0f} {r.efficiency:>11.2f}"
         )
-        if (c := r.cpu) is not None:
+        if r.worker_cpu_seconds_per_run is not None:
             line += (
-                f" {c.worker_cpu_seconds_per_run:>17.3f} {c.scheduler_cpu_ms_per_run:>17.1f}"
-                f" {c.client_cpu_ms_per_run:>14.1f}"
+                f" {r.worker_cpu_seconds_per_run:>17.3f} {r.scheduler_cpu_ms_per_run:>17.1f}"
+                f" {r.client_cpu_ms_per_run:>14.1f}"
             )
         lines.append(line)
     return "\n".join(lines)

@@ -60,7 +60,7 @@ def _cluster_bench(args: argparse.Namespace) -> int:
     rows = cluster_bench(missions, workers, args.study_runs, args.steps, args.seed)
     print(format_cluster_bench(rows))
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps(msgspec.to_builtins(rows), indent=2) + "\n")
     return 0
 
 
