@@ -42,7 +42,9 @@ def _free_udp_ports(n: int) -> list[int]:
 
 
 def _mission_text(base: Path, n: int) -> str:
-    """`base` with its vehicles replaced by n vehicles on a grid inside [-900, 900]^2, at most 400 m
+    """`base` with its vehicles replaced by n vehicles on a connected grid.
+
+    `base` with its vehicles replaced by n vehicles on a grid inside [-900, 900]^2, at most 400 m
     apart (a start layout must be connected within the radio range)."""
     text = base.read_text(encoding="utf-8").split("[[vehicles]]")[0]
     text = text.replace("[pass_criteria]", "[unused]") if "[pass_criteria]" in text else text
@@ -60,8 +62,10 @@ def _mission_text(base: Path, n: int) -> str:
 
 
 class SimFigures(msgspec.Struct, frozen=True):
-    """One `measure`: the fleet, its speedup asked and achieved, the simulator's CPU share of one
-    core, the telemetry its clients received and the simulated seconds it let slip."""
+    """One `measure` of the simulator.
+
+    The fleet, its speedup asked and achieved, the simulator's CPU share of one core, the telemetry
+    its clients received and the simulated seconds it let slip."""
 
     vehicles: int
     speedup: float

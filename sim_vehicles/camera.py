@@ -118,7 +118,9 @@ class Camera:
         geo: tuple[float, float, float],
         heading: float,
     ) -> detections.CameraFrame:
-        """The frame of vehicle `uav`'s exposure at local `xy` = geodetic `geo` (lat, lon, alt AMSL)
+        """The frame of vehicle `uav`'s exposure at local `xy` = geodetic `geo`.
+
+        The frame of vehicle `uav`'s exposure at local `xy` = geodetic `geo` (lat, lon, alt AMSL)
         with `heading` (the core's convention)."""
         cells = self.detect(*xy)
         found = tuple(zip(self.cell_lat[cells].tolist(), self.cell_lon[cells].tolist(), strict=True))
@@ -160,9 +162,11 @@ class CameraBus:
         ]
 
     def publish(self, frame: detections.CameraFrame) -> None:
+        """Put `frame` on its UAV's camera key."""
         self.publishers[frame.uav].put(detections.encode(frame))
 
     def close(self) -> None:
+        """Undeclare the publishers and close the session."""
         for p in self.publishers:
             p.undeclare()
         self.session.close()

@@ -30,8 +30,10 @@ from companion.core.world import World
 
 
 class FlownMeta(msgspec.Struct, frozen=True):
-    """summary.json's "_meta" of a flown run: the mission, its seed, how it was flown, and what the
-    companions refused (`refused_by_companions`)."""
+    """summary.json's "_meta" of a flown run.
+
+    The mission, its seed, how it was flown, and what the companions refused
+    (`refused_by_companions`)."""
 
     mission: str
     seed: int
@@ -42,7 +44,9 @@ class FlownMeta(msgspec.Struct, frozen=True):
 
 
 def refused_by_companions(out: Path, n: int) -> dict[str, int]:
-    """What the companions refused, summed over them, by kind ("mesh forged bundle", "MAVLink bad
+    """What the companions refused, summed over them, by kind.
+
+    What the companions refused, summed over them, by kind ("mesh forged bundle", "MAVLink bad
     signature", ...), from their reports (uav{i}.json)."""
     total: dict[str, int] = {}
     for i in range(n):
@@ -67,7 +71,9 @@ def report_run(
     started: float,
     stopped: bool,
 ) -> int:
-    """Score the run flown into `opts.out`, write its files and print its figures; the exit code
+    """Score the run flown into `opts.out`, write its files and print its figures; the exit code.
+
+    Score the run flown into `opts.out`, write its files and print its figures; the exit code
     (1: nothing flown, or the mission's pass criteria failed)."""
     out = opts.out
     approach = read_approach(out / "approach.csv")

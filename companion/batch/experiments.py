@@ -103,7 +103,9 @@ def compare(
     executor: RunExecutor | None = None,
     layouts: tuple[str, ...] = (),
 ) -> StudySummary:
-    """The paper's comparison (Figures 8-10): every algorithm on the same mission instances, computed
+    """The paper's comparison (Figures 8-10): every algorithm on the same mission instances.
+
+    The paper's comparison (Figures 8-10): every algorithm on the same mission instances, computed
     on `executor` (default: a local pool of `workers` processes). With `layouts`, run r starts from
     the layout `starts.random_start` draws for it (starts.csv), the same for every algorithm; else
     from the mission's. Returns what summary.json holds (`report.write_summary`)."""
@@ -160,7 +162,9 @@ def sweep(
     progress: bool = True,
     executor: RunExecutor | None = None,
 ) -> Sweep:
-    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default), computed
+    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default).
+
+    Figure 11: the proposed algorithm's metrics against one parameter (n_g by default), computed
     on `executor` (default: a local pool of `workers` processes). Returns what sweep.json holds:
     each value's `Summary`."""
     out.mkdir(parents=True, exist_ok=True)

@@ -31,7 +31,9 @@ RUN_COLUMNS = ("mission", "algorithm", "run", *METRICS)
 
 
 class MissionRow(msgspec.Struct, frozen=True):
-    """One mission, baseline and metric: the first algorithm's mean (`proposed`), the baseline's,
+    """One mission, baseline and metric: the means and their paired difference.
+
+    One mission, baseline and metric: the first algorithm's mean (`proposed`), the baseline's,
     and the paired difference first - baseline over the runs with its Student t interval."""
 
     mission: str
@@ -46,7 +48,9 @@ class MissionRow(msgspec.Struct, frozen=True):
 
 
 class OverallRow(msgspec.Struct, frozen=True):
-    """One baseline and metric over the missions: the mean of the per-mission differences (absolute
+    """One baseline and metric over the missions.
+
+    One baseline and metric over the missions: the mean of the per-mission differences (absolute
     and relative to the baseline) with t intervals, the wins, ties and losses with the Wilson
     interval of the win rate, and the missions whose own interval excludes 0."""
 
@@ -126,8 +130,10 @@ class EvaluationMeta(msgspec.Struct, frozen=True):
 
 
 class Evaluation(msgspec.Struct, frozen=True):
-    """What evaluate.json holds: the meta (and how the missions were made: `origin`), the missions'
-    features, the per-mission, overall and by-density tables."""
+    """What evaluate.json holds.
+
+    The meta (and how the missions were made: `origin`), the missions' features, and the
+    per-mission, overall and by-density tables."""
 
     meta: EvaluationMeta
     origin: dict[str, object]  # the caller's: generated (count, seed, family) or a folder, weights
@@ -196,7 +202,9 @@ def paired_table(values: np.ndarray, algorithms: Sequence[str], names: Sequence[
 
 
 def mission_features(mission: Mission) -> MissionFeatures:
-    """What describes a mission in the evaluation's tables: swarm size, kinematics, region area,
+    """What describes a mission in the evaluation's tables.
+
+    What describes a mission in the evaluation's tables: swarm size, kinematics, region area,
     area per UAV (the swarm's density), prior centres and targets."""
     x, y = np.asarray(mission.region.polygon, dtype=float).T
     area = 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))) / 1e6
@@ -213,7 +221,9 @@ def mission_features(mission: Mission) -> MissionFeatures:
 
 
 def by_density(missions: Sequence[MissionRow], info: Sequence[MissionFeatures]) -> list[DensityRow]:
-    """Per baseline and metric, the per-mission rows of `paired_table` split at the median area per
+    """The per-mission rows of `paired_table` split at the median area per UAV.
+
+    Per baseline and metric, the per-mission rows of `paired_table` split at the median area per
     UAV (`mission_features`): for the dense half (at most the median) and the thin half, the mean
     difference with its t interval over the missions and the win rate with its Wilson interval."""
     per_uav = {i.mission: i.km2_per_uav for i in info}
@@ -256,7 +266,9 @@ def evaluate(
     meta: Mapping[str, object] | None = None,
     advance: Callable[[], object] | None = None,
 ) -> Evaluation:
-    """Run the three algorithms on the missions (on `executor`, default a local pool) and write
+    """Run the three algorithms on the missions and write the evaluation's files.
+
+    Run the three algorithms on the missions (on `executor`, default a local pool) and write
     evaluate.json, missions.csv, overall.csv, runs.csv, evaluate.png and evaluate_density.png into
     `out`; returns what evaluate.json holds (what the command line prints)."""
     if runs < MIN_RUNS:

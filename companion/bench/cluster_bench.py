@@ -42,9 +42,11 @@ def _wall(executor: RunExecutor, specs: list[RunSpec]) -> float:
 
 
 class ScalingRow(msgspec.Struct, frozen=True, omit_defaults=True):
-    """One executor and worker count (a row of `uavsearch cluster-bench --json`): the study mix's
-    wall time and runs per minute; for Dask the CPU time per run of the workers (s), the scheduler
-    and the client (ms); the runs per minute per worker against the first row's (`efficiency`)."""
+    """One executor and worker count (a row of `uavsearch cluster-bench --json`).
+
+    The study mix's wall time and runs per minute; for Dask the CPU time per run of the workers (s),
+    the scheduler and the client (ms); the runs per minute per worker against the first row's
+    (`efficiency`)."""
 
     executor: str
     workers: int
@@ -68,8 +70,9 @@ def measure_local(workers: int, specs: list[RunSpec]) -> ScalingRow:
 
 
 def measure_dask(workers: int, specs: list[RunSpec], directory: Path) -> ScalingRow:
-    """The study mix on a loopback Dask cluster of `workers` warmed-up workers, with the CPU time
-    per run of the workers, the scheduler and this process."""
+    """The study mix on a loopback Dask cluster of `workers` warmed-up workers.
+
+    With the CPU time per run of the workers, the scheduler and this process."""
     with LoopbackCluster(directory) as cluster:
         for i in range(workers):
             cluster.start_worker(f"worker{i}")
@@ -101,7 +104,9 @@ def cluster_bench(
     steps: int = 1000,
     seed: int = 1,
 ) -> list[ScalingRow]:
-    """One row per (executor, worker count), local pool and Dask interleaved. `efficiency` is the
+    """One row per (executor, worker count), local pool and Dask interleaved.
+
+    One row per (executor, worker count), local pool and Dask interleaved. `efficiency` is the
     runs per minute per worker against the first row's (the local pool of the first count)."""
     specs = study_mix(missions, study_runs, steps, seed)
     rows = []

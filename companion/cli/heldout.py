@@ -35,7 +35,9 @@ def _output_folder(out: Path) -> None:
 def _missions(
     args: argparse.Namespace, out: Path, check: Callable[[int], object]
 ) -> tuple[list[Mission], dict]:
-    """The missions of `evaluate`/`tune`: generated (written to out/missions/) or a folder's files,
+    """The missions of `evaluate`/`tune`, and how they were made.
+
+    The missions of `evaluate`/`tune`: generated (written to out/missions/) or a folder's files,
     with the weights file applied; and how they were made. `check(n)` vets the command's other
     options for n missions before anything is generated or written."""
     from companion.batch.generate import generate, write

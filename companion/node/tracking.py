@@ -1,19 +1,14 @@
 """Plan versus flight, and what the companion does when the vehicle leaves the area.
 
-`PlanTracker`: every steered step k the plan puts the UAV at a point and heading at time k·dT
-(the Agent's command of step k-1: its next path point and the heading after the step). The tracker
-measures how far the vehicle is from it at that time (position in metres, heading in degrees),
-from the last telemetry sample before it (the vehicle has not yet taken step k's guidance; in grid
-mode the heading changes at the step boundary) or, without one, the first after it; it keeps the
-figures for the report (median, p95) and warns when the position error stays beyond a bound for
-several steps.
+`PlanTracker`: at every steered step k the plan puts the UAV at a point and heading at time k·dT
+(the Agent's command of step k-1). The tracker measures the vehicle's distance from it then (metres,
+degrees) from the last telemetry sample before that time, or the first after it; it keeps the
+figures for the report (median, p95) and warns when the error stays beyond a bound for several steps.
 
-`RegionGuard`: when the vehicle is outside the region plus its safety margin (the fence) the
-companion stops flying the plan and repositions the vehicle back inside (the nearest point one
-margin inside the region, where the autopilot circles); when the vehicle is back inside the region
-it flies the plan again. If it is not back within the steps the way back takes at the mission's
-speed plus `patience` steps, the companion stops steering for good and leaves the vehicle to the
-autopilot (its fence and failsafes).
+`RegionGuard`: outside the region plus its margin (the fence) the companion stops flying the plan
+and repositions the vehicle one margin inside the region; back inside, it flies the plan again. Not
+back within the way back at the mission's speed plus `patience` steps, it stops steering for good and
+leaves the vehicle to the autopilot (its fence and failsafes).
 """
 
 from __future__ import annotations
@@ -101,7 +96,9 @@ class PlanTracker:
         self.pending.clear()
 
     def measure(self, t: float, x: float, y: float, heading: float) -> PlanError | None:
-        """Compare the oldest pending plan with the vehicle's pose once vehicle time `t` has reached
+        """Measure the oldest pending plan once vehicle time `t` has reached its time.
+
+        Compare the oldest pending plan with the vehicle's pose once vehicle time `t` has reached
         the plan's time: the pose of the last sample before that time if it was at most half a step
         early, else this one; the planned point is moved along its heading by the sample's offset
         from the plan's time. A plan without a sample within half a step of its time is missed."""
@@ -154,6 +151,8 @@ class PlanTracker:
 
 
 class Guard(Enum):
+    """What the companion does about the fence: fly the plan, return inside, or leave it to the autopilot."""
+
     INSIDE = "inside"  # flying the plan
     RETURNING = "returning"  # left the fence: repositioned back inside, not flying the plan
     RELEASED = "released"  # did not come back: left to the autopilot for good

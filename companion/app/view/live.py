@@ -36,9 +36,11 @@ MAX_FRAMES = 100_000  # steps kept for the pages (about 10 MB for 4 UAVs)
 
 
 class ListenerStatus(msgspec.Struct, frozen=True):
-    """What the listener has seen (/api/status): the session, the UAVs alive, the bundles received,
-    dropped (malformed, unauthenticated) and refused (kind -> sender -> count), the reports that
-    came after their step closed (`late`) and the last closed step."""
+    """What the listener has seen (/api/status).
+
+    The session, the UAVs alive, the bundles received, dropped (malformed, unauthenticated) and
+    refused (kind -> sender -> count), the reports that came after their step closed (`late`) and
+    the last closed step."""
 
     connected: bool
     error: str
@@ -53,7 +55,9 @@ class ListenerStatus(msgspec.Struct, frozen=True):
 
 
 def listener_config(world: World, keys: SwarmKeys | None = None) -> MeshConfig:
-    """The mission's mesh, joined without claiming the seed: a peer listens on `mesh.listen` and
+    """The mission's mesh, joined without claiming the seed.
+
+    The mission's mesh, joined without claiming the seed: a peer listens on `mesh.listen` and
     connects to the seed endpoint; a client connects to the router. `keys`: the view's own."""
     m = world.mission.mesh
     if m.mode == "client":
@@ -62,7 +66,9 @@ def listener_config(world: World, keys: SwarmKeys | None = None) -> MeshConfig:
 
 
 class MeshListener:
-    """Follows the mesh of `world.mission` on background threads; `frames_since` and `status` are
+    """A read-only follower of the mesh of `world.mission`, on background threads.
+
+    Follows the mesh of `world.mission` on background threads; `frames_since` and `status` are
     safe to call from any thread. `close` ends the session and the threads. `keys`: the view's
     own (`keys.for_mission(mission, "view")`) for a secured mesh."""
 

@@ -1,5 +1,4 @@
-"""A finished run as frames: the output directory of `uavsearch run` or of
-`uavsearch mc --save-trajectories`.
+"""A finished run as frames: the output of `uavsearch run` or `uavsearch mc --save-trajectories`.
 
 Reads `mission.toml` (or the mission given), `summary.json` (the seed), `trajectories.csv`
 (poses and tasks per step), `steps.csv` (eq. 30, targets found, lambda_2, min distance per step)
@@ -41,7 +40,9 @@ class Replay:
 
 
 def _rows(path: Path, algorithm: str | None, run: int | None) -> tuple[list[dict[str, str]], list[tuple]]:
-    """The rows of the first run in a CSV that matches `algorithm` and `run` (None: any), and
+    """The rows of one run of a CSV, and every (algorithm, run) the file holds.
+
+    The rows of the first run in a CSV that matches `algorithm` and `run` (None: any), and
     every (algorithm, run) the file holds."""
     rows: list[dict[str, str]] = []
     runs: dict[tuple[str, int], None] = {}

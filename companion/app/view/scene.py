@@ -10,8 +10,9 @@ from companion.core.world import World
 
 
 class SceneGrid(msgspec.Struct, frozen=True):
-    """The search grid's cells by lattice column and row: cell p's centre is
-    (`x0 + cols[p] * cell`, `y0 + rows[p] * cell`)."""
+    """The search grid's cells by lattice column and row.
+
+    Cell p's centre is (`x0 + cols[p] * cell`, `y0 + rows[p] * cell`)."""
 
     x0: float
     y0: float
@@ -84,7 +85,9 @@ def build_scene(world: World, mode: str, seed: int) -> Scene:
 
 
 def fence_vertices(region: ConvexPolygon, margin: float) -> np.ndarray:
-    """The fence's corners: the region with every edge pushed out by the operating `margin`, where
+    """The fence's corners: the region with every edge pushed out by the operating `margin`.
+
+    The fence's corners: the region with every edge pushed out by the operating `margin`, where
     the UAVs may turn outside the region to keep separation (docs/algorithm.md, "Safety layer")."""
     normals, offsets = region.normals, region.offsets + margin
     corners = [np.linalg.solve(normals[[i - 1, i]], offsets[[i - 1, i]]) for i in range(len(normals))]

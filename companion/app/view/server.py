@@ -47,10 +47,21 @@ class Source(Protocol):
 
     live: bool
 
-    def scene(self, query: dict[str, str]) -> Scene: ...
-    def frames_since(self, query: dict[str, str], n: int) -> tuple[int, list[str]]: ...
-    def status(self) -> ListenerStatus | ReplayStatus: ...
-    def close(self) -> None: ...
+    def scene(self, query: dict[str, str]) -> Scene:
+        """The static map of the run the query names."""
+        ...
+
+    def frames_since(self, query: dict[str, str], n: int) -> tuple[int, list[str]]:
+        """The frames made so far and those from the n-th on."""
+        ...
+
+    def status(self) -> ListenerStatus | ReplayStatus:
+        """The source's counters (/api/status)."""
+        ...
+
+    def close(self) -> None:
+        """Release what the source holds."""
+        ...
 
 
 class LiveSource:
@@ -63,15 +74,19 @@ class LiveSource:
         self._scene = build_scene(world, "live", seed)
 
     def scene(self, query: dict[str, str]) -> Scene:
+        """The mission's static map (the same for every query)."""
         return self._scene
 
     def frames_since(self, query: dict[str, str], n: int) -> tuple[int, list[str]]:
+        """The listener's frames from the n-th on."""
         return self.listener.frames_since(n)
 
     def status(self) -> ListenerStatus:
+        """The listener's counters."""
         return self.listener.status()
 
     def close(self) -> None:
+        """End the listener's session and threads."""
         self.listener.close()
 
 
@@ -110,17 +125,20 @@ class ReplaySource:
         return self._cache[key]
 
     def scene(self, query: dict[str, str]) -> Scene:
+        """The static map of the run the query names."""
         return self.replay(query).scene
 
     def frames_since(self, query: dict[str, str], n: int) -> tuple[int, list[str]]:
+        """All the run's frames, and those from the n-th on."""
         frames = self.replay(query).frames
         return len(frames), frames[n:]
 
     def status(self) -> ReplayStatus:
+        """Connected, to the directory replayed."""
         return ReplayStatus(connected=True, replay=str(self.directory))
 
     def close(self) -> None:
-        pass
+        """Nothing to release: the replays are in memory."""
 
 
 def _query(request: web.Request) -> dict[str, str]:
@@ -189,6 +207,7 @@ async def _close_sockets(app: web.Application) -> None:
 
 
 def make_app(source: Source) -> web.Application:
+    """The web application serving `source`: the page, /api/scene, /api/status and /ws."""
     app = web.Application()
     app["source"] = source
     app["sockets"] = set()
@@ -203,11 +222,14 @@ def make_app(source: Source) -> web.Application:
 
 @dataclass(frozen=True)
 class Address:
+    """Where the server listens."""
+
     host: str
     port: int
 
     @property
     def url(self) -> str:
+        """The page's URL (an IPv6 host in brackets)."""
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{host}:{self.port}/"
 
@@ -230,7 +252,9 @@ async def _serve(source: Source, host: str, port: int, ready: Callable[[Address]
 
 
 def serve(source: Source, host: str, port: int, ready: Callable[[Address], None]) -> None:
-    """Serve the page until SIGINT/SIGTERM; `ready` gets the bound address (port 0: the OS picks).
+    """Serve the page until SIGINT/SIGTERM.
+
+    Serve the page until SIGINT/SIGTERM; `ready` gets the bound address (port 0: the OS picks).
     Closes `source` on the way out. Raises OSError when the address cannot be bound."""
     try:
         asyncio.run(_serve(source, host, port, ready))
