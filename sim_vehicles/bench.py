@@ -22,6 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import msgspec
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.contracts.arguments import HelpFormatter
@@ -41,7 +42,9 @@ def _free_udp_ports(n: int) -> list[int]:
 
 
 def _mission_text(base: Path, n: int) -> str:
-    """`base` with its vehicles replaced by n vehicles on a grid inside [-900, 900]^2, at most 400 m
+    """`base` with its vehicles replaced by n vehicles on a connected grid.
+
+    `base` with its vehicles replaced by n vehicles on a grid inside [-900, 900]^2, at most 400 m
     apart (a start layout must be connected within the radio range)."""
     text = base.read_text(encoding="utf-8").split("[[vehicles]]")[0]
     text = text.replace("[pass_criteria]", "[unused]") if "[pass_criteria]" in text else text
@@ -58,14 +61,30 @@ def _mission_text(base: Path, n: int) -> str:
     return text
 
 
-def measure(mission: Path, n: int, speedup: float, duration: float) -> dict[str, float]:
+class SimFigures(msgspec.Struct, frozen=True):
+    """One `measure` of the simulator.
+
+    The fleet, its speedup asked and achieved, the simulator's CPU share of one core, the telemetry
+    its clients received and the simulated seconds it let slip."""
+
+    vehicles: int
+    speedup: float
+    cpu_share: float
+    achieved_speedup: float
+    messages_per_s: float
+    slipped_s: float
+
+
+def measure(mission: Path, n: int, speedup: float, duration: float) -> SimFigures:
     """Run n vehicles at `speedup` for `duration` wall seconds; CPU share and achieved speed."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.toml"
         path.write_text(_mission_text(mission, n), encoding="utf-8")
         proc = subprocess.Popen(
             [sys.executable, "-m", "sim_vehicles", "--mission", str(path), "--speedup", str(speedup)],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
         )
         assert proc.stdout is not None
         ports, lines = [], []
@@ -82,14 +101,20 @@ def measure(mission: Path, n: int, speedup: float, duration: float) -> dict[str,
         received = _drive(ports, duration)
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=60)
-    stats = next(json.loads(line.split(": ", 1)[1]) for line in out.splitlines()
-                 if line.startswith("sim_vehicles stats: "))
+    stats = next(
+        json.loads(line.split(": ", 1)[1])
+        for line in out.splitlines()
+        if line.startswith("sim_vehicles stats: ")
+    )
     wall = stats["wall_time"]
-    return {
-        "vehicles": n, "speedup": speedup, "cpu_share": stats["cpu_time"] / wall,
-        "achieved_speedup": stats["sim_time"] / wall, "messages_per_s": received / duration,
-        "slipped_s": stats["slipped"],
-    }
+    return SimFigures(
+        vehicles=n,
+        speedup=speedup,
+        cpu_share=stats["cpu_time"] / wall,
+        achieved_speedup=stats["sim_time"] / wall,
+        messages_per_s=received / duration,
+        slipped_s=stats["slipped"],
+    )
 
 
 def _drive(ports: list[int], duration: float) -> int:
@@ -103,12 +128,15 @@ def _drive(ports: list[int], duration: float) -> int:
         s.setblocking(False)
         sysid = i + 1
         for msg in (
-            mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID,
-                                              0, 0, 0, 3),
-            mavlink.MAVLink_command_long_message(sysid, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0,
-                                                 1, 0, 0, 0, 0, 0, 0),
-            mavlink.MAVLink_command_long_message(sysid, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
-                                                 1, 15, 0, 0, 0, 0, 0),
+            mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3
+            ),
+            mavlink.MAVLink_command_long_message(
+                sysid, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0
+            ),
+            mavlink.MAVLink_command_long_message(
+                sysid, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 15, 0, 0, 0, 0, 0
+            ),
         ):
             s.sendto(msg.pack(mav), ("127.0.0.1", port))
         sel.register(s, selectors.EVENT_READ)
@@ -138,21 +166,29 @@ def bench_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mission", type=Path, default=DEFAULT_MISSION, help="the mission flown")
     parser.add_argument("--vehicles", type=int, default=50, help="fleet size for the real-time run")
     parser.add_argument("--duration", type=float, default=10.0, help="wall seconds per run")
-    parser.add_argument("--speedups", default="25,50,100,200,400",
-                        help="speedups tried with 4 vehicles (comma separated, increasing)")
+    parser.add_argument(
+        "--speedups",
+        default="25,50,100,200,400",
+        help="speedups tried with 4 vehicles (comma separated, increasing)",
+    )
     args = parser.parse_args(argv)
     fleet = measure(args.mission, args.vehicles, 1.0, args.duration)
-    print(f"{args.vehicles} vehicles in real time: {100 * fleet['cpu_share']:.1f} % of one core, "
-          f"achieved speedup {fleet['achieved_speedup']:.3f}, "
-          f"{fleet['messages_per_s']:.0f} messages/s received",
-          flush=True)
+    print(
+        f"{args.vehicles} vehicles in real time: {100 * fleet.cpu_share:.1f} % of one core, "
+        f"achieved speedup {fleet.achieved_speedup:.3f}, "
+        f"{fleet.messages_per_s:.0f} messages/s received",
+        flush=True,
+    )
     best = 0.0
     for speedup in (float(s) for s in args.speedups.split(",")):
         r = measure(args.mission, 4, speedup, args.duration)
-        ok = r["achieved_speedup"] >= REAL_TIME * speedup
-        print(f"4 vehicles at speedup {speedup:g}: achieved {r['achieved_speedup']:.1f}, "
-              f"{100 * r['cpu_share']:.0f} % of one core, {r['slipped_s']:.0f} simulated s slipped "
-              f"{'ok' if ok else 'FALLS BEHIND'}", flush=True)
+        ok = r.achieved_speedup >= REAL_TIME * speedup
+        print(
+            f"4 vehicles at speedup {speedup:g}: achieved {r.achieved_speedup:.1f}, "
+            f"{100 * r.cpu_share:.0f} % of one core, {r.slipped_s:.0f} simulated s slipped "
+            f"{'ok' if ok else 'FALLS BEHIND'}",
+            flush=True,
+        )
         if not ok:
             break
         best = speedup

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
+import msgspec
 import numpy as np
 
 from companion.contracts import detections
@@ -38,21 +38,41 @@ def draw_truth(mission: Mission, seed: int) -> tuple[Grid, np.ndarray]:
     return grid, draw_targets(prior, mission.prior.targets, instance_rng(seed, 0, Stream.TARGETS))
 
 
+class TruthTarget(msgspec.Struct, frozen=True):
+    """One ground-truth target: its cell, local position (m) and lat/lon."""
+
+    cell: int
+    x: float
+    y: float
+    lat: float
+    lon: float
+
+
+class TruthRecord(msgspec.Struct, frozen=True):
+    """truth.json: the ground-truth targets of run 0 of a mission and seed (what runs are scored on)."""
+
+    mission: str
+    seed: int
+    run: int
+    targets: list[TruthTarget]
+
+
 def truth_record(
     mission: Mission, seed: int, grid: Grid, targets: np.ndarray, frame: LocalFrame
-) -> dict[str, Any]:
+) -> TruthRecord:
     """The evaluation record: every target's cell, local position and lat/lon."""
     rows = []
     lat, lon = frame.cells_to_geodetic(grid.centres[targets])
     for k, cell in enumerate(targets.tolist()):
         x, y = grid.centres[cell].tolist()
-        rows.append({"cell": cell, "x": x, "y": y, "lat": float(lat[k]), "lon": float(lon[k])})
-    return {"mission": mission.name, "seed": seed, "run": 0, "targets": rows}
+        rows.append(TruthTarget(cell, x, y, float(lat[k]), float(lon[k])))
+    return TruthRecord(mission.name, seed, 0, rows)
 
 
-def write_truth(path: Path, record: dict[str, Any]) -> None:
+def write_truth(path: Path, record: TruthRecord) -> None:
+    """Write truth.json atomically (a reader never sees half of it)."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(record, indent=1), encoding="utf-8")
+    tmp.write_text(json.dumps(msgspec.to_builtins(record), indent=1), encoding="utf-8")
     tmp.replace(path)
 
 
@@ -91,10 +111,16 @@ class Camera:
         return seen
 
     def frame(
-        self, uav: int, time_usec: int, xy: tuple[float, float], geo: tuple[float, float, float],
+        self,
+        uav: int,
+        time_usec: int,
+        xy: tuple[float, float],
+        geo: tuple[float, float, float],
         heading: float,
     ) -> detections.CameraFrame:
-        """The frame of vehicle `uav`'s exposure at local `xy` = geodetic `geo` (lat, lon, alt AMSL)
+        """The frame of vehicle `uav`'s exposure at local `xy` = geodetic `geo`.
+
+        The frame of vehicle `uav`'s exposure at local `xy` = geodetic `geo` (lat, lon, alt AMSL)
         with `heading` (the core's convention)."""
         cells = self.detect(*xy)
         found = tuple(zip(self.cell_lat[cells].tolist(), self.cell_lon[cells].tolist(), strict=True))
@@ -136,9 +162,11 @@ class CameraBus:
         ]
 
     def publish(self, frame: detections.CameraFrame) -> None:
+        """Put `frame` on its UAV's camera key."""
         self.publishers[frame.uav].put(detections.encode(frame))
 
     def close(self) -> None:
+        """Undeclare the publishers and close the session."""
         for p in self.publishers:
             p.undeclare()
         self.session.close()

@@ -14,6 +14,7 @@ import json
 import math
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
 from companion.batch.engine import RunResult, Scorer
@@ -21,11 +22,38 @@ from companion.contracts.mission import Mission
 from companion.core.geometry import ConvexPolygon
 from companion.core.world import World
 from companion.node.fence import fence_margin, fence_polygon
-from companion.node.tracking import percentiles
+from companion.node.tracking import Percentiles, percentiles
+
+
+class UavTracking(msgspec.Struct, frozen=True):
+    """One UAV's plan versus flight in tracking.json: its measured steps and error percentiles."""
+
+    steps: int
+    position_m: Percentiles
+    heading_deg: Percentiles
+
+
+class FlightReport(msgspec.Struct, frozen=True):
+    """tracking.json: plan versus flight, the fence, and the vertical separation within R_s.
+
+    Plan versus flight over the swarm and each UAV, how the logged poses kept to the fence, and the
+    steps with a pair within R_s horizontally with their closest vertical separation."""
+
+    steps: int
+    position_m: Percentiles
+    heading_deg: Percentiles
+    per_uav: dict[int, UavTracking]
+    fence_margin_m: float
+    outside_fence: int
+    max_beyond_region_m: float
+    steps_within_rs: int
+    closest_vertical_within_rs_m: float | None
 
 
 class CompanionLogs:
-    """The companions' uav{i}.csv logs, {uav: {step: row}}, followed as they grow: `poll` parses
+    """The companions' uav{i}.csv logs, {uav: {step: row}}, followed as they grow.
+
+    The companions' uav{i}.csv logs, {uav: {step: row}}, followed as they grow: `poll` parses
     only the complete lines written since the previous call, so a long mission is not reread
     every time and a line a kill cut short is never taken for a shorter number."""
 
@@ -68,7 +96,9 @@ def truth_cells(path: Path) -> np.ndarray:
 
 
 def read_approach(path: Path) -> dict[int, float]:
-    """The separation record (`sim_vehicles.approach`): each step's closest approach of any pair of
+    """The separation record's closest approach per step (horizontal metres; empty: no record).
+
+    The separation record (`sim_vehicles.approach`): each step's closest approach of any pair of
     vehicles, horizontal metres, from the simulator at its physics rate or from the stand-alone
     camera's position streams (SITL, external vehicles). Empty when there is no record."""
     if not path.exists():
@@ -85,7 +115,9 @@ def read_approach(path: Path) -> dict[int, float]:
 
 
 def read_vertical(path: Path) -> dict[int, float]:
-    """The separation record's third dimension: for each step in which some pair of vehicles came
+    """Per step with a pair horizontally within R_s, the smallest vertical separation of such a pair.
+
+    The separation record's third dimension: for each step in which some pair of vehicles came
     horizontally within R_s, the smallest vertical separation (m) of such a pair while it was (its
     `vertical_m`). Steps without such a pair, and records written without altitudes, are absent.
     Two aircraft are separated in 3D when R_s apart horizontally or `vertical_separation` apart
@@ -104,7 +136,9 @@ def read_vertical(path: Path) -> dict[int, float]:
 
 
 def losses_3d(path: Path, mission: Mission) -> int:
-    """Steps of the separation record at `path` in which two aircraft lost separation in three
+    """The steps of the separation record at `path` that lost separation in three dimensions.
+
+    Steps of the separation record at `path` in which two aircraft lost separation in three
     dimensions: horizontally within R_s and vertically closer than `Mission.vertical_floor` (a
     record without altitudes counts every step within R_s)."""
     vertical = read_vertical(path)
@@ -113,13 +147,17 @@ def losses_3d(path: Path, mission: Mission) -> int:
 
 
 def mission_rows(logs: dict[int, dict[int, dict[str, float]]]) -> dict[int, dict[int, dict[str, float]]]:
-    """The logs without the steps a companion flew after the mission's end (`closing`: it flies
+    """The logs without the steps a companion flew after the mission's end.
+
+    The logs without the steps a companion flew after the mission's end (`closing`: it flies
     out its trajectory in force before the hand-over); those are not part of the search."""
     return {i: {k: r for k, r in rows.items() if not r.get("closing")} for i, rows in logs.items()}
 
 
 def logged_span(logs: dict[int, dict[int, dict[str, float]]]) -> range:
-    """The steps to score: from the first step every UAV has logged (the mission starts when the
+    """The steps to score, from the first the whole swarm logged to the last any UAV logged.
+
+    The steps to score: from the first step every UAV has logged (the mission starts when the
     whole swarm is up) to the last step any UAV logged."""
     started = [min(rows) for rows in logs.values() if rows]
     if len(started) < len(logs):
@@ -135,7 +173,9 @@ def evaluate(
     seed: int,
     approach: dict[int, float] | None = None,
 ) -> RunResult:
-    """A RunResult of the flown mission: eq. 30, targets found, coverage, lambda_2, min distance, and
+    """A RunResult of the flown mission, scored as a batch-engine run is.
+
+    A RunResult of the flown mission: eq. 30, targets found, coverage, lambda_2, min distance, and
     the closest approach between sampling moments: the separation record where there is one
     (`read_approach`), else the logged poses' distance at the sampling moments.
 
@@ -210,26 +250,33 @@ def _plan_rows(path: Path) -> list[dict[str, float]]:
         return rows
 
 
-def flight_report(mission: Mission, out: Path, logs: dict[int, dict[int, dict[str, float]]]) -> dict:
-    """Plan versus flight over the swarm (median, p95, max of the per-step position and heading
-    errors, all UAVs and each) and the logged poses outside the fence (region plus margin)."""
+def flight_report(
+    mission: Mission, out: Path, logs: dict[int, dict[int, dict[str, float]]], vertical: dict[int, float]
+) -> FlightReport:
+    """Plan versus flight, the poses outside the fence, and the vertical separation within R_s.
+
+    Plan versus flight over the swarm (median, p95, max of the per-step position and heading
+    errors, all UAVs and each), the logged poses outside the fence (region plus margin), and the
+    vertical separation of the steps with a pair within R_s horizontally (`read_vertical`)."""
     per_uav, position, heading = {}, [], []
     for i in range(mission.n_uavs):
         rows = _plan_rows(out / f"uav{i}_plan.csv")
         p, h = [r["error_m"] for r in rows], [r["error_deg"] for r in rows]
         position += p
         heading += h
-        per_uav[i] = {"steps": len(rows), "position_m": percentiles(p), "heading_deg": percentiles(h)}
+        per_uav[i] = UavTracking(len(rows), percentiles(p), percentiles(h))
     region = ConvexPolygon.from_vertices(mission.region.polygon)
     fence = fence_polygon(mission)
     poses = np.array([(r["x"], r["y"]) for rows in logs.values() for r in rows.values()]).reshape(-1, 2)
     beyond = (poses @ region.normals.T - region.offsets).max(axis=1) if len(poses) else np.zeros(0)
-    return {
-        "steps": len(position),
-        "position_m": percentiles(position),
-        "heading_deg": percentiles(heading),
-        "per_uav": per_uav,
-        "fence_margin_m": fence_margin(mission),
-        "outside_fence": int(np.count_nonzero(~np.asarray(fence.contains(poses[:, 0], poses[:, 1])))),
-        "max_beyond_region_m": float(max(beyond.max(), 0.0)) if len(beyond) else 0.0,
-    }
+    return FlightReport(
+        steps=len(position),
+        position_m=percentiles(position),
+        heading_deg=percentiles(heading),
+        per_uav=per_uav,
+        fence_margin_m=fence_margin(mission),
+        outside_fence=int(np.count_nonzero(~np.asarray(fence.contains(poses[:, 0], poses[:, 1])))),
+        max_beyond_region_m=float(max(beyond.max(), 0.0)) if len(beyond) else 0.0,
+        steps_within_rs=len(vertical),
+        closest_vertical_within_rs_m=min(vertical.values()) if vertical else None,
+    )

@@ -117,7 +117,7 @@ def fuzz_mesh(count: int, seed: int) -> Campaign:
     return c
 
 
-def _mesh_over_zenoh(mission: Mission, world: World, payloads: list[bytes], c: Campaign) -> dict:
+def _mesh_over_zenoh(mission: Mission, world: World, payloads: list[bytes], c: Campaign) -> dict[str, int]:
     """Garbled and valid payloads published over loopback to a real Mesh: every sample is counted."""
     ports = free_ports(1)
     m = msgspec.structs.replace(
@@ -261,7 +261,9 @@ def fuzz_mavlink(count: int, seed: int) -> Campaign:
     return c
 
 
-def _to_simulator(sim: subprocess.Popen, port: int, datagrams: list[bytes], c: Campaign) -> dict:
+def _to_simulator(
+    sim: subprocess.Popen, port: int, datagrams: list[bytes], c: Campaign
+) -> dict[str, int | bool]:
     """The datagrams to a simulator vehicle, then a parameter read it must still answer."""
     mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
     deadline = time.monotonic() + 120

@@ -7,10 +7,12 @@ import sys
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
 from companion.app.evaluation import (
     CompanionLogs,
+    FlightReport,
     evaluate,
     failed_criteria,
     flight_report,
@@ -21,12 +23,30 @@ from companion.app.evaluation import (
 from companion.app.run_options import RunOptions
 from companion.batch import plots, report
 from companion.batch.engine import RunResult
+from companion.batch.montecarlo import Summary
+from companion.batch.report import StudySummary
 from companion.contracts.mission import Mission
 from companion.core.world import World
 
 
+class FlownMeta(msgspec.Struct, frozen=True):
+    """summary.json's "_meta" of a flown run.
+
+    The mission, its seed, how it was flown, and what the companions refused
+    (`refused_by_companions`)."""
+
+    mission: str
+    seed: int
+    distributed: bool  # always: the batch engine's summaries have no such key
+    lockstep: bool
+    run: str
+    refused: dict[str, int]
+
+
 def refused_by_companions(out: Path, n: int) -> dict[str, int]:
-    """What the companions refused, summed over them, by kind ("mesh forged bundle", "MAVLink bad
+    """What the companions refused, summed over them, by kind.
+
+    What the companions refused, summed over them, by kind ("mesh forged bundle", "MAVLink bad
     signature", ...), from their reports (uav{i}.json)."""
     total: dict[str, int] = {}
     for i in range(n):
@@ -51,7 +71,9 @@ def report_run(
     started: float,
     stopped: bool,
 ) -> int:
-    """Score the run flown into `opts.out`, write its files and print its figures; the exit code
+    """Score the run flown into `opts.out`, write its files and print its figures; the exit code.
+
+    Score the run flown into `opts.out`, write its files and print its figures; the exit code
     (1: nothing flown, or the mission's pass criteria failed)."""
     out = opts.out
     approach = read_approach(out / "approach.csv")
@@ -66,17 +88,17 @@ def report_run(
                 file=sys.stderr,
             )
         return 1
-    summary = _write_results(opts, mission, world, result, seed, run)
-    flight = flight_report(mission, out, logs.logs)
-    vertical = read_vertical(out / "approach.csv")
-    flight["steps_within_rs"] = len(vertical)  # a pair horizontally within R_s (approach.csv)
-    flight["closest_vertical_within_rs_m"] = min(vertical.values()) if vertical else None
-    (out / "tracking.json").write_text(json.dumps(flight, indent=2) + "\n")
+    refused = refused_by_companions(out, mission.n_uavs)
+    meta = FlownMeta(mission.name, seed, True, opts.lockstep, run, refused)
+    summary = _write_results(opts, mission, world, result, meta)
+    vertical = read_vertical(out / "approach.csv")  # the steps with a pair horizontally within R_s
+    flight = flight_report(mission, out, logs.logs, vertical)
+    (out / "tracking.json").write_text(json.dumps(msgspec.to_builtins(flight), indent=2) + "\n")
     if opts.view:
         print(f"replay the run with: uavsearch view --replay {out}", flush=True)
     failures = failed_criteria(world, result, out / "approach.csv")
-    _print_figures(opts, mission, result, summary[mission.algorithm.name], approach, vertical)
-    _print_tracking(opts, mission, flight, summary["_meta"]["refused"])
+    _print_figures(opts, mission, result, summary.algorithms[mission.algorithm.name], approach, vertical)
+    _print_tracking(opts, mission, flight, refused)
     (out / "criteria.json").write_text(
         json.dumps({"passed": not failures, "failures": failures}, indent=2) + "\n"
     )
@@ -90,18 +112,11 @@ def report_run(
 
 
 def _write_results(
-    opts: RunOptions, mission: Mission, world: World, result: RunResult, seed: int, run: str
-) -> dict:
+    opts: RunOptions, mission: Mission, world: World, result: RunResult, meta: FlownMeta
+) -> StudySummary:
     """The batch engine's files and plots of the run; returns its summary (summary.json)."""
     out, name = opts.out, mission.algorithm.name
-    summary = report.write_summary(
-        out,
-        {name: [result]},
-        {
-            "mission": mission.name, "seed": seed, "distributed": True, "lockstep": opts.lockstep,
-            "run": run, "refused": refused_by_companions(out, mission.n_uavs),
-        },
-    )  # fmt: skip
+    summary = report.write_summary(out, {name: [result]}, meta)
     report.write_trajectories(out, {name: [result]})
     report.write_steps(out, {name: [result]})
     report.write_targets(out, {name: [result]})
@@ -119,15 +134,15 @@ def _print_figures(
     opts: RunOptions,
     mission: Mission,
     result: RunResult,
-    s: dict,
+    s: Summary,
     approach: dict[int, float],
     vertical: dict[int, float],
 ) -> None:
     """The run's search figures and its closest approaches, horizontal and in three dimensions."""
     print(
         f"{mission.name}: {result.steps} steps, targets found {int(np.sum(result.target_steps >= 0))}/"
-        f"{len(result.target_cells)}, mean target time {s['mean_target_time']:.1f}, "
-        f"min lambda_2 {s['min_lambda2']:.4f}, min distance {s['min_distance']:.1f} m"
+        f"{len(result.target_cells)}, mean target time {s.mean_target_time:.1f}, "
+        f"min lambda_2 {s.min_lambda2:.4f}, min distance {s.min_distance:.1f} m"
     )
     if not approach:
         return
@@ -148,14 +163,16 @@ def _print_figures(
     print(f"in three dimensions: {within}")
 
 
-def _print_tracking(opts: RunOptions, mission: Mission, flight: dict, refused: dict[str, int]) -> None:
+def _print_tracking(
+    opts: RunOptions, mission: Mission, flight: FlightReport, refused: dict[str, int]
+) -> None:
     """Plan against flight (tracking.json), and what a secured swarm's companions refused."""
-    p, h = flight["position_m"], flight["heading_deg"]
+    p, h = flight.position_m, flight.heading_deg
     if p["median"] is not None:
         print(
             f"plan vs flight ({opts.mode}): position error median {p['median']:.1f} m, p95 {p['p95']:.1f} m; "
             f"heading error median {h['median']:.1f} deg, p95 {h['p95']:.1f} deg; "
-            f"{flight['outside_fence']} logged poses outside the fence"
+            f"{flight.outside_fence} logged poses outside the fence"
         )
     if mission.secured and refused:
         kinds = ", ".join(f"{n} {kind}" for kind, n in sorted(refused.items()))

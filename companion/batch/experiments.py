@@ -6,7 +6,6 @@ import json
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
 import msgspec
 import numpy as np
@@ -14,11 +13,75 @@ import numpy as np
 from companion.batch import plots, report
 from companion.batch.engine import RunResult, simulate
 from companion.batch.executors import LocalPool, RunExecutor
-from companion.batch.montecarlo import RunSpec, execute, run_specs, specs_for, summarize
+from companion.batch.montecarlo import RunSpec, Summary, execute, run_specs, specs_for, summarize
 from companion.batch.progress import run_progress
+from companion.batch.report import StudySummary
 from companion.batch.starts import random_start
 from companion.contracts.mission import ALGORITHMS, Mission
 from companion.core.world import build_world
+
+
+class CompareMeta(msgspec.Struct, frozen=True):
+    """summary.json's "_meta" of a comparison: the mission, its seed, the runs and their starts."""
+
+    mission: str
+    seed: int
+    runs: int
+    steps: int
+    algorithms: list[str]
+    start_layouts: list[str] | str  # the layouts drawn from, or "the mission's"
+
+
+class SweepPoint(msgspec.Struct, frozen=True):
+    """One value of a swept parameter and the `Summary` of its runs."""
+
+    param: str
+    value: object  # the parameter's value, as JSON gives it
+    summary: Summary
+
+    def to_json(self) -> dict[str, object]:
+        """sweep.json's point: the summary's fields, then the parameter's value under its name."""
+        return {**msgspec.to_builtins(self.summary), self.param: self.value}
+
+
+class Sweep(msgspec.Struct, frozen=True):
+    """sweep.json: the swept parameter and one point per value."""
+
+    param: str
+    points: list[SweepPoint]
+
+    def to_json(self) -> dict[str, object]:
+        """sweep.json's content."""
+        return {"param": self.param, "points": [p.to_json() for p in self.points]}
+
+
+class AlgorithmTime(msgspec.Struct, frozen=True):
+    """`bench`: one mission and algorithm's compute time on one core."""
+
+    mission: str
+    algorithm: str
+    seconds_per_1000_steps: float
+
+
+class Throughput(msgspec.Struct, frozen=True):
+    """`bench`: the Monte Carlo throughput on the study's mix of missions and algorithms."""
+
+    workers: int
+    executor: str
+    runs: int
+    steps: int
+    wall_seconds: float
+    startup_seconds: float
+    runs_per_minute: float
+
+
+class Bench(msgspec.Struct, frozen=True):
+    """`bench`'s result (what `uavsearch bench --json` writes)."""
+
+    per_algorithm: list[AlgorithmTime]
+    throughput: Throughput
+    study_estimate_minutes: float
+    study_definition: str
 
 
 def run_all(specs: list[RunSpec], executor: RunExecutor, progress: bool, label: str) -> list[RunResult]:
@@ -39,11 +102,13 @@ def compare(
     progress: bool = True,
     executor: RunExecutor | None = None,
     layouts: tuple[str, ...] = (),
-) -> dict[str, Any]:
-    """The paper's comparison (Figures 8-10): every algorithm on the same mission instances, computed
+) -> StudySummary:
+    """The paper's comparison (Figures 8-10): every algorithm on the same mission instances.
+
+    The paper's comparison (Figures 8-10): every algorithm on the same mission instances, computed
     on `executor` (default: a local pool of `workers` processes). With `layouts`, run r starts from
     the layout `starts.random_start` draws for it (starts.csv), the same for every algorithm; else
-    from the mission's. Returns summary.json's content (`report.write_summary`)."""
+    from the mission's. Returns what summary.json holds (`report.write_summary`)."""
     for a in algorithms:
         if a not in ALGORITHMS:
             raise ValueError(f"unknown algorithm {a!r}; choose from {', '.join(ALGORITHMS)}")
@@ -56,14 +121,7 @@ def compare(
     specs = specs_for(mission, algorithms, runs, steps, seed, record, [m for m, _ in drawn])
     flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: {len(specs)} runs")
     results = {a: flat[i * runs : (i + 1) * runs] for i, a in enumerate(algorithms)}
-    meta: dict[str, object] = {
-        "mission": mission.name,
-        "seed": seed,
-        "runs": runs,
-        "steps": steps,
-        "algorithms": list(algorithms),
-        "start_layouts": list(layouts) or "the mission's",
-    }
+    meta = CompareMeta(mission.name, seed, runs, steps, list(algorithms), list(layouts) or "the mission's")
     summary = report.write_summary(out, results, meta)
     report.write_runs(out, results)
     report.write_curves(out, results)
@@ -103,21 +161,24 @@ def sweep(
     workers: int | None = None,
     progress: bool = True,
     executor: RunExecutor | None = None,
-) -> list[dict[str, Any]]:
-    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default), computed
-    on `executor` (default: a local pool of `workers` processes). Returns sweep.json's points: each
-    value's `Summary` fields and the parameter's value."""
+) -> Sweep:
+    """Figure 11: the proposed algorithm's metrics against one parameter (n_g by default).
+
+    Figure 11: the proposed algorithm's metrics against one parameter (n_g by default), computed
+    on `executor` (default: a local pool of `workers` processes). Returns what sweep.json holds:
+    each value's `Summary`."""
     out.mkdir(parents=True, exist_ok=True)
     missions = [_set_param(mission.with_algorithm("proposed"), param, v) for v in values]
     specs = [RunSpec(m, seed, r, steps) for m in missions for r in range(runs)]
     flat = run_all(specs, executor or LocalPool(workers), progress, f"{mission.name}: sweep {param}")
     summaries = [summarize(flat[i * runs : (i + 1) * runs]) for i in range(len(values))]
-    points = [msgspec.to_builtins(s) | {param: json.loads(v)} for s, v in zip(summaries, values, strict=True)]
-    (out / "sweep.json").write_text(json.dumps({"param": param, "points": points}, indent=2) + "\n")
+    points = [SweepPoint(param, json.loads(v), s) for s, v in zip(summaries, values, strict=True)]
+    result = Sweep(param, points)
+    (out / "sweep.json").write_text(json.dumps(result.to_json(), indent=2) + "\n")
     plots.plot_sweep(
         out / f"sweep_{param}.png", param, [json.loads(v) for v in values], summaries, mission.comms.safety
     )
-    return points
+    return result
 
 
 def bench(
@@ -128,7 +189,7 @@ def bench(
     workers: int | None = None,
     study_runs: int = 8,
     executor: RunExecutor | None = None,
-) -> dict[str, Any]:
+) -> Bench:
     """Compute time per 1,000 sampling moments (Table 2 setting) and Monte Carlo throughput.
 
     Throughput is timed on the study's own mix: every mission x algorithm, `study_runs` runs each,
@@ -143,13 +204,7 @@ def bench(
             m = mission.with_algorithm(a)
             simulate(m, seed, 0, 5)  # compile numba kernels and warm caches outside the timing
             secs = [simulate(m, seed, r, steps).seconds for r in range(runs)]
-            rows.append(
-                {
-                    "mission": mission.name,
-                    "algorithm": a,
-                    "seconds_per_1000_steps": 1000 * float(np.mean(secs)) / steps,
-                }
-            )
+            rows.append(AlgorithmTime(mission.name, a, 1000 * float(np.mean(secs)) / steps))
     executor = executor or LocalPool(workers)
     workers = executor.workers
     specs = [
@@ -167,36 +222,30 @@ def bench(
     per_run = (arrivals[-1] - arrivals[first - 1]) / (n - first)  # steady state, all workers busy
     study_runs_total = len(missions) * len(ALGORITHMS) * 1000
     study = arrivals[first - 1] + per_run * (study_runs_total - first) * 1000 / steps
-    return {
-        "per_algorithm": rows,
-        "throughput": {
-            "workers": workers,
-            "executor": executor.description,
-            "runs": n,
-            "steps": steps,
-            "wall_seconds": arrivals[-1],
-            "startup_seconds": arrivals[first - 1],
-            "runs_per_minute": 60.0 / per_run,
-        },
-        "study_estimate_minutes": study / 60.0,
-        "study_definition": f"{len(missions)} mission{'s' * (len(missions) != 1)} x {len(ALGORITHMS)} "
-        f"algorithms x 1,000 runs x 1,000 steps, on {executor.description}",
-    }
+    throughput = Throughput(
+        workers, executor.description, n, steps, arrivals[-1], arrivals[first - 1], 60.0 / per_run
+    )
+    definition = (
+        f"{len(missions)} mission{'s' * (len(missions) != 1)} x {len(ALGORITHMS)} "
+        f"algorithms x 1,000 runs x 1,000 steps, on {executor.description}"
+    )
+    return Bench(rows, throughput, study / 60.0, definition)
 
 
-def format_bench(result: dict[str, Any]) -> str:
+def format_bench(result: Bench) -> str:
     """`bench`'s result as the lines `uavsearch bench` prints."""
     lines = ["mission     algorithm    s / 1,000 steps (one core)"]
-    for r in result["per_algorithm"]:
-        lines.append(f"{r['mission']:<11} {r['algorithm']:<12} {r['seconds_per_1000_steps']:.3f}")
-    t = result["throughput"]
+    for r in result.per_algorithm:
+        lines.append(f"{r.mission:<11} {r.algorithm:<12} {r.seconds_per_1000_steps:.3f}")
+    t = result.throughput
     lines.append(
-        f"Monte Carlo throughput (study mix): {t['runs_per_minute']:.1f} runs of {t['steps']} steps per "
-        f"minute on {t['executor']} ({t['runs']} runs in {t['wall_seconds']:.1f} s, "
-        f"{t['startup_seconds']:.1f} s until the first {t['workers']} finished)"
+        f"Monte Carlo throughput (study mix): {t.runs_per_minute:.1f} runs of {t.steps} steps per "
+        f"minute on {t.executor} ({t.runs} runs in {t.wall_seconds:.1f} s, "
+        f"{t.startup_seconds:.1f} s until the first {t.workers} finished)"
     )
-    study = result["study_definition"]
-    lines.append(f"whole study, {study} (estimate): {result['study_estimate_minutes']:.1f} min")
+    lines.append(
+        f"whole study, {result.study_definition} (estimate): {result.study_estimate_minutes:.1f} min"
+    )
     return "\n".join(lines)
 
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 import csv
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import msgspec
 import numpy as np
@@ -32,7 +31,9 @@ RUN_COLUMNS = ("mission", "algorithm", "run", *METRICS)
 
 
 class MissionRow(msgspec.Struct, frozen=True):
-    """One mission, baseline and metric: the first algorithm's mean (`proposed`), the baseline's,
+    """One mission, baseline and metric: the means and their paired difference.
+
+    One mission, baseline and metric: the first algorithm's mean (`proposed`), the baseline's,
     and the paired difference first - baseline over the runs with its Student t interval."""
 
     mission: str
@@ -47,7 +48,9 @@ class MissionRow(msgspec.Struct, frozen=True):
 
 
 class OverallRow(msgspec.Struct, frozen=True):
-    """One baseline and metric over the missions: the mean of the per-mission differences (absolute
+    """One baseline and metric over the missions.
+
+    One baseline and metric over the missions: the mean of the per-mission differences (absolute
     and relative to the baseline) with t intervals, the wins, ties and losses with the Wilson
     interval of the win rate, and the missions whose own interval excludes 0."""
 
@@ -108,6 +111,48 @@ class MissionFeatures(msgspec.Struct, frozen=True):
     targets: int
 
 
+class EvaluationMeta(msgspec.Struct, frozen=True):
+    """evaluate.json's "meta": the study's size and how its figures read."""
+
+    missions: int
+    runs: int
+    steps: int
+    algorithms: list[str]
+    start_layouts: list[str] | str  # the layouts drawn from, or "each mission's"
+    metrics: dict[str, str] = msgspec.field(
+        default_factory=lambda: {
+            "target_time": "mean over targets of the step each was first seen (unfound: steps)",
+            "mean_uncertainty": "eq. 30 averaged over the run's steps",
+        }
+    )
+    difference: str = "proposed - baseline (negative: the proposed method is better)"
+    win: str = "the proposed method's mean over the mission's runs is below the baseline's"
+
+
+class Evaluation(msgspec.Struct, frozen=True):
+    """What evaluate.json holds.
+
+    The meta (and how the missions were made: `origin`), the missions' features, and the
+    per-mission, overall and by-density tables."""
+
+    meta: EvaluationMeta
+    origin: dict[str, object]  # the caller's: generated (count, seed, family) or a folder, weights
+    mission_info: list[MissionFeatures]
+    missions: list[MissionRow]
+    overall: list[OverallRow]
+    by_density: list[DensityRow]
+
+    def to_json(self) -> dict[str, object]:
+        """evaluate.json's content: `origin` goes into "meta", after its own fields."""
+        return {
+            "meta": msgspec.to_builtins(self.meta) | self.origin,
+            "mission_info": msgspec.to_builtins(self.mission_info),
+            "missions": msgspec.to_builtins(self.missions),
+            "overall": msgspec.to_builtins(self.overall),
+            "by_density": msgspec.to_builtins(self.by_density),
+        }
+
+
 def _overall(
     baseline: str, metric: str, runs: int, base: np.ndarray, per_mission: list[Interval]
 ) -> OverallRow:
@@ -157,7 +202,9 @@ def paired_table(values: np.ndarray, algorithms: Sequence[str], names: Sequence[
 
 
 def mission_features(mission: Mission) -> MissionFeatures:
-    """What describes a mission in the evaluation's tables: swarm size, kinematics, region area,
+    """What describes a mission in the evaluation's tables.
+
+    What describes a mission in the evaluation's tables: swarm size, kinematics, region area,
     area per UAV (the swarm's density), prior centres and targets."""
     x, y = np.asarray(mission.region.polygon, dtype=float).T
     area = 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))) / 1e6
@@ -174,7 +221,9 @@ def mission_features(mission: Mission) -> MissionFeatures:
 
 
 def by_density(missions: Sequence[MissionRow], info: Sequence[MissionFeatures]) -> list[DensityRow]:
-    """Per baseline and metric, the per-mission rows of `paired_table` split at the median area per
+    """The per-mission rows of `paired_table` split at the median area per UAV.
+
+    Per baseline and metric, the per-mission rows of `paired_table` split at the median area per
     UAV (`mission_features`): for the dense half (at most the median) and the thin half, the mean
     difference with its t interval over the missions and the win rate with its Wilson interval."""
     per_uav = {i.mission: i.km2_per_uav for i in info}
@@ -216,10 +265,12 @@ def evaluate(
     layouts: tuple[str, ...] = (),
     meta: Mapping[str, object] | None = None,
     advance: Callable[[], object] | None = None,
-) -> dict[str, Any]:
-    """Run the three algorithms on the missions (on `executor`, default a local pool) and write
+) -> Evaluation:
+    """Run the three algorithms on the missions and write the evaluation's files.
+
+    Run the three algorithms on the missions (on `executor`, default a local pool) and write
     evaluate.json, missions.csv, overall.csv, runs.csv, evaluate.png and evaluate_density.png into
-    `out`; returns the evaluate.json content (what the command line prints)."""
+    `out`; returns what evaluate.json holds (what the command line prints)."""
     if runs < MIN_RUNS:
         raise ValueError(f"--runs must be at least {MIN_RUNS} (a per-mission interval needs two paired runs)")
     algorithms = (PROPOSED, *(a for a in ALGORITHMS if a != PROPOSED))
@@ -228,29 +279,12 @@ def evaluate(
     names = [m.name for m in missions]
     table = paired_table(values, algorithms, names)
     info = [mission_features(m) for m in missions]
-    header: dict[str, object] = {
-        "missions": len(missions),
-        "runs": runs,
-        "steps": steps,
-        "algorithms": list(algorithms),
-        "start_layouts": list(layouts) or "each mission's",
-        "metrics": {
-            "target_time": "mean over targets of the step each was first seen (unfound: steps)",
-            "mean_uncertainty": "eq. 30 averaged over the run's steps",
-        },
-        "difference": "proposed - baseline (negative: the proposed method is better)",
-        "win": "the proposed method's mean over the mission's runs is below the baseline's",
-        **(meta or {}),
-    }
-    result = {
-        "meta": header,
-        "mission_info": msgspec.to_builtins(info),
-        "missions": msgspec.to_builtins(table.missions),
-        "overall": msgspec.to_builtins(table.overall),
-        "by_density": msgspec.to_builtins(by_density(table.missions, info)),
-    }
+    header = EvaluationMeta(len(missions), runs, steps, list(algorithms), list(layouts) or "each mission's")
+    result = Evaluation(
+        header, dict(meta or {}), info, table.missions, table.overall, by_density(table.missions, info)
+    )
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "evaluate.json", result)
+    write_json(out / "evaluate.json", result.to_json())
     _write_csv(out / "missions.csv", table.missions)
     _write_csv(out / "overall.csv", table.overall)
     with (out / "runs.csv").open("w", newline="") as f:

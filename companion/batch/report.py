@@ -8,13 +8,12 @@ import math
 import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import msgspec
 import numpy as np
 
 from companion.batch.engine import RunResult
-from companion.batch.montecarlo import summarize
+from companion.batch.montecarlo import Summary, summarize
 from companion.contracts.mission import Mission
 
 TRAJECTORY_COLUMNS = ("algorithm", "run", "step", "uav", "x", "y", "heading", "task")
@@ -23,17 +22,28 @@ TARGET_COLUMNS = ("algorithm", "run", "cell", "found_step")
 START_COLUMNS = ("run", "layout", "uav", "x", "y", "heading_deg")
 
 
+class StudySummary(msgspec.Struct, frozen=True):
+    """summary.json: one `montecarlo.Summary` per algorithm and the study's metadata (its "_meta")."""
+
+    algorithms: dict[str, Summary]
+    meta: msgspec.Struct | None = None
+
+    def to_json(self) -> dict[str, object]:
+        """summary.json's content: the algorithms' summaries by name, then "_meta"."""
+        content: dict[str, object] = {name: msgspec.to_builtins(s) for name, s in self.algorithms.items()}
+        if self.meta is not None:
+            content["_meta"] = msgspec.to_builtins(self.meta)
+        return content
+
+
 def write_summary(
-    out: Path, results: Mapping[str, Sequence[RunResult]], extra: Mapping[str, object] | None = None
-) -> dict[str, Any]:
-    """summary.json: one `montecarlo.Summary` per algorithm, plus optional metadata ("_meta");
-    returns the file's JSON content (what the command line prints from)."""
-    summary: dict[str, Any] = {
-        name: msgspec.to_builtins(summarize(list(runs))) for name, runs in results.items()
-    }
-    if extra:
-        summary["_meta"] = dict(extra)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    out: Path, results: Mapping[str, Sequence[RunResult]], meta: msgspec.Struct | None = None
+) -> StudySummary:
+    """Write summary.json: one `montecarlo.Summary` per algorithm, plus optional "_meta".
+
+    Returns it (what the command line prints from)."""
+    summary = StudySummary({name: summarize(list(runs)) for name, runs in results.items()}, meta)
+    (out / "summary.json").write_text(json.dumps(summary.to_json(), indent=2) + "\n")
     return summary
 
 
@@ -44,11 +54,13 @@ def refused_share(r: RunResult) -> float:
 
 
 def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
-    """runs.csv: one row of metrics per run (mean_uncertainty: eq. 30 averaged over the run;
+    """runs.csv: one row of metrics per run.
+
+    Columns: mean_uncertainty: eq. 30 averaged over the run;
     closest_approach: of any pair that can meet between sampling moments (`RunResult.approach`);
     separation_losses, link_losses: steps with such a pair within R_s, sampling moments with
     lambda_2 = 0; first_choice_refused: the share of the RHC's first choices the safety layer
-    refused)."""
+    refused."""
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -107,8 +119,10 @@ def mean_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_curves(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
-    """curves.csv: per algorithm and step, the mean and 95 % CI of uncertainty (eq. 30), targets found
-    and coverage, and the minimum over runs of lambda_2 and of the inter-UAV distance."""
+    """curves.csv: per algorithm and step, the mean curves with their 95 % CI.
+
+    The mean and 95 % CI of uncertainty (eq. 30), targets found and coverage, and the minimum over
+    runs of lambda_2 and of the inter-UAV distance."""
     with (out / "curves.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -173,8 +187,10 @@ def _recorded(results: Mapping[str, Sequence[RunResult]]) -> list[RunResult]:
 
 
 def write_steps(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
-    """steps.csv for every recorded run: eq. 30, targets found, coverage, lambda_2 and the minimum
-    distance at each step (what `uavsearch view --replay` plots)."""
+    """steps.csv for every recorded run: the metrics at each step.
+
+    Eq. 30, targets found, coverage, lambda_2 and the minimum distance at each step (what
+    `uavsearch view --replay` plots)."""
     with (out / "steps.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(STEP_COLUMNS)
@@ -195,9 +211,10 @@ def write_steps(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
 
 
 def write_targets(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
-    """targets.csv for every run: each ground-truth target's cell and the step it was first seen
-    (-1: never), from which per-target questions (which targets one algorithm finds sooner) are
-    answered paired, run by run."""
+    """targets.csv for every run: each ground-truth target's cell and the step it was first seen.
+
+    A step of -1: never. Per-target questions (which targets one algorithm finds sooner) are
+    answered from it paired, run by run."""
     with (out / "targets.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(TARGET_COLUMNS)
@@ -207,8 +224,9 @@ def write_targets(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None
 
 
 def write_starts(out: Path, drawn: Sequence[tuple[Mission, str]]) -> None:
-    """starts.csv: the start layout of each run (`uavsearch mc --random-starts`), the same for every
-    algorithm."""
+    """starts.csv: the start layout of each run, the same for every algorithm.
+
+    Written by `uavsearch mc --random-starts`."""
     with (out / "starts.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(START_COLUMNS)

@@ -20,8 +20,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from companion.bench.cpu_usage import machine_load
-from companion.bench.signing_cost import signing_cost
+from companion.bench.signing_cost import SigningCost, signing_cost
 from companion.bench.swarm_missions import DEFAULT_MISSION, bench_mission
 from companion.bench.trials import format_latency, search, summarize, trial
 from companion.bench.uav_worker import viewer_main, worker_main
@@ -102,7 +104,7 @@ def _latency_with_viewer(pool: Pool, base: Mission, steps: int, tmp: Path, tag: 
 
 def _latency_secured(
     pool: Pool, base: Mission, steps: int, tmp: Path, tag: str
-) -> tuple[dict[str, Any], dict[str, float]]:
+) -> tuple[dict[str, Any], SigningCost]:
     """The lockstep run again on a secured mesh (keys made for it), and the signing cost per bundle."""
     from companion.contracts.keys import generate
 
@@ -118,8 +120,8 @@ def _latency_secured(
     print("\n".join(format_latency(s)), flush=True)
     cost = signing_cost(mission)
     print(
-        f"  signing, per bundle of this swarm: sign {cost['seal_us_median']:.0f} us, check"
-        f" {cost['check_us_median']:.0f} us (medians over {cost['bundles']} bundles, one"
+        f"  signing, per bundle of this swarm: sign {cost.seal_us_median:.0f} us, check"
+        f" {cost.check_us_median:.0f} us (medians over {cost.bundles} bundles, one"
         " process, every UAV hearing every other)",
         flush=True,
     )
@@ -169,8 +171,8 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
         parser.error("modes are peer and/or client; at least 2 steps")
     load = machine_load()
     print(
-        f"machine: {load['cores']} cores, {load['busy_cores']:.2f} cores busy before start"
-        f" (load average {load['loadavg']:.2f}); ZENOH_RUNTIME "
+        f"machine: {load.cores} cores, {load.busy_cores:.2f} cores busy before start"
+        f" (load average {load.loadavg:.2f}); ZENOH_RUNTIME "
         f"{'default' if args.default_runtime else 'lean (1 app + 1 tx thread)'} in the UAV processes",
         flush=True,
     )
@@ -197,7 +199,7 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
     report["elapsed_s"] = time.monotonic() - started
     print(f"benchmark took {report['elapsed_s']:.0f} s", flush=True)
     if args.json is not None:
-        args.json.write_text(json.dumps(report, indent=1) + "\n")
+        args.json.write_text(json.dumps(msgspec.to_builtins(report), indent=1) + "\n")
     return 0
 
 

@@ -6,6 +6,8 @@ import os
 import time
 from pathlib import Path
 
+import msgspec
+
 
 def proc_cpu_s(pid: int) -> float:
     """User + system CPU seconds of a process (0 if gone)."""
@@ -40,11 +42,18 @@ def machine_ticks() -> tuple[int, int]:
     return sum(values) - idle, sum(values)
 
 
-def machine_load(seconds: float = 2.0) -> dict[str, float]:
+class MachineLoad(msgspec.Struct, frozen=True):
+    """The machine before a benchmark: its cores, how many were busy, the 1-minute load average."""
+
+    cores: int
+    busy_cores: float
+    loadavg: float
+
+
+def machine_load(seconds: float = 2.0) -> MachineLoad:
     """How busy the machine is before we start: cores busy over `seconds`, and the load average."""
     b0, t0 = machine_ticks()
     time.sleep(seconds)
     b1, t1 = machine_ticks()
     cores = os.cpu_count() or 1
-    return {"cores": cores, "busy_cores": cores * (b1 - b0) / max(1, t1 - t0), "loadavg": os.getloadavg()[0]}
-
+    return MachineLoad(cores, cores * (b1 - b0) / max(1, t1 - t0), os.getloadavg()[0])

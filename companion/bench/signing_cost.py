@@ -6,12 +6,21 @@ import math
 import time
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from companion.contracts.mission import Mission
 
 
-def signing_cost(mission: Mission, steps: int = 60) -> dict[str, float]:
+class SigningCost(msgspec.Struct, frozen=True):
+    """Median microseconds to sign a bundle and to check one, over `bundles` bundles."""
+
+    seal_us_median: float
+    check_us_median: float
+    bundles: int
+
+
+def signing_cost(mission: Mission, steps: int = 60) -> SigningCost:
     """Microseconds per bundle to sign and to check, over `steps` steps of the mission's agents.
 
     Microseconds per bundle to sign (`Authenticator.relayable` + `seal`) and to check (`check`,
@@ -59,9 +68,4 @@ def signing_cost(mission: Mission, steps: int = 60) -> dict[str, float]:
             tuple(float(v) for v in world.kinematics.advance(*p, c.turn))  # type: ignore[misc]
             for p, (c, _) in zip(poses, out, strict=True)
         ]
-    return {
-        "seal_us_median": float(np.median(seal_us)),
-        "check_us_median": float(np.median(check_us)),
-        "bundles": len(seal_us),
-    }
-
+    return SigningCost(float(np.median(seal_us)), float(np.median(check_us)), len(seal_us))

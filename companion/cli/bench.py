@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+import msgspec
+
 from companion.cli.options import Subparsers, add_executor_arguments
 from companion.contracts.arguments import count, natural, step_count
 from companion.core.feasibility import load_mission
@@ -34,7 +36,7 @@ def _bench(args: argparse.Namespace) -> int:
         )
     print(format_bench(result))
     if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps(msgspec.to_builtins(result), indent=2) + "\n")
     return 0
 
 
@@ -58,7 +60,7 @@ def _cluster_bench(args: argparse.Namespace) -> int:
     rows = cluster_bench(missions, workers, args.study_runs, args.steps, args.seed)
     print(format_cluster_bench(rows))
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps(msgspec.to_builtins(rows), indent=2) + "\n")
     return 0
 
 

@@ -6,6 +6,9 @@ import argparse
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+import msgspec
 
 from companion.cli.options import (
     Subparsers,
@@ -16,6 +19,9 @@ from companion.cli.options import (
 )
 from companion.contracts.arguments import count, natural, weight
 from companion.contracts.mission import ALGORITHMS, Mission
+
+if TYPE_CHECKING:
+    from companion.batch.heldout import DensityRow, Evaluation, OverallRow
 
 
 def _output_folder(out: Path) -> None:
@@ -29,7 +35,9 @@ def _output_folder(out: Path) -> None:
 def _missions(
     args: argparse.Namespace, out: Path, check: Callable[[int], object]
 ) -> tuple[list[Mission], dict]:
-    """The missions of `evaluate`/`tune`: generated (written to out/missions/) or a folder's files,
+    """The missions of `evaluate`/`tune`, and how they were made.
+
+    The missions of `evaluate`/`tune`: generated (written to out/missions/) or a folder's files,
     with the weights file applied; and how they were made. `check(n)` vets the command's other
     options for n missions before anything is generated or written."""
     from companion.batch.generate import generate, write
@@ -132,40 +140,41 @@ def _tune(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_evaluation(result: dict) -> None:
+def _print_evaluation(result: Evaluation) -> None:
     """The evaluation's tables: per mission, overall, and by area per UAV."""
     from rich.console import Console
     from rich.table import Table
 
-    def interval(row: dict, key: str, scale: float = 1.0, digits: int = 4) -> str:
-        v, lo, hi = (scale * row[k] for k in (key, f"{key}_low", f"{key}_high"))
+    def interval(row: msgspec.Struct, key: str, scale: float = 1.0, digits: int = 4) -> str:
+        v, lo, hi = (scale * getattr(row, k) for k in (key, f"{key}_low", f"{key}_high"))
         return f"{v:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
 
     console = Console(width=max(Console().width, 150))  # wide enough when piped to a file
     per = Table(title="per mission: proposed - baseline, mean over paired runs [95 % CI]")
     per.add_column("mission")
     per.add_column("UAVs", justify="right")
-    keys = list(dict.fromkeys((r["baseline"], r["metric"]) for r in result["missions"]))
+    keys = list(dict.fromkeys((r.baseline, r.metric) for r in result.missions))
     for baseline, metric in keys:
         per.add_column(f"{metric} vs {baseline}", justify="right")
-    info = {i["mission"]: i for i in result["mission_info"]}
+    info = {i.mission: i for i in result.mission_info}
     for name, i in info.items():
-        cells = {(r["baseline"], r["metric"]): r for r in result["missions"] if r["mission"] == name}
-        per.add_row(name, str(i["uavs"]), *(interval(cells[k], "difference", digits=3) for k in keys))
+        cells = {(r.baseline, r.metric): r for r in result.missions if r.mission == name}
+        per.add_row(name, str(i.uavs), *(interval(cells[k], "difference", digits=3) for k in keys))
     console.print(per)
-    overall = f"overall ({result['meta']['missions']} missions x {result['meta']['runs']} runs)"
-    halves = "by area per UAV: dense and thin halves of the missions"
-    for title, rows, column, cell in (
-        (overall, result["overall"], "relative (%)", lambda r: interval(r, "relative_difference", 100, 3)),
-        (halves, result["by_density"], "km2 per UAV", lambda r: r["km2_per_uav"]),
-    ):
-        table = Table(title=title)
+    overall = Table(title=f"overall ({result.meta.missions} missions x {result.meta.runs} runs)")
+    halves = Table(title="by area per UAV: dense and thin halves of the missions")
+    for table, column in ((overall, "relative (%)"), (halves, "km2 per UAV")):
         for col in ("baseline", "metric", column, "mean difference [95 % CI]", "win rate [Wilson 95 %]"):
             table.add_column(col, justify="right")
-        for r in rows:
-            wins = f"{r['wins']}/{r['missions']}: " + interval(r, "win_rate", 100, 3)
-            table.add_row(r["baseline"], r["metric"], cell(r), interval(r, "difference"), wins)
-        console.print(table)
+    rows: list[tuple[Table, OverallRow | DensityRow, str]] = [
+        *((overall, r, interval(r, "relative_difference", 100, 3)) for r in result.overall),
+        *((halves, r, r.km2_per_uav) for r in result.by_density),
+    ]
+    for table, r, cell in rows:
+        wins = f"{r.wins}/{r.missions}: " + interval(r, "win_rate", 100, 3)
+        table.add_row(r.baseline, r.metric, cell, interval(r, "difference"), wins)
+    console.print(overall)
+    console.print(halves)
 
 
 def mission_set_options(p: argparse.ArgumentParser, out: str) -> None:

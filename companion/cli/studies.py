@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from companion.cli.options import ALGORITHM_LIST, Subparsers, add_executor_arguments, random_starts_option
 from companion.contracts.arguments import count, mission_argument, names, natural, step_count
 from companion.contracts.mission import ALGORITHMS
 from companion.core.feasibility import load_mission
+
+if TYPE_CHECKING:
+    from companion.batch.report import StudySummary
 
 
 def _mc(args: argparse.Namespace) -> int:
@@ -43,7 +47,7 @@ def _mc(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_summary(summary: dict) -> None:
+def _print_summary(summary: StudySummary) -> None:
     """The Monte Carlo summary, one row per algorithm."""
     from rich.console import Console
     from rich.table import Table
@@ -60,18 +64,16 @@ def _print_summary(summary: dict) -> None:
         "s / 1,000 steps",
     ):
         table.add_column(col, justify="right")
-    for name, s in summary.items():
-        if name.startswith("_"):
-            continue
+    for name, s in summary.algorithms.items():
         table.add_row(
             name,
-            str(s["runs"]),
-            f"{s['mean_target_time']:.1f} ± {s['mean_target_time_ci95']:.1f}",
-            f"{100 * s['targets_found_fraction']:.1f} %",
-            f"{s['final_mean_uncertainty']:.4f} ± {s['final_mean_uncertainty_ci95']:.4f}",
-            f"{s['min_lambda2']:.4f}",
-            f"{s['min_distance']:.1f}",
-            f"{s['seconds_per_1000_steps']:.3f}",
+            str(s.runs),
+            f"{s.mean_target_time:.1f} ± {s.mean_target_time_ci95:.1f}",
+            f"{100 * s.targets_found_fraction:.1f} %",
+            f"{s.final_mean_uncertainty:.4f} ± {s.final_mean_uncertainty_ci95:.4f}",
+            f"{s.min_lambda2:.4f}",
+            f"{s.min_distance:.1f}",
+            f"{s.seconds_per_1000_steps:.3f}",
         )
     Console().print(table)
 
@@ -165,7 +167,7 @@ def _sweep(args: argparse.Namespace) -> int:
     seed = mission.seed if args.seed is None else args.seed
     values = sweep_values(args.values)
     with open_executor(args.scheduler, args.workers) as executor:
-        points = sweep(
+        result = sweep(
             mission,
             args.param,
             values,
@@ -176,11 +178,12 @@ def _sweep(args: argparse.Namespace) -> int:
             progress=not args.quiet,
             executor=executor,
         )
-    for p in points:
+    for p in result.points:
+        s = p.summary
         print(
-            f"{args.param}={p[args.param]}: mean target time {p['mean_target_time']:.1f}, "
-            f"mean uncertainty {p['mean_uncertainty_over_run']:.4f}, min lambda_2 {p['min_lambda2']:.4f}, "
-            f"min distance {p['min_distance']:.1f} m"
+            f"{args.param}={p.value}: mean target time {s.mean_target_time:.1f}, "
+            f"mean uncertainty {s.mean_uncertainty_over_run:.4f}, min lambda_2 {s.min_lambda2:.4f}, "
+            f"min distance {s.min_distance:.1f} m"
         )
     return 0
 

@@ -14,6 +14,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 from enum import Enum
+from typing import TypedDict
 
 import numpy as np
 
@@ -37,7 +38,30 @@ class PlanError:
     heading_deg: float
 
 
-def percentiles(values: list[float]) -> dict[str, float | None]:
+class Percentiles(TypedDict):
+    """The median, 95th percentile and maximum of a series of errors (None: no error measured).
+
+    A TypedDict, not a Struct: it goes into the companion's report (uav{i}.json), which
+    `companion.node.process` writes with `json.dumps`."""
+
+    median: float | None
+    p95: float | None
+    max: float | None
+
+
+class PlanSummary(TypedDict):
+    """One UAV's plan versus flight (the "plan_vs_flight" of its report; a TypedDict as `Percentiles`)."""
+
+    steps: int
+    missed: int
+    bound_m: float
+    warnings: int
+    position_m: Percentiles
+    heading_deg: Percentiles
+
+
+def percentiles(values: list[float]) -> Percentiles:
+    """The `Percentiles` of `values`."""
     if not values:
         return {"median": None, "p95": None, "max": None}
     a = np.asarray(values)
@@ -68,7 +92,9 @@ class PlanTracker:
         self.pending.clear()
 
     def measure(self, t: float, x: float, y: float, heading: float) -> PlanError | None:
-        """Compare the oldest pending plan with the vehicle's pose once vehicle time `t` has reached
+        """Measure the oldest pending plan once vehicle time `t` has reached its time.
+
+        Compare the oldest pending plan with the vehicle's pose once vehicle time `t` has reached
         the plan's time: the pose of the last sample before that time if it was at most half a step
         early, else this one; the planned point is moved along its heading by the sample's offset
         from the plan's time. A plan without a sample within half a step of its time is missed."""
@@ -108,7 +134,8 @@ class PlanTracker:
             )
         return error
 
-    def summary(self) -> dict[str, object]:
+    def summary(self) -> PlanSummary:
+        """The figures of the errors measured so far, for the companion's report."""
         return {
             "steps": len(self.errors),
             "missed": self.missed,
@@ -120,6 +147,8 @@ class PlanTracker:
 
 
 class Guard(Enum):
+    """What the companion does about the fence: fly the plan, return inside, or leave it to the autopilot."""
+
     INSIDE = "inside"  # flying the plan
     RETURNING = "returning"  # left the fence: repositioned back inside, not flying the plan
     RELEASED = "released"  # did not come back: left to the autopilot for good

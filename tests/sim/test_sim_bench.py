@@ -19,7 +19,7 @@ def test_bench_missions_validate(n: int) -> None:
 @pytest.mark.timeout(180)
 def test_a_short_run_returns_figures() -> None:
     r = measure(DEFAULT_MISSION, 4, 5.0, 1.5)
-    assert r["vehicles"] == 4 and r["speedup"] == 5.0
-    assert r["achieved_speedup"] > 0 and r["cpu_share"] > 0
-    assert r["messages_per_s"] > 0  # the vehicles answered their clients with telemetry
-    assert r["slipped_s"] >= 0
+    assert r.vehicles == 4 and r.speedup == 5.0
+    assert r.achieved_speedup > 0 and r.cpu_share > 0
+    assert r.messages_per_s > 0  # the vehicles answered their clients with telemetry
+    assert r.slipped_s >= 0

@@ -81,7 +81,7 @@ def test_a_state_signed_in_an_earlier_run_is_refused_and_logged(
     )
     view = MeshListener(build_world(mission, mission.seed, 0), keys.for_mission(mission, "view"))
     stack.callback(view.close)
-    assert _until(lambda: view.status()["connected"], 30.0), view.status()
+    assert _until(lambda: view.status().connected, 30.0), view.status()
     rogue_keys = keys.for_mission(mission, keys.uav_identity(2))
     assert rogue_keys is not None and rogue_keys.run == LATER
     rogue = _session(stack, mission, MeshSecurity.of(rogue_keys, mission))
@@ -104,8 +104,8 @@ def test_a_state_signed_in_an_earlier_run_is_refused_and_logged(
     ]
     assert len(warnings) == 1 and "uav/2" in warnings[0], warnings
     assert receiver.refusals.summary() == {"forged bundle": {"key uav/2": 1}}
-    assert _until(lambda: view.status()["received"] == 1), view.status()  # the live view shows it too
-    assert view.status()["refused"] == {"forged bundle": {"key uav/2": 1}}, view.status()
+    assert _until(lambda: view.status().received == 1), view.status()  # the live view shows it too
+    assert view.status().refused == {"forged bundle": {"key uav/2": 1}}, view.status()
 
 
 def test_a_bundle_signed_in_an_earlier_run_is_unauthenticated_in_a_later_one(

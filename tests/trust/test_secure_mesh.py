@@ -179,7 +179,7 @@ def test_the_view_joins_with_its_own_certificate_and_only_listens(stack: ExitSta
     view_keys = keys.for_mission(mission, "view")
     listener = MeshListener(build_world(mission, mission.seed, 0), view_keys)
     stack.callback(listener.close)
-    assert _until(lambda: listener.status()["connected"], 30.0), listener.status()
+    assert _until(lambda: listener.status().connected, 30.0), listener.status()
     # the view's certificate cannot put anything: not as UAV 1, not anywhere
     snoop = _session(stack, mission, MeshSecurity.of(view_keys, mission))  # type: ignore[arg-type]
     assert _until(lambda: len(snoop.info.peers_zid()) >= 2)
@@ -187,15 +187,15 @@ def test_the_view_joins_with_its_own_certificate_and_only_listens(stack: ExitSta
     for step in range(ATTEMPTS):
         snoop.put(f"{key_base(mission)}/uav/1/msg", _bare(1, step))
     step = 0
-    while listener.status()["received"] < 4:  # bundles still reach the view (it subscribes late)
+    while listener.status().received < 4:  # bundles still reach the view (it subscribes late)
         a.publish(step, _outbox(0, step))
         b.publish(step, _outbox(1, step))
         assert step < 600, listener.status()
         step += 1
         time.sleep(0.05)
     time.sleep(QUIET_S - 2.0)
-    assert listener.status()["unauthenticated"] == listener.status()["malformed"] == 0
-    assert listener.status()["secured"]
+    assert listener.status().unauthenticated == listener.status().malformed == 0
+    assert listener.status().secured
     for m in (a, b):
         s = m.stats
         assert (s.malformed, s.spoofed, s.unauthenticated, s.forged, s.duplicates) == (0, 0, 0, 0, 0), s

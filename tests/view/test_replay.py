@@ -42,9 +42,9 @@ def _csv(path: Path, algorithm: str, run: int) -> list[dict[str, str]]:
 
 def test_any_run_of_a_monte_carlo_study_replays(mc_out: Path) -> None:
     replay = load_replay(mc_out, algorithm="no-ta", run=1)
-    assert replay.scene["mode"] == "replay" and replay.scene["algorithm"] == "no-ta"
-    assert replay.scene["labels"] is None, "no CVT for the no-ta baseline"
-    assert sorted(map(tuple, replay.scene["runs"])) == [
+    assert replay.scene.mode == "replay" and replay.scene.algorithm == "no-ta"
+    assert replay.scene.labels is None, "no CVT for the no-ta baseline"
+    assert sorted(map(tuple, replay.scene.runs)) == [
         ("no-ta", 0),
         ("no-ta", 1),
         ("proposed", 0),
@@ -63,7 +63,7 @@ def test_any_run_of_a_monte_carlo_study_replays(mc_out: Path) -> None:
     firsts = sorted(int(t["cell"]) for t in targets if int(t["found_step"]) >= 0)
     assert sorted(cell for f in frames for cell, _ in f["f"]) == firsts
     proposed = load_replay(mc_out, algorithm="proposed", run=1).scene
-    assert len(proposed["labels"]) == len(proposed["prior"]), "the CVT of that run"
+    assert proposed.labels is not None and len(proposed.labels) == len(proposed.prior), "the CVT of that run"
 
 
 def test_what_cannot_be_replayed_is_named(mc_out: Path, tmp_path: Path) -> None:

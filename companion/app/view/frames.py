@@ -18,7 +18,9 @@ from companion.core.connectivity import algebraic_connectivity, kruskal_mst, min
 
 @dataclass(frozen=True)
 class UavPose:
-    """A UAV as drawn at one step: pose, task (-1: none), silent flag, planned path, and whether its
+    """A UAV as drawn at one step.
+
+    A UAV as drawn at one step: pose, task (-1: none), silent flag, planned path, and whether its
     companion steers it (`UavState.steered`)."""
 
     x: float
@@ -60,7 +62,9 @@ def frame_json(
     figures: Figures,
     mst: np.ndarray,
 ) -> str:
-    """The frame of `step`: `u` one entry per UAV ([x, y, heading, task, silent, steered] or null), `p` the
+    """The frame of `step` as the page reads it (a JSON string).
+
+    The frame of `step`: `u` one entry per UAV ([x, y, heading, task, silent, steered] or null), `p` the
     planned paths, `l` the cells looked at in this step (with repeats: one look each), `f` the
     targets first found in this step as [cell, uav], `m` [found, eq. 30, lambda_2, min distance]
     and `t` the MST edges as UAV index pairs."""

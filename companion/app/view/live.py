@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any
 
 import msgspec
 import zenoh
@@ -36,8 +35,29 @@ TICK_S = 0.2  # how often steps waiting for silent UAVs are re-examined
 MAX_FRAMES = 100_000  # steps kept for the pages (about 10 MB for 4 UAVs)
 
 
+class ListenerStatus(msgspec.Struct, frozen=True):
+    """What the listener has seen (/api/status).
+
+    The session, the UAVs alive, the bundles received, dropped (malformed, unauthenticated) and
+    refused (kind -> sender -> count), the reports that came after their step closed (`late`) and
+    the last closed step."""
+
+    connected: bool
+    error: str
+    alive: list[int]
+    received: int
+    malformed: int
+    unauthenticated: int
+    refused: dict[str, dict[str, int]]
+    secured: bool
+    late: int
+    step: int
+
+
 def listener_config(world: World, keys: SwarmKeys | None = None) -> MeshConfig:
-    """The mission's mesh, joined without claiming the seed: a peer listens on `mesh.listen` and
+    """The mission's mesh, joined without claiming the seed.
+
+    The mission's mesh, joined without claiming the seed: a peer listens on `mesh.listen` and
     connects to the seed endpoint; a client connects to the router. `keys`: the view's own."""
     m = world.mission.mesh
     if m.mode == "client":
@@ -46,7 +66,9 @@ def listener_config(world: World, keys: SwarmKeys | None = None) -> MeshConfig:
 
 
 class MeshListener:
-    """Follows the mesh of `world.mission` on background threads; `frames_since` and `status` are
+    """A read-only follower of the mesh of `world.mission`, on background threads.
+
+    Follows the mesh of `world.mission` on background threads; `frames_since` and `status` are
     safe to call from any thread. `close` ends the session and the threads. `keys`: the view's
     own (`keys.for_mission(mission, "view")`) for a secured mesh."""
 
@@ -168,20 +190,21 @@ class MeshListener:
             start = max(n, self._first)
             return self._first + len(self._frames), self._frames[start - self._first :]
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> ListenerStatus:
+        """The listener's counters (`ListenerStatus`)."""
         with self._lock:
-            return {
-                "connected": self.session is not None,
-                "error": self.error,
-                "alive": sorted(self.alive),
-                "received": self.received,
-                "malformed": self.malformed,
-                "unauthenticated": self.unauthenticated,
-                "refused": self.refusals.summary(),
-                "secured": self.keys is not None,
-                "late": self.model.late,
-                "step": self.model.closed,
-            }
+            return ListenerStatus(
+                connected=self.session is not None,
+                error=self.error,
+                alive=sorted(self.alive),
+                received=self.received,
+                malformed=self.malformed,
+                unauthenticated=self.unauthenticated,
+                refused=self.refusals.summary(),
+                secured=self.keys is not None,
+                late=self.model.late,
+                step=self.model.closed,
+            )
 
     def close(self) -> None:
         """End the session (idempotent) and the listener's threads."""

@@ -1,5 +1,4 @@
-"""A finished run as frames: the output directory of `uavsearch run` or of
-`uavsearch mc --save-trajectories`.
+"""A finished run as frames: the output of `uavsearch run` or `uavsearch mc --save-trajectories`.
 
 Reads `mission.toml` (or the mission given), `summary.json` (the seed), `trajectories.csv`
 (poses and tasks per step), `steps.csv` (eq. 30, targets found, lambda_2, min distance per step)
@@ -14,13 +13,13 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
+import msgspec
 import numpy as np
 
 from companion.app.evaluation import CompanionLogs, logged_span
 from companion.app.view.frames import Figures, UavPose, frame_json, links
-from companion.app.view.scene import scene_json
+from companion.app.view.scene import Scene, build_scene
 from companion.contracts.mission import Mission
 from companion.core.feasibility import load_mission
 from companion.core.world import World, build_world
@@ -36,12 +35,14 @@ class ReplayError(ValueError):
 class Replay:
     """One run of a replay directory: its scene and its frames (JSON strings)."""
 
-    scene: dict[str, Any]
+    scene: Scene
     frames: list[str]
 
 
 def _rows(path: Path, algorithm: str | None, run: int | None) -> tuple[list[dict[str, str]], list[tuple]]:
-    """The rows of the first run in a CSV that matches `algorithm` and `run` (None: any), and
+    """The rows of one run of a CSV, and every (algorithm, run) the file holds.
+
+    The rows of the first run in a CSV that matches `algorithm` and `run` (None: any), and
     every (algorithm, run) the file holds."""
     rows: list[dict[str, str]] = []
     runs: dict[tuple[str, int], None] = {}
@@ -112,14 +113,12 @@ def load_replay(
         raise ReplayError(f"{directory / 'steps.csv'}: not one row per step of {algorithm} run {run}")
     frames = _frames(world, poses, tasks, figures, found, _silent_after(directory, n, n_steps))
     truth = [[c, *np.round(world.grid.centres[c], 3).tolist(), s] for c, s in sorted(found.items())]
-    scene = scene_json(
-        world,
-        "replay",
-        seed=seed,
+    scene = msgspec.structs.replace(
+        build_scene(world, "replay", seed),
+        targets=len(found),
         run=run,
         runs=[list(key) for key in runs],
         truth=truth,
-        targets=len(found),
         steps=n_steps,
     )
     return Replay(scene, frames)

@@ -2,57 +2,92 @@
 
 from __future__ import annotations
 
-from typing import Any
-
+import msgspec
 import numpy as np
 
 from companion.core.geometry import ConvexPolygon
 from companion.core.world import World
 
 
-def scene_json(world: World, mode: str, **extra: Any) -> dict[str, Any]:
-    """Everything the page draws that does not change during the mission.
+class SceneGrid(msgspec.Struct, frozen=True):
+    """The search grid's cells by lattice column and row.
 
-    Cells are given by lattice column and row (`grid.x0 + col * cell`, `grid.y0 + row * cell` is
-    the centre); `labels[p]` is the task of cell p (the assigned region of task j is the cells
-    labelled j), absent when the algorithm has no CVT.
-    """
+    Cell p's centre is (`x0 + cols[p] * cell`, `y0 + rows[p] * cell`)."""
+
+    x0: float
+    y0: float
+    cell: float
+    cols: list[int]
+    rows: list[int]
+
+
+class Scene(msgspec.Struct, frozen=True, omit_defaults=True):
+    """Everything the page draws that does not change during the mission (/api/scene).
+
+    `labels[p]` is the task of cell p (the assigned region of task j is the cells labelled j), None
+    when the algorithm has no CVT. A replay adds its run, the runs the directory holds, the
+    ground truth ([cell, x, y, step found]) and its steps; `targets` is then the truth's count."""
+
+    mode: str
+    mission: str
+    algorithm: str
+    n_uavs: int
+    region: list[list[float]]
+    fence: list[list[float]]
+    grid: SceneGrid
+    prior: list[float]
+    labels: list[int] | None
+    generators: list[list[float]]
+    comm_range: float
+    safety: float
+    fov_radius: float
+    eta0: float
+    gamma: float
+    targets: int
+    step_seconds: float
+    peer_timeout_steps: int
+    seed: int
+    run: int | None = None
+    runs: list[list[str | int]] | None = None
+    truth: list[list[float]] | None = None
+    steps: int | None = None
+
+
+def build_scene(world: World, mode: str, seed: int) -> Scene:
+    """The `Scene` of `world` ("live" or "replay" `mode`), without a replay's fields."""
     m, grid = world.mission, world.grid
     rows, cols = np.nonzero(grid.lattice >= 0)
     order = np.argsort(grid.lattice[rows, cols])
     tess = world.tessellation
-    scene: dict[str, Any] = {
-        "mode": mode,
-        "mission": m.name,
-        "algorithm": m.algorithm.name,
-        "n_uavs": m.n_uavs,
-        "region": [list(map(float, v)) for v in m.region.polygon],
-        "fence": fence_vertices(world.grid.region, m.safety.margin).round(3).tolist(),
-        "grid": {
-            "x0": grid.x0,
-            "y0": grid.y0,
-            "cell": grid.cell_size,
-            "cols": cols[order].tolist(),
-            "rows": rows[order].tolist(),
-        },
-        "prior": np.round(world.prior, 8).tolist(),
-        "labels": tess.labels.tolist() if tess is not None else None,
-        "generators": np.round(tess.generators, 3).tolist() if tess is not None else [],
-        "comm_range": m.comms.range,
-        "safety": m.comms.safety,
-        "fov_radius": m.sensor.radius,
-        "eta0": m.uncertainty.eta0,
-        "gamma": m.uncertainty.gamma,
-        "targets": m.prior.targets,
-        "step_seconds": m.kinematics.step,
-        "peer_timeout_steps": m.comms.peer_timeout_steps,
-    }
-    scene.update(extra)
-    return scene
+    return Scene(
+        mode=mode,
+        mission=m.name,
+        algorithm=m.algorithm.name,
+        n_uavs=m.n_uavs,
+        region=[list(map(float, v)) for v in m.region.polygon],
+        fence=fence_vertices(world.grid.region, m.safety.margin).round(3).tolist(),
+        grid=SceneGrid(
+            float(grid.x0), float(grid.y0), float(grid.cell_size), cols[order].tolist(), rows[order].tolist()
+        ),
+        prior=np.round(world.prior, 8).tolist(),
+        labels=tess.labels.tolist() if tess is not None else None,
+        generators=np.round(tess.generators, 3).tolist() if tess is not None else [],
+        comm_range=m.comms.range,
+        safety=m.comms.safety,
+        fov_radius=m.sensor.radius,
+        eta0=m.uncertainty.eta0,
+        gamma=m.uncertainty.gamma,
+        targets=m.prior.targets,
+        step_seconds=m.kinematics.step,
+        peer_timeout_steps=m.comms.peer_timeout_steps,
+        seed=seed,
+    )
 
 
 def fence_vertices(region: ConvexPolygon, margin: float) -> np.ndarray:
-    """The fence's corners: the region with every edge pushed out by the operating `margin`, where
+    """The fence's corners: the region with every edge pushed out by the operating `margin`.
+
+    The fence's corners: the region with every edge pushed out by the operating `margin`, where
     the UAVs may turn outside the region to keep separation (docs/algorithm.md, "Safety layer")."""
     normals, offsets = region.normals, region.offsets + margin
     corners = [np.linalg.solve(normals[[i - 1, i]], offsets[[i - 1, i]]) for i in range(len(normals))]

@@ -18,13 +18,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
+import msgspec
 from aiohttp import WSCloseCode, web
 
-from companion.app.view.live import MeshListener
+from companion.app.view.live import ListenerStatus, MeshListener
 from companion.app.view.replay import Replay, ReplayError, load_replay
-from companion.app.view.scene import scene_json
+from companion.app.view.scene import Scene, build_scene
 from companion.contracts.keys import SwarmKeys
 from companion.core.world import World
 
@@ -34,15 +35,33 @@ CHUNK = 1000  # frames per websocket message
 SEND_TIMEOUT_S = 10.0  # a client that takes longer to accept a message is dropped
 
 
+class ReplayStatus(msgspec.Struct, frozen=True):
+    """A replay's status (/api/status): always connected, to its directory."""
+
+    connected: bool
+    replay: str
+
+
 class Source(Protocol):
     """Where the frames come from: a live mesh or a replay directory."""
 
     live: bool
 
-    def scene(self, query: dict[str, str]) -> dict[str, Any]: ...
-    def frames_since(self, query: dict[str, str], n: int) -> tuple[int, list[str]]: ...
-    def status(self) -> dict[str, Any]: ...
-    def close(self) -> None: ...
+    def scene(self, query: dict[str, str]) -> Scene:
+        """The static map of the run the query names."""
+        ...
+
+    def frames_since(self, query: dict[str, str], n: int) -> tuple[int, list[str]]:
+        """The frames made so far and those from the n-th on."""
+        ...
+
+    def status(self) -> ListenerStatus | ReplayStatus:
+        """The source's counters (/api/status)."""
+        ...
+
+    def close(self) -> None:
+        """Release what the source holds."""
+        ...
 
 
 class LiveSource:
@@ -52,18 +71,22 @@ class LiveSource:
 
     def __init__(self, world: World, seed: int, keys: SwarmKeys | None = None) -> None:
         self.listener = MeshListener(world, keys)
-        self._scene = scene_json(world, "live", seed=seed)
+        self._scene = build_scene(world, "live", seed)
 
-    def scene(self, query: dict[str, str]) -> dict[str, Any]:
+    def scene(self, query: dict[str, str]) -> Scene:
+        """The mission's static map (the same for every query)."""
         return self._scene
 
     def frames_since(self, query: dict[str, str], n: int) -> tuple[int, list[str]]:
+        """The listener's frames from the n-th on."""
         return self.listener.frames_since(n)
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> ListenerStatus:
+        """The listener's counters."""
         return self.listener.status()
 
     def close(self) -> None:
+        """End the listener's session and threads."""
         self.listener.close()
 
 
@@ -101,18 +124,21 @@ class ReplaySource:
             self._cache[key] = load_replay(self.directory, self.mission, algorithm, run)
         return self._cache[key]
 
-    def scene(self, query: dict[str, str]) -> dict[str, Any]:
+    def scene(self, query: dict[str, str]) -> Scene:
+        """The static map of the run the query names."""
         return self.replay(query).scene
 
     def frames_since(self, query: dict[str, str], n: int) -> tuple[int, list[str]]:
+        """All the run's frames, and those from the n-th on."""
         frames = self.replay(query).frames
         return len(frames), frames[n:]
 
-    def status(self) -> dict[str, Any]:
-        return {"connected": True, "replay": str(self.directory)}
+    def status(self) -> ReplayStatus:
+        """Connected, to the directory replayed."""
+        return ReplayStatus(connected=True, replay=str(self.directory))
 
     def close(self) -> None:
-        pass
+        """Nothing to release: the replays are in memory."""
 
 
 def _query(request: web.Request) -> dict[str, str]:
@@ -128,12 +154,13 @@ async def _scene(request: web.Request) -> web.Response:
         scene = await asyncio.to_thread(request.app["source"].scene, _query(request))
     except ReplayError as exc:
         return web.json_response({"error": str(exc)}, status=404)
-    return web.json_response(scene)
+    return web.json_response(msgspec.to_builtins(scene))
 
 
 async def _status(request: web.Request) -> web.Response:
     """The source's counters and the number of pages connected."""
-    return web.json_response({**request.app["source"].status(), "pages": len(request.app["sockets"])})
+    status = msgspec.to_builtins(request.app["source"].status())
+    return web.json_response({**status, "pages": len(request.app["sockets"])})
 
 
 async def _push(ws: web.WebSocketResponse, source: Source, query: dict[str, str]) -> None:
@@ -150,7 +177,7 @@ async def _push(ws: web.WebSocketResponse, source: Source, query: dict[str, str]
             text = '{"type":"frames","frames":[' + ",".join(frames[i : i + CHUNK]) + "]}"
             await asyncio.wait_for(ws.send_str(text), SEND_TIMEOUT_S)
         sent = made
-        status = {"type": "status", "live": source.live, **source.status()}
+        status = {"type": "status", "live": source.live, **msgspec.to_builtins(source.status())}
         await asyncio.wait_for(ws.send_str(json.dumps(status)), SEND_TIMEOUT_S)
         if not source.live:
             return
@@ -180,6 +207,7 @@ async def _close_sockets(app: web.Application) -> None:
 
 
 def make_app(source: Source) -> web.Application:
+    """The web application serving `source`: the page, /api/scene, /api/status and /ws."""
     app = web.Application()
     app["source"] = source
     app["sockets"] = set()
@@ -194,11 +222,14 @@ def make_app(source: Source) -> web.Application:
 
 @dataclass(frozen=True)
 class Address:
+    """Where the server listens."""
+
     host: str
     port: int
 
     @property
     def url(self) -> str:
+        """The page's URL (an IPv6 host in brackets)."""
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{host}:{self.port}/"
 
@@ -221,7 +252,9 @@ async def _serve(source: Source, host: str, port: int, ready: Callable[[Address]
 
 
 def serve(source: Source, host: str, port: int, ready: Callable[[Address], None]) -> None:
-    """Serve the page until SIGINT/SIGTERM; `ready` gets the bound address (port 0: the OS picks).
+    """Serve the page until SIGINT/SIGTERM.
+
+    Serve the page until SIGINT/SIGTERM; `ready` gets the bound address (port 0: the OS picks).
     Closes `source` on the way out. Raises OSError when the address cannot be bound."""
     try:
         asyncio.run(_serve(source, host, port, ready))
