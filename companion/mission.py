@@ -643,12 +643,12 @@ def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
 def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
     """The safety layer's preconditions: a margin the UAVs can turn back in, and a start layout
     that is separated, connected and admits a contingency for every UAV (core.safety)."""
-    from companion.core import safety  # local: keep module import light
+    from companion.core.safety.start import minimum_margin, tether_tree  # local: keep import light
     from companion.core.world import build_grid, build_kinematics, build_safety
 
     kin = build_kinematics(m)
     horizon = m.algorithm.horizon
-    need = safety.minimum_margin(kin, horizon)
+    need = minimum_margin(kin, horizon)
     if m.safety.margin < need:
         fail(
             "safety.margin",
@@ -667,7 +667,7 @@ def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
                     f"R_s + safety.buffer = {c.safety + buffer:g} m",
                 )
     link = c.range - buffer
-    _, parents = safety.tether_tree(np.array(poses, dtype=float), link)
+    _, parents = tether_tree(np.array(poses, dtype=float), link)
     apart = [i for i, p in enumerate(parents) if p < 0 and i > 0]
     if apart:
         fail(

@@ -37,13 +37,10 @@ from numba import njit
 
 from companion.core.geometry import BoolArray, FloatArray, IntArray
 from companion.core.messages import StateMsg, UavState
-from companion.core.safety import (
-    compatible,
-    expand_with_centres,
-    first_allowed,
-    flyable,
-    may_switch,
-)
+from companion.core.safety.expansion import expand_with_centres
+from companion.core.safety.proposal import first_allowed
+from companion.core.safety.separation import compatible, flyable
+from companion.core.safety.switch import may_switch
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
 

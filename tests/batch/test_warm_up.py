@@ -27,8 +27,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def _kernels() -> dict[str, CPUDispatcher]:
     found = {}
-    for info in pkgutil.iter_modules(companion.core.__path__):
-        module = importlib.import_module(f"companion.core.{info.name}")
+    for info in pkgutil.walk_packages(companion.core.__path__, "companion.core."):
+        module = importlib.import_module(info.name)
         for name, obj in vars(module).items():
             if isinstance(obj, CPUDispatcher) and obj.__module__ == module.__name__:
                 found[f"{module.__name__}.{name}"] = obj

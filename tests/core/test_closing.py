@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from companion.batch.engine import Radio, initial_poses
 from companion.core.agent import Agent, Observation
 from companion.core.messages import StateMsg
-from companion.core.safety import expand_with_centres
+from companion.core.safety.expansion import expand_with_centres
 from companion.core.world import FAILSAFE_WIDE, Stream, build_world, instance_rng
 from companion.mission import Layers, load_mission
 
