@@ -33,26 +33,17 @@ import math
 from collections.abc import Iterable
 
 import numpy as np
-from numba import njit
 
-from companion.core.geometry import BoolArray, FloatArray, IntArray
+from companion.core.gathered import Gathered, first_allowed_from, flyable_from, may_switch_from
+from companion.core.geometry import FloatArray, IntArray
 from companion.core.messages import StateMsg, UavState
 from companion.core.safety.expansion import expand_with_centres
-from companion.core.safety.proposal import first_allowed
-from companion.core.safety.separation import compatible, flyable
-from companion.core.safety.switch import may_switch
+from companion.core.safety.inputs import Candidates, Regions, Rules
+from companion.core.safety.separation import compatible
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
-# what the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
-# (n, window + 2, 2), owners, whether a trajectory in force (else a proposal), loiter centres, loiter
-# entry indices, the rows of the UAVs whose trajectories in force before their latest are `_lone`,
-# the disks (cx, cy, r) of UAVs not heard, the disks' owners, and whether the contingency clause
-# holds against each row (its owner's layer is near)
-Gathered = tuple[
-    FloatArray, IntArray, BoolArray, FloatArray, IntArray, IntArray, FloatArray, IntArray, BoolArray
-]
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
 LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
 FAR = 1e4  # m: a point this far in a direction stands for the direction
@@ -103,23 +94,36 @@ class Commitments:
         ]
         # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
         # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
-        self._gathered: Gathered = (
+        self._gathered = Gathered(
             np.zeros((0, plan.limits.reach.window + 2, 2)),
             np.zeros(0, dtype=np.int64),
             np.zeros(0, dtype=bool),
             np.zeros((0, 2)),
             np.zeros(0, dtype=np.int64),
             np.zeros(0, dtype=np.int64),
+            np.zeros((0, 2)),
             np.zeros((0, 3)),
             np.zeros(0, dtype=np.int64),
             np.zeros(0, dtype=bool),
         )
-        self._lone = np.zeros((0, 2))
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
-        self._no_regions = np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64)
-        self._loiters, self._fans, self._fan_counts = self._no_regions
+        self._no_regions = Regions(np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64))
+        self._regions = self._no_regions
         self.progress = LEAVING_PROGRESS * plan.limits.reach.step  # per planned step, leaving a disk
+        lim = plan.limits
+        self.rules = Rules(
+            lim.reach.window,
+            lim.horizon,
+            lim.kinematics_args,
+            lim.fence_normals,
+            lim.fence_offsets,
+            lim.separation,
+            lim.disk_separation,
+            lim.link,
+            self.contingency,
+            self.progress,
+        )
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
 
@@ -249,26 +253,29 @@ class Commitments:
         kinematics = lim.kinematics_args
         pts, centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
         turn = lim.reach.loiter_turn
-        self._gathered = (
+        self._gathered = Gathered(
             pts,
             np.array(owners, dtype=np.int64),
             ~np.array(proposals, dtype=bool),
             centres,
             np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64),
             np.array(lone_rows, dtype=np.int64),
+            expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1],
             np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:]),
             np.array([j for j, *_ in disks], dtype=np.int64),
             np.array(clause, dtype=bool),
         )
-        self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1]
         if not regions:  # (empty arrays are never written to)
-            self._loiters, self._fans, self._fan_counts = self._no_regions
+            self._regions = self._no_regions
             return
-        self._loiters = np.array([d for d, _ in regions], dtype=float).reshape(-1, 3)
-        self._fans = np.zeros((len(regions), lim.horizon + 1, 2))
-        self._fan_counts = np.array([len(p) for _, p in regions], dtype=np.int64)
+        fans = np.zeros((len(regions), lim.horizon + 1, 2))
         for i, (_, path) in enumerate(regions):
-            self._fans[i, : len(path)] = path
+            fans[i, : len(path)] = path
+        self._regions = Regions(
+            np.array([d for d, _ in regions], dtype=float).reshape(-1, 3),
+            fans,
+            np.array([len(p) for _, p in regions], dtype=np.int64),
+        )
 
     def _links(self) -> IntArray:
         """The tethered UAVs (parents and children) not taken as gone, ascending."""
@@ -286,23 +293,7 @@ class Commitments:
         if self.proposal is not None and self.proposal.start == k:
             both = lim.rows([self.proposal, self.inforce])
             pe, ie = (t.loiter_entry(turn) - k for t in (self.proposal, self.inforce))
-            fans = self._loiters, self._fans, self._fan_counts
-            if may_switch_from(
-                self._gathered,
-                links,
-                self.uav,
-                both,
-                k,
-                lim.reach.window,
-                lim.kinematics_args,
-                pe,
-                ie,
-                fans,
-                self.progress,
-                self._lone,
-                self.contingency,
-                lim.clearances,
-            ):
+            if may_switch_from(self._gathered, links, self.uav, both, k, pe, ie, self._regions, self.rules):
                 chosen = self.proposal
                 self.accepted += 1
             else:
@@ -332,11 +323,9 @@ class Commitments:
             Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
             for turns, side in self._contingencies
         )
-        window, fence = lim.reach.window, (lim.fence_normals, lim.fence_offsets)
-        gathered = self._gathered, links, self.uav
         for option in itertools.chain((trajectory,), contingencies):
             row = lim.rows([option])[0]
-            if flyable_from(*gathered, row, k, window, lim.kinematics_args, *fence, lim.clearances):
+            if flyable_from(self._gathered, links, self.uav, row, k, self.rules):
                 if option is not trajectory:
                     self.recovered += 1
                 return option
@@ -385,7 +374,7 @@ class Commitments:
             if compatible(pts, empty_o, empty_d, tethers, empty_d, *lim.clearances):
                 self.parents = (*self.parents, j)
                 self.parent_since = k
-                if j not in self._gathered[1]:  # left out as too far to matter: not as a tether
+                if j not in self._gathered.owners:  # left out as too far to matter: not as a tether
                     self._gather(k, float(position[0]), float(position[1]))
                 return
 
@@ -397,31 +386,19 @@ class Commitments:
         x, y, heading = pose
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
+        candidates = Candidates(
+            order, self._shapes[h], self._shape_centres[h], x, y, c, s, self._turn_towards(x, y)
+        )
         best, side = first_allowed_from(
             self._gathered,
             self._links(),
             self.uav,
-            lim.rows([self.inforce]),  # a proposal not clearing the regions keeps as far from them as this
             k + 1,
-            lim.reach.window,
-            lim.kinematics_args,
-            order,
-            self._shapes[h],
-            x,
-            y,
-            c,
-            s,
-            lim.horizon,
-            self._turn_towards(x, y),
-            lim.fence_normals,
-            lim.fence_offsets,
-            (self._loiters, self._fans, self._fan_counts),
-            self.progress,
+            lim.rows([self.inforce]),  # a proposal not clearing the regions keeps as far from them as this
             self.inforce.loiter_entry(lim.reach.loiter_turn) - (k + 1),
-            self._shape_centres[h],
-            self._lone,
-            self.contingency,
-            lim.clearances,
+            candidates,
+            self._regions,
+            self.rules,
         )
         self.first_asked += 1
         self.first_refused += bool(len(order)) and best != order[0]
@@ -446,201 +423,3 @@ class Commitments:
 
     def propose(self, proposal: Trajectory | None) -> None:
         self.proposal = proposal
-
-
-@njit(cache=True)
-def select_checked(
-    gathered: Gathered,
-    links: IntArray,
-    uav: int,
-    resolving: bool,
-    proposals: bool,
-) -> tuple[
-    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, IntArray, BoolArray
-]:
-    """What a check reads from this step's gathering (`Gathered`: `pts` (n, window + 2, 2) from t_k,
-    their `owners`, which are trajectories `in_force`, their loiter `centres` and `entries`, the
-    rows of the `lone` centres' owners, the `disks` (cx, cy, r) and their owners, and whether the
-    contingency clause holds against each row) and the tethered UAVs `links` (sorted): what to keep
-    clear of, the disks, the tethers and their disks, and the checked rows' centres, in-force flags,
-    entries, the rows of the `lone` centres' owners and their clause flags.
-    Rows checked: trajectories in force, and the others' proposals unless not `proposals`, or when
-    `resolving` only those of lower ids than `uav`; their window from t_k when `resolving`, else
-    from t_k+1. Contiguous copies: the kernels are compiled for C-ordered arrays. Called inside the
-    compiled checks (`may_switch_from`, `flyable_from`, `first_allowed_from`), so its arrays never
-    cross back into Python."""
-    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, clause = gathered
-    n, width = pts.shape[0], pts.shape[1] - 1
-    lo = 0 if resolving else 1
-    keep = np.empty(n, dtype=np.bool_)
-    for i in range(n):
-        keep[i] = in_force[i] or (proposals and not (resolving and owners[i] > uav))
-    rows = np.flatnonzero(keep)
-    linked = np.empty(n, dtype=np.bool_)
-    for i in range(n):
-        linked[i] = keep[i] and _member(owners[i], links)
-    tethered = np.flatnonzero(linked)
-    others = np.empty((rows.shape[0], width, 2))
-    for r in range(rows.shape[0]):
-        others[r] = pts[rows[r], lo : lo + width]
-    tethers = np.empty((tethered.shape[0], width, 2))
-    for r in range(tethered.shape[0]):
-        tethers[r] = pts[tethered[r], lo : lo + width]
-    tether_disks = np.empty((0, 3))
-    for d in range(disks.shape[0]):
-        if _member(disk_owners[d], links):
-            tether_disks = np.concatenate((tether_disks, disks[d : d + 1]))
-    position = np.full(n, -1, dtype=np.int64)
-    for r in range(rows.shape[0]):
-        position[rows[r]] = r
-    lone_owners = np.empty(lone_rows.shape[0], dtype=np.int64)
-    for o in range(lone_rows.shape[0]):
-        lone_owners[o] = position[lone_rows[o]]
-    return (
-        others,
-        disks,
-        tethers,
-        tether_disks,
-        centres[rows],
-        in_force[rows],
-        entries[rows] - lo,
-        lone_owners,
-        clause[rows],
-    )
-
-
-@njit(cache=True)
-def _member(value: int, sorted_values: IntArray) -> bool:
-    i = np.searchsorted(sorted_values, value)
-    return i < sorted_values.shape[0] and sorted_values[i] == value
-
-
-@njit(cache=True)
-def may_switch_from(
-    gathered: Gathered,
-    links: IntArray,
-    uav: int,
-    rows: FloatArray,
-    first: int,
-    window: int,
-    kinematics: tuple[float, bool, float, float, float],
-    entry: int,
-    reference_entry: int,
-    fans: tuple[FloatArray, FloatArray, IntArray],
-    progress: float,
-    lone: FloatArray,
-    reach: float,
-    clearances: tuple[float, float, float],
-) -> bool:
-    """`safety.may_switch` of the proposal rows[0] against what this step's gathering holds
-    (`select_checked` for the resolution: the others' proposals only of lower ids, from t_k)."""
-    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners, clause = select_checked(
-        gathered, links, uav, True, True
-    )
-    return may_switch(
-        rows,
-        first,
-        window,
-        kinematics,
-        entry,
-        reference_entry,
-        others,
-        in_force,
-        disks,
-        tethers,
-        tether_disks,
-        fans,
-        progress,
-        entries,
-        centres,
-        lone,
-        lone_owners,
-        clause,
-        reach,
-        clearances,
-    )
-
-
-@njit(cache=True)
-def flyable_from(
-    gathered: Gathered,
-    links: IntArray,
-    uav: int,
-    row: FloatArray,
-    first: int,
-    window: int,
-    kinematics: tuple[float, bool, float, float, float],
-    normals: FloatArray,
-    offsets: FloatArray,
-    clearances: tuple[float, float, float],
-) -> bool:
-    """`safety.flyable` against the others' trajectories in force of this step's gathering and the
-    tethers among them, from t_k (`Commitments._flyable`)."""
-    others, _, tethers, _, _, _, _, _, _ = select_checked(gathered, links, uav, True, False)
-    return flyable(row, first, window, kinematics, normals, offsets, others, tethers, clearances)
-
-
-@njit(cache=True)
-def first_allowed_from(
-    gathered: Gathered,
-    links: IntArray,
-    uav: int,
-    reference_row: FloatArray,
-    first: int,
-    window: int,
-    kinematics: tuple[float, bool, float, float, float],
-    order: IntArray,
-    shapes: FloatArray,
-    x: float,
-    y: float,
-    cos_h: float,
-    sin_h: float,
-    horizon: int,
-    centre: FloatArray,
-    normals: FloatArray,
-    offsets: FloatArray,
-    fans: tuple[FloatArray, FloatArray, IntArray],
-    progress: float,
-    reference_entry: int,
-    centres_rel: FloatArray,
-    lone: FloatArray,
-    reach: float,
-    clearances: tuple[float, float, float],
-) -> tuple[int, int]:
-    """`safety.first_allowed` against everything this step's gathering holds, from t_k+1 = `first`
-    (`select_checked` for a new proposal), with the trajectory in force `reference_row` expanded
-    from there as the reference."""
-    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners, clause = select_checked(
-        gathered, links, uav, False, True
-    )
-    reference, reference_centre = expand_with_centres(reference_row, first, window, kinematics)
-    return first_allowed(
-        order,
-        shapes,
-        x,
-        y,
-        cos_h,
-        sin_h,
-        horizon,
-        centre,
-        normals,
-        offsets,
-        others,
-        in_force,
-        disks,
-        tethers,
-        tether_disks,
-        fans,
-        progress,
-        reference[0],
-        reference_entry,
-        centres_rel,
-        entries,
-        centres,
-        lone,
-        lone_owners,
-        clause,
-        reference_centre[0],
-        reach,
-        clearances,
-    )

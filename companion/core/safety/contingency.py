@@ -6,8 +6,9 @@ import math
 
 from numba import njit
 
-from companion.core.geometry import BoolArray, FloatArray, IntArray
+from companion.core.geometry import FloatArray, IntArray
 from companion.core.safety.fans import fan_clearance, fan_count, fan_radius, to_segment
+from companion.core.safety.inputs import Checked, Expanded, Rules
 from companion.core.trajectory import point_clearance
 
 
@@ -55,49 +56,30 @@ def contingency_clearance(
 
 @njit(cache=True)
 def keeps_contingencies(
-    pts: FloatArray,
-    entry: int,
-    cx: float,
-    cy: float,
-    reference: FloatArray,
-    reference_entry: int,
-    rx: float,
-    ry: float,
-    others: FloatArray,
-    entries: IntArray,
-    centres: FloatArray,
-    lone: FloatArray,
-    lone_owners: IntArray,
-    clause: BoolArray,
-    reach: float,
-    disk_separation: float,
-    known: FloatArray,
-    hint: IntArray,
+    mine: Expanded, reference: Expanded, checked: Checked, rules: Rules, known: FloatArray, hint: IntArray
 ) -> tuple[int, float]:
-    """The contingency clause of compatibility for the trajectory at `pts` (loiter entry index
-    `entry`, loiter centre (cx, cy)), against the others' trajectories at `others` (loiter entries
-    `entries`, centres `centres`) and the loiter centres `lone` of the trajectories in force a UAV
-    announced before its latest (its failsafe may still circle there, reached along its trajectory
-    in force, others[lone_owners]; one-sided), where `clause` holds for the row (its owner's layer
-    is near; other rows are cleared vertically): 2 if it clears every such region by more than
-    `disk_separation` (`contingency_clearance`); else 1 if, against every region it does not clear,
-    it keeps at least as far as the trajectory in force at `reference` (`reference_entry`, loiter
-    centre (rx, ry)) over the same steps (a start layout closer than the clause: pairs only move
-    apart); else 0. Also the smallest clearance of a pair it does not clear (infinite if none; with
-    0, the clearance from a region it keeps less far from than the reference).
+    """The contingency clause of compatibility for the trajectory `mine`, against the others'
+    trajectories (`checked.others`, their loiter entries and centres) and the loiter centres
+    `checked.lone` of the trajectories in force a UAV announced before its latest (its failsafe
+    may still circle there, reached along its trajectory in force, others[lone_owners];
+    one-sided), where `checked.clause` holds for the row (its owner's layer is near; other rows
+    are cleared vertically): 2 if it clears every such region by more than `rules.disk_separation`
+    (`contingency_clearance` with the fans inflated by `rules.reach`); else 1 if, against every
+    region it does not clear, it keeps at least as far as the trajectory in force `reference` over
+    the same steps (a start layout closer than the clause: pairs only move apart); else 0. Also
+    the smallest clearance of a pair it does not clear (infinite if none; with 0, the clearance
+    from a region it keeps less far from than the reference).
     Between calls with the same reference (`first_allowed`'s candidates), `known` (an entry per row
     of `others`, then per `lone` centre; NaN until computed) keeps the reference's clearances, and
     hint[0] the entry that failed last (-1: none), which is tried first: the answer is 0 as soon as
     any entry fails, whichever it is."""
-    args = (pts, entry, cx, cy, reference, reference_entry, rx, ry, others, entries, centres)
-    more = (lone, lone_owners, clause, reach, disk_separation, known)
     if hint[0] >= 0:
-        state, c = _against(hint[0], *args, *more)
+        state, c = _against(hint[0], mine, reference, checked, rules, known)
         if state == 0:
             return 0, c
     code, worst = 2, math.inf
-    for o in range(others.shape[0] + lone.shape[0]):
-        state, c = _against(o, *args, *more)
+    for o in range(checked.others.shape[0] + checked.lone.shape[0]):
+        state, c = _against(o, mine, reference, checked, rules, known)
         if state == 0:
             hint[0] = o
             return 0, c
@@ -108,61 +90,47 @@ def keeps_contingencies(
 
 @njit(cache=True)
 def _against(
-    o: int,
-    pts: FloatArray,
-    entry: int,
-    cx: float,
-    cy: float,
-    reference: FloatArray,
-    reference_entry: int,
-    rx: float,
-    ry: float,
-    others: FloatArray,
-    entries: IntArray,
-    centres: FloatArray,
-    lone: FloatArray,
-    lone_owners: IntArray,
-    clause: BoolArray,
-    reach: float,
-    disk_separation: float,
-    known: FloatArray,
+    o: int, mine: Expanded, reference: Expanded, checked: Checked, rules: Rules, known: FloatArray
 ) -> tuple[int, float]:
     """`keeps_contingencies` against its entry o (a row of `others`, then a `lone` centre): 2 it
     clears the region, 1 it does not but keeps as far as the reference (and its clearance), 0 it
     keeps less far."""
+    pts, others = mine.pts, checked.others
+    reach, disk_separation = rules.reach, rules.disk_separation
     width = pts.shape[0]
     if o < others.shape[0]:
-        if not clause[o]:
+        if not checked.clause[o]:
             return 2, math.inf
-        ox, oy, oe = centres[o, 0], centres[o, 1], entries[o]
-        count, other_count = fan_count(entry, width), fan_count(oe, width)
-        if _clearly_clear(pts, count, cx, cy, others[o], other_count, ox, oy, reach + disk_separation):
+        ox, oy, oe = checked.centres[o, 0], checked.centres[o, 1], checked.entries[o]
+        count, other_count = fan_count(mine.entry, width), fan_count(oe, width)
+        if _clearly_clear(
+            pts, count, mine.cx, mine.cy, others[o], other_count, ox, oy, reach + disk_separation
+        ):
             return 2, math.inf
         # the pair's clearance, min(mine, theirs) - reach (`contingency_clearance`), is at most mine,
         # which is at most the clearance from the other's loiter centre (`_centre_clearance`): a
         # trajectory closer than the reference to the other's region fails without the fans
-        reference_pair = (reference, reference_entry, rx, ry, others, entries, centres, reach)
         near = _centre_clearance(pts, ox, oy) - reach
-        if near <= disk_separation and near < _reference_clearance(known, o, *reference_pair):
+        if near <= disk_separation and near < _reference_clearance(known, o, reference, checked, reach):
             return 0, near
-        mine = fan_clearance(pts, others[o], other_count, ox, oy) - reach
-        if mine <= disk_separation and mine < _reference_clearance(known, o, *reference_pair):
-            return 0, mine
-        c = min(mine, fan_clearance(others[o], pts, count, cx, cy) - reach)
+        clear = fan_clearance(pts, others[o], other_count, ox, oy) - reach
+        if clear <= disk_separation and clear < _reference_clearance(known, o, reference, checked, reach):
+            return 0, clear
+        c = min(clear, fan_clearance(others[o], pts, count, mine.cx, mine.cy) - reach)
         if c > disk_separation:
             return 2, math.inf
-        return (0 if c < _reference_clearance(known, o, *reference_pair) else 1), c
+        return (0 if c < _reference_clearance(known, o, reference, checked, reach) else 1), c
     lo = o - others.shape[0]
-    owner = lone_owners[lo]
-    flown = fan_count(entries[owner], width)
-    lx, ly = lone[lo, 0], lone[lo, 1]
+    owner = checked.lone_owners[lo]
+    flown = fan_count(checked.entries[owner], width)
+    lx, ly = checked.lone[lo, 0], checked.lone[lo, 1]
     if point_clearance(pts, lx, ly) - fan_radius(others[owner], flown, lx, ly) - reach > disk_separation:
         return 2, math.inf
     c = fan_clearance(pts, others[owner], flown, lx, ly) - reach
     if c > disk_separation:
         return 2, math.inf
     if math.isnan(known[o]):
-        known[o] = fan_clearance(reference, others[owner], flown, lx, ly) - reach
+        known[o] = fan_clearance(reference.pts, others[owner], flown, lx, ly) - reach
     return (0 if c < known[o] else 1), c
 
 
@@ -178,19 +146,20 @@ def _centre_clearance(a: FloatArray, cx: float, cy: float) -> float:
 
 @njit(cache=True)
 def _reference_clearance(
-    known: FloatArray,
-    o: int,
-    reference: FloatArray,
-    reference_entry: int,
-    rx: float,
-    ry: float,
-    others: FloatArray,
-    entries: IntArray,
-    centres: FloatArray,
-    reach: float,
+    known: FloatArray, o: int, reference: Expanded, checked: Checked, reach: float
 ) -> float:
     """`contingency_clearance` of the reference and others[o], computed once (`keeps_contingencies`)."""
     if math.isnan(known[o]):
-        other, ox, oy = others[o], centres[o, 0], centres[o, 1]
-        known[o] = contingency_clearance(reference, reference_entry, rx, ry, other, entries[o], ox, oy, reach)
+        other, ox, oy = checked.others[o], checked.centres[o, 0], checked.centres[o, 1]
+        known[o] = contingency_clearance(
+            reference.pts,
+            reference.entry,
+            reference.cx,
+            reference.cy,
+            other,
+            checked.entries[o],
+            ox,
+            oy,
+            reach,
+        )
     return known[o]

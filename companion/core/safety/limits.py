@@ -10,7 +10,7 @@ import numpy as np
 from companion.core.geometry import ConvexPolygon, FloatArray
 from companion.core.kinematics import Kinematics
 from companion.core.safety.expansion import expand_rows, loiter_centre
-from companion.core.trajectory import HEAD, Reach, Trajectory, expand
+from companion.core.trajectory import HEAD, Reach, Trajectory, expand, step_pose
 
 TURN_SIDES = (1, -1)
 
@@ -115,6 +115,17 @@ class Limits:
         for index in np.ndindex(*shapes.shape[:3]):
             out[index] = loiter_centre(shapes[index], self.horizon)
         return out
+
+    def track(self, trajectory: Trajectory) -> tuple[tuple[tuple[float, float], ...], tuple[float, ...]]:
+        """The first M points of `trajectory` (from its anchor on) and the heading at each (eq. 2)."""
+        x, y, h = trajectory.x, trajectory.y, trajectory.heading
+        points, headings = [], []
+        for i in range(self.horizon):
+            points.append((x, y))
+            headings.append(h)
+            turn = trajectory.turn_at(trajectory.start + i, self.reach.loiter_turn)
+            x, y, h = step_pose(x, y, h, turn, self.grid, self.speed, self.dt, self.cell)
+        return tuple(points), tuple(headings)
 
     @property
     def kinematics_args(self) -> tuple[float, bool, float, float, float]:

@@ -8,6 +8,7 @@ import numpy as np
 from numba import njit
 
 from companion.core.geometry import BoolArray, FloatArray
+from companion.core.safety.inputs import Rules
 from companion.core.trajectory import expand, point_clearance, segment_clearance
 
 
@@ -94,21 +95,13 @@ def split_crowded(
 
 
 @njit(cache=True)
-def flyable(
-    row: FloatArray,
-    first: int,
-    window: int,
-    kinematics: tuple[float, bool, float, float, float],
-    normals: FloatArray,
-    offsets: FloatArray,
-    others: FloatArray,
-    tethers: FloatArray,
-    clearances: tuple[float, float, float],
-) -> bool:
-    """Whether the trajectory `row`, expanded from step `first`, stays in the fence and is
-    compatible with the trajectories `others` and `tethers` (`Commitments._flyable`)."""
-    pts = expand(row, first, window, *kinematics)
-    if not inside_fence(pts, normals, offsets):
+def flyable(row: FloatArray, first: int, rules: Rules, others: FloatArray, tethers: FloatArray) -> bool:
+    """Whether the trajectory `row`, expanded from step `first` over `rules.window`, stays in the
+    fence and is compatible with the trajectories `others` and `tethers` (`Commitments._flyable`)."""
+    pts = expand(row, first, rules.window, *rules.kinematics)
+    if not inside_fence(pts, rules.normals, rules.offsets):
         return False
     no_disks = np.zeros((0, 3))
-    return compatible(pts, others, no_disks, tethers, no_disks, *clearances)
+    return compatible(
+        pts, others, no_disks, tethers, no_disks, rules.separation, rules.disk_separation, rules.link
+    )
