@@ -6,14 +6,47 @@ The scoring loops run compiled (numba): they are the hot path of every agent ste
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from companion.core.geometry import FloatArray, IntArray
+from companion.core.geometry import FloatArray, Grid, IntArray
+from companion.core.kinematics import Kinematics
 from companion.core.potential import link_cost, safety_cost
 
 PENALTY_KNEE = 10.0
+
+
+class TaskRegion(NamedTuple):
+    """The UAV's assigned region V* of eq. 25: its task (-1: none, hence no penalty), generator q*
+    and circumradius R*."""
+
+    task: int
+    generator: FloatArray
+    circumradius: float
+
+
+class ScoreWeights(NamedTuple):
+    """The constants of eq. 22's ranking: (delta_1, delta_2) of eq. 25, (chi_1, chi_2) of eq. 22,
+    (R_c, R'_c, R_s, R'_s) of eq. 28, the region's half-planes and the cell size (`region_key`)."""
+
+    delta: tuple[float, float]
+    chi: tuple[float, float]
+    comms: tuple[float, float, float, float]
+    normals: FloatArray
+    offsets: FloatArray
+    cell_size: float
+
+
+class GridCells(NamedTuple):
+    """Grid mode's cell lookup (`grid_path_cells`): the lattice's origin (x0, y0), the cell of each
+    lattice node (-1 outside) and each cell's FOV cells (eq. 3; the last row is padding)."""
+
+    x0: float
+    y0: float
+    lattice: IntArray
+    fov_table: IntArray
 
 
 @njit(cache=True)
@@ -114,6 +147,24 @@ def grid_path_cells(
     return cells, fov, prefix
 
 
+def continuous_path_cells(
+    grid: Grid, kin: Kinematics, pts: FloatArray
+) -> tuple[IntArray, IntArray, IntArray]:
+    """Continuous mode: the cell under each path point, the FOV cells of each point (eq. 3), and
+    the in-region prefix (grid mode does all this inside `rank_grid_candidates`).
+
+    A path's last point must also leave room to turn back (a turning diameter from the
+    boundary), else the path counts one point short: three steps of eq. 2 cannot see the
+    U-turn a corner needs.
+    """
+    cells = grid.cell_at(pts)
+    depth = -np.max(pts @ grid.region.normals.T - grid.region.offsets, axis=-1)  # metres inside
+    prefix = np.cumprod(depth >= 0, axis=1).sum(axis=1)
+    diameter = 2 * kin.speed * kin.dt / kin.turn_limit
+    prefix -= (prefix == pts.shape[1]) & (depth[:, -1] < diameter)
+    return cells, grid.fov_cells(pts), prefix
+
+
 @njit(cache=True)
 def region_key(
     prefix: IntArray, points: FloatArray, normals: FloatArray, offsets: FloatArray, cell_size: float
@@ -151,25 +202,20 @@ def rank_candidates(
     prefix: IntArray,
     values_padded: FloatArray,
     point_labels: IntArray,
-    task: int,
-    generator: FloatArray,
-    circumradius: float,
-    delta: tuple[float, float],
-    chi: tuple[float, float],
+    region: TaskRegion,
     neighbour_tracks: FloatArray,
-    comms: tuple[float, float, float, float],
-    normals: FloatArray,
-    offsets: FloatArray,
-    cell_size: float,
+    weights: ScoreWeights,
 ) -> IntArray:
     """Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
-    (`region_key`, `rank_paths`). `comms` is (R_c, R'_c, R_s, R'_s)."""
+    (`region_key`, `rank_paths`)."""
+    delta, chi, comms = weights.delta, weights.chi, weights.comms
+    task, generator, circumradius = region
     benefit = search_benefit(
         points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1]
     )
     expense = path_expense(points, neighbour_tracks, comms[0], comms[1], comms[2], comms[3])
-    region = region_key(prefix, points, normals, offsets, cell_size)
-    return rank_paths(chi[0] * benefit - chi[1] * expense, region)
+    region_keys = region_key(prefix, points, weights.normals, weights.offsets, weights.cell_size)
+    return rank_paths(chi[0] * benefit - chi[1] * expense, region_keys)
 
 
 @njit(cache=True)
@@ -177,30 +223,28 @@ def rank_grid_candidates(
     x: float,
     y: float,
     offsets: FloatArray,
-    x0: float,
-    y0: float,
-    lattice: IntArray,
-    fov_table: IntArray,
+    cells_of: GridCells,
     values_padded: FloatArray,
     cell_labels: IntArray,
-    task: int,
-    *rest: object,
-) -> tuple[int, FloatArray]:
+    region: TaskRegion,
+    neighbour_tracks: FloatArray,
+    weights: ScoreWeights,
+) -> tuple[IntArray, FloatArray]:
     """Grid mode in one call: the paths of eq. 23 from (x, y) (`offsets` is the `PathTree` table of
-    the UAV's heading), their cells and FOVs (`grid_path_cells`), and `choose_path`, which takes
-    `rest` (its arguments after `task`: generator, circumradius, ..., cell_size). The task of each
-    path point is read from `cell_labels` (-1 outside the region). Returns the chosen path's index
-    and its points."""
-    cell_size = rest[-1]
+    the UAV's heading), their cells and FOVs (`grid_path_cells`), and `rank_candidates`. The task of
+    each path point is read from `cell_labels` (-1 outside the region). Returns the paths' order
+    and their points."""
     pts = np.empty(offsets.shape)
     for i in range(offsets.shape[0]):
         for m in range(offsets.shape[1]):
             pts[i, m, 0], pts[i, m, 1] = offsets[i, m, 0] + x, offsets[i, m, 1] + y
-    cells, fov, prefix = grid_path_cells(pts, x0, y0, cell_size, lattice, fov_table)
+    x0, y0, lattice, fov_table = cells_of
+    cells, fov, prefix = grid_path_cells(pts, x0, y0, weights.cell_size, lattice, fov_table)
     point_labels = np.full(cells.shape, -1, dtype=np.int64)
-    if task >= 0:
+    if region.task >= 0:
         for i in range(cells.shape[0]):
             for m in range(cells.shape[1]):
                 if cells[i, m] >= 0:
                     point_labels[i, m] = cell_labels[cells[i, m]]
-    return rank_candidates(pts, fov, prefix, values_padded, point_labels, task, *rest), pts
+    order = rank_candidates(pts, fov, prefix, values_padded, point_labels, region, neighbour_tracks, weights)
+    return order, pts

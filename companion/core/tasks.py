@@ -26,6 +26,16 @@ class CostWeights(NamedTuple):
     comm_cap: float
 
 
+class TaskSet(NamedTuple):
+    """The tasks V_j a bidder bids for (eq. 15): each cell's task label, and each task's cell
+    count, generator q_j and area S_j (`cvt.Tessellation`)."""
+
+    labels: IntArray
+    cell_counts: IntArray
+    generators: FloatArray
+    areas: FloatArray
+
+
 @njit(cache=True)
 def time_cost(position: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights) -> FloatArray:
     """Eq. 16: C^t_ij = d_ij / sqrt(Dx^2 + Dy^2) + kappa * S_j / S_A (arrival + search)."""
@@ -73,22 +83,20 @@ def task_costs(
 def bid_rewards(
     eta: FloatArray,
     prior: FloatArray,
-    labels: IntArray,
     covered: IntArray,
-    cell_counts: IntArray,
+    tasks: TaskSet,
     v_max: float,
     c_max: float,
     position: FloatArray,
     neighbours: FloatArray,
-    generators: FloatArray,
-    areas: FloatArray,
     w: CostWeights,
     held: int,
 ) -> FloatArray:
     """A bidder's rewards (eq. 15, importance eta * Pr summed over each task's cells in cell
-    order), zero for tasks it could not keep (eq. 21: complete, covered beyond v_max, or
-    costing more than C_max) and, when it holds task `held` (>= 0), for tasks not worth more than
+    order), zero for tasks it could not keep (eq. 21: complete, its `covered` cells beyond v_max,
+    or costing more than C_max) and, when it holds task `held` (>= 0), for tasks not worth more than
     that one; empty when every task is complete."""
+    labels, cell_counts, generators, areas = tasks
     n = generators.shape[0]
     done = np.empty(n, dtype=np.bool_)
     for j in range(n):
