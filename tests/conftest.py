@@ -51,7 +51,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     would otherwise compile them at once, for tens of seconds each."""
     if hasattr(session.config, "workerinput"):
         return  # an xdist worker: the controller has done it
-    from companion.batch.engine import warm_up
+    from companion.core.warm import warm_up
     from companion.mission import load_mission
 
     warm_up(load_mission(Path(__file__).parents[1] / "mission_files" / "scenario1.toml"))

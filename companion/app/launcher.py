@@ -40,7 +40,7 @@ from companion.app.evaluation import (
 )
 from companion.app.progress import Progress
 from companion.batch import plots, report
-from companion.batch.engine import warm_up
+from companion.core.warm import warm_up
 from companion.core.world import build_world
 from companion.mission import Mission, load_mission
 from companion.node.airframe import Airframe, refusal

@@ -11,7 +11,6 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-import msgspec
 import numpy as np
 from numba import njit
 
@@ -217,6 +216,23 @@ def initial_poses(mission: Mission) -> np.ndarray:
     return np.array([(v.x, v.y, math.radians(v.heading_deg)) for v in mission.vehicles], dtype=float)
 
 
+@dataclass
+class Faults:
+    """The companions that die (`kills`: UAV -> step) and stop steering (`takeovers`: UAV -> step)
+    in a run of `steps` steps, and the vehicles of the dead ones (`DeadVehicle`)."""
+
+    death: dict[int, int]
+    held: dict[int, int]
+    steps: int
+    dead: dict[int, DeadVehicle] = field(default_factory=dict)
+
+    def dead_at(self, uav: int, k: int) -> bool:
+        return self.death.get(uav, self.steps) <= k
+
+    def steered_at(self, uav: int, k: int) -> bool:
+        return self.held.get(uav, self.steps) > k
+
+
 def simulate(
     mission: Mission,
     seed: int,
@@ -252,39 +268,25 @@ def simulate(
     traj = np.zeros((steps, n, 3)) if record else None
     tasks = np.full((steps, n), -1, dtype=np.int64) if record else None
     inboxes: list[list[Message]] = [[] for _ in range(n)]
-    death = {i: d for i, d in (kills or {}).items() if 0 <= i < n}
-    held = {i: d for i, d in (takeovers or {}).items() if 0 <= i < n}
-    loiter_turn = world.safety.limits.reach.loiter_turn
-    dead: dict[int, DeadVehicle] = {}
+    faults = Faults(
+        {i: d for i, d in (kills or {}).items() if 0 <= i < n},
+        {i: d for i, d in (takeovers or {}).items() if 0 <= i < n},
+        steps,
+    )
     last = np.zeros(n)  # each vehicle's latest turn: the command a dead companion leaves held
     for k in range(steps):
         sees = scorer.record(k, poses[:, :2])
-        turns = np.empty(n)
-        outboxes: list[list[Message]] = []
-        seen = sees.any(axis=1).tolist()
-        for i, agent in enumerate(agents):
-            if death.get(i, steps) <= k:
-                if i not in dead:
-                    dead[i] = DeadVehicle.of(world, k, float(last[i]), agent.commitments.inforce)
-                turns[i] = dead[i].turn(k, *poses[i].tolist())
-                outboxes.append([])
-                continue
-            x, y, h = poses[i].tolist()
-            detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
-            steered = held.get(i, steps) > k
-            obs = Observation(step=k, x=x, y=y, heading=h, detections=detections, steered=steered)
-            command, outbox = agent.step(obs, inboxes[i])
-            turns[i] = command.turn if steered else loiter_turn
-            outboxes.append(outbox)
-            if tasks is not None:
-                tasks[k, i] = command.task
+        stepped = _step_agents(k, agents, world, faults, poses, last, sees, scorer.target_xy, inboxes)
+        turns, outboxes, commanded = stepped
+        if tasks is not None:
+            tasks[k] = commanded
         if probe is not None:
             probe(k, agents)
         scorer.unc[k] = global_average_uncertainty([a.eta for a in agents])
         if traj is not None:
             traj[k] = poses
         inboxes = radio.deliver(poses[:, :2], outboxes)
-        live = np.array([death.get(i, steps) > k and held.get(i, steps) > k for i in range(n)])
+        live = np.array([not faults.dead_at(i, k) and faults.steered_at(i, k) for i in range(n)])
         scorer.record_flight(k, poses, turns, live)
         last = turns
         poses = world.kinematics.advance_poses(poses, turns)
@@ -305,14 +307,39 @@ def simulate(
     )
 
 
-WARM_UP_STEPS = 30  # enough for bids, an auction and reevaluation (algorithm "proposed")
-WARM_UP_UAVS = 4  # compiled code does not depend on the swarm's size
-
-
-def warm_up(mission: Mission) -> float:
-    """Run the batch engine for a few steps of the mission (its first few vehicles) so that numba
-    compiles every kernel the agents use, or loads it from its disk cache (`cache=True`): a fresh
-    checkout compiles for tens of seconds, which a companion must not spend inside its first
-    real-time steps. Returns the seconds taken."""
-    small = msgspec.structs.replace(mission, vehicles=mission.vehicles[:WARM_UP_UAVS])
-    return simulate(small, mission.seed, 0, WARM_UP_STEPS).seconds
+def _step_agents(
+    k: int,
+    agents: list[Agent],
+    world: World,
+    faults: Faults,
+    poses: np.ndarray,
+    last: np.ndarray,
+    sees: np.ndarray,
+    target_xy: np.ndarray,
+    inboxes: list[list[Message]],
+) -> tuple[np.ndarray, list[list[Message]], np.ndarray]:
+    """Step k of every UAV from `poses`, each agent with its inbox and the targets it `sees` (at
+    `target_xy`): the turns flown over [t_k, t_k+1] (a dead companion's vehicle flies its
+    `DeadVehicle` from its `last` turn; an unsteered one the loiter turn), the outboxes (empty for
+    the dead) and each agent's task (-1 for the dead)."""
+    n = len(agents)
+    turns, commanded = np.empty(n), np.full(n, -1, dtype=np.int64)
+    outboxes: list[list[Message]] = []
+    seen: list[bool] = np.any(sees, axis=1).tolist()
+    loiter_turn = world.safety.limits.reach.loiter_turn
+    for i, agent in enumerate(agents):
+        if faults.dead_at(i, k):
+            if i not in faults.dead:
+                faults.dead[i] = DeadVehicle.of(world, k, float(last[i]), agent.commitments.inforce)
+            turns[i] = faults.dead[i].turn(k, *poses[i].tolist())
+            outboxes.append([])
+            continue
+        x, y, h = poses[i].tolist()
+        detections = tuple(map(tuple, target_xy[sees[i]].tolist())) if seen[i] else ()
+        steered = faults.steered_at(i, k)
+        obs = Observation(step=k, x=x, y=y, heading=h, detections=detections, steered=steered)
+        command, outbox = agent.step(obs, inboxes[i])
+        turns[i] = command.turn if steered else loiter_turn
+        outboxes.append(outbox)
+        commanded[i] = command.task
+    return turns, outboxes, commanded

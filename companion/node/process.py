@@ -37,10 +37,10 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from companion.batch.engine import warm_up
 from companion.core.agent import Agent, Command, Observation
 from companion.core.geometry import ConvexPolygon
 from companion.core.kinematics import arc_advance
+from companion.core.warm import warm_up
 from companion.core.world import Stream, build_world, instance_rng
 from companion.mission import Mission
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
