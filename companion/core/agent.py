@@ -183,7 +183,7 @@ class Agent:
                 while len(track) <= horizon:
                     (x1, y1), (x2, y2) = track[-2:] if len(track) >= 2 else track * 2
                     track.append((2 * x2 - x1, 2 * y2 - y1))
-                plan = track[1:]
+                plan = tuple(track[1:])
             if len(heads) < horizon:
                 heads += (heads or (state.heading,))[-1:] * (horizon - len(heads))
             flat = chain.from_iterable(plan)
@@ -203,17 +203,16 @@ class Agent:
             if msg.sender == self.uav or not oldest <= msg.stamp <= k:
                 self.rejected += 1
                 continue
-            kind = type(msg)
-            if kind is StateMsg:
+            if isinstance(msg, StateMsg):
                 states.append(msg.state)
                 if msg.stamp == k - 1:
                     neighbours[msg.sender] = msg.heard
                     fresh[msg.sender] = msg
-            elif kind is CoverageMsg:
+            elif isinstance(msg, CoverageMsg):
                 looks += msg.cells
                 if msg.detections:
                     self.found.update(msg.detections)
-            elif kind is BidsMsg:
+            elif isinstance(msg, BidsMsg):
                 if msg.stamp == k - 1:
                     bids[msg.sender] = msg.rewards
             else:
@@ -257,7 +256,9 @@ class Agent:
         )
         return tuple(out.tolist())
 
-    def _plan_task(self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict) -> bool:
+    def _plan_task(
+        self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict[int, tuple[float, ...]]
+    ) -> bool:
         """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step.
 
         Every UAV is a greedy bidder (Algorithm 2): it announces its rewards at step k (`BidsMsg`),
@@ -294,9 +295,9 @@ class Agent:
             if lost or not keep_task(completion, cost, a.v_max, a.c_max):
                 self.task, self.task_reward = -1, 0.0
         self.bids = None
-        bids = self._my_bids(position, mst_nbrs)
-        if max(bids, default=0.0) > 0:  # nothing left to win: no auction
-            self.bids, self.bid_stamp = bids, k
+        rewards = self._my_bids(position, mst_nbrs)
+        if max(rewards, default=0.0) > 0:  # nothing left to win: no auction
+            self.bids, self.bid_stamp = rewards, k
         return self.bids is not None
 
     # -- step ----------------------------------------------------------------------------------

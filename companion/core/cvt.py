@@ -92,4 +92,5 @@ def describe(
     radii = np.zeros(n)
     np.maximum.at(radii, labels, dist)
     radii[radii == 0] = np.sqrt(cell_area / 2.0)
-    return Tessellation(generators, labels, counts, counts * cell_area, radii, iterations)
+    areas = np.multiply(counts, cell_area, dtype=np.float64)
+    return Tessellation(generators, labels, counts, areas, radii, iterations)

@@ -52,7 +52,7 @@ class _Header(msgspec.Struct, frozen=True, tag_field="type", kw_only=True):
     y: float
 
 
-class StateMsg(_Header, tag="state"):
+class StateMsg(_Header, tag="state", frozen=True):
     """The sender's own state (pose, plan, task, commitments), the UAVs whose StateMsg it received at
     its previous step (its first-hand neighbours: what the others need not relay to it), and the
     UAVs it is tethered to (its parents in the tree of links that must hold)."""
@@ -62,7 +62,7 @@ class StateMsg(_Header, tag="state"):
     parents: tuple[int, ...] = ()
 
 
-class CoverageMsg(_Header, tag="coverage"):
+class CoverageMsg(_Header, tag="coverage", frozen=True):
     """Cells in the sender's FOV at `stamp` (eq. 11 looks) and every target cell it knows of (its camera's
     detections and those it heard of): each step re-announces them all, so a UAV that joins or
     restarts late learns every earlier detection from any neighbour."""
@@ -71,13 +71,13 @@ class CoverageMsg(_Header, tag="coverage"):
     detections: tuple[int, ...] = ()
 
 
-class BidsMsg(_Header, tag="bids"):
+class BidsMsg(_Header, tag="bids", frozen=True):
     """The sender's rewards R_ij for every task (eq. 15): its bids for the next local auction."""
 
     rewards: tuple[float, ...]
 
 
-class ClaimsMsg(_Header, tag="claims"):
+class ClaimsMsg(_Header, tag="claims", frozen=True):
     """The latest state the sender knows of other UAVs: multi-hop relay of positions and claims."""
 
     known: tuple[UavState, ...]

@@ -22,7 +22,9 @@ def centre_probability(centres: FloatArray, centre: Sequence[float], gain: float
 
 
 def prior_map(
-    centres: FloatArray, distribution_centres: Sequence[tuple[float, ...]], sigma: float
+    centres: FloatArray,
+    distribution_centres: Sequence[tuple[float, float, float] | tuple[float, float, float, float | None]],
+    sigma: float,
 ) -> FloatArray:
     """Eq. 1, combined: Pr_p = 1 - prod_z (1 - Pr_{p,z}), the chance that cell p holds a target.
 
