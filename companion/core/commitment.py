@@ -18,12 +18,12 @@ latest report (`adrift_reach`). Rejecting a proposal is always safe: the traject
 in a loiter inside the fence.
 
 With `safety.contingency`, compatibility also asks each of two trajectories to keep clear of the
-other's failsafe disk (`safety.keeps_contingencies`; docs/algorithm.md, "The contingency
+other's failsafe disk (`safety.contingency.keeps_contingencies`; docs/algorithm.md, "The contingency
 clause"), and of the disk of the trajectory in force a live UAV announced before its latest. The
 clause and a gone UAV's failsafe regions guard only pairs on altitude layers closer than the
 vertical separation (`SafetyPlan.near`): an aircraft whose companion died holds its layer. A
 pair whose trajectories in force are already too close (after a fault) is only kept from getting
-closer, and the proposal that opens it fastest is taken (`safety.keeps_apart`, "Recovery").
+closer, and the proposal that opens it fastest is taken (`safety.separation.keeps_apart`, "Recovery").
 """
 
 from __future__ import annotations
