@@ -67,7 +67,9 @@ def _ground_truth(
     fov_cells: np.ndarray,
     comm_range: float,
 ) -> tuple[np.ndarray, int, int, float, float]:
-    """One step of `Scorer.record`: (UAV, target) pairs in view, targets found so far (first-seen
+    """One step of `Scorer.record`, compiled.
+
+    One step of `Scorer.record`: (UAV, target) pairs in view, targets found so far (first-seen
     steps updated in place), cells looked at for the first time, lambda_2 and the minimum distance."""
     n, n_targets = positions.shape[0], target_xy.shape[0]
     sees = np.zeros((n, n_targets), dtype=np.bool_)
@@ -98,7 +100,9 @@ def closest_approach(
     substeps: int,
     pairs: np.ndarray,
 ) -> float:
-    """min over the pairs marked in `pairs` (n, n) of the horizontal distance between two UAVs
+    """The closest approach over one step of the pairs marked in `pairs` (eq. 2 flights).
+
+    min over the pairs marked in `pairs` (n, n) of the horizontal distance between two UAVs
     flying eq. 2 from `poses` with `turns` over one step: grid UAVs fly straight between cell centres
     (exact); continuous UAVs fly arcs, sampled at `substeps` points with straight motion between
     them (within the sagitta of 1/substeps of a turn)."""
@@ -119,7 +123,9 @@ def closest_approach(
 
 
 class Scorer:
-    """Ground-truth metrics of one run, step by step (a target is found when its cell centre is
+    """Ground-truth metrics of one run, step by step.
+
+    Ground-truth metrics of one run, step by step (a target is found when its cell centre is
     within R_A of some UAV): targets found, coverage, lambda_2 and the minimum pairwise distance,
     with the uncertainty of eq. 30 handed in. The batch engine and the flown-mission evaluator
     both score with it."""
@@ -135,6 +141,8 @@ class Scorer:
 
     def record(self, k: int, positions: np.ndarray, uncertainty: float = math.nan) -> np.ndarray:
         """Score the UAVs at `positions` at step k; returns which UAV sees which target (eq. 3).
+
+        Score the UAVs at `positions` at step k; returns which UAV sees which target (eq. 3).
         The uncertainty of step k may be handed in later (`unc[k]`)."""
         m, grid = self.world.mission, self.world.grid
         sees, found, new, lam, mind = _ground_truth(
@@ -154,7 +162,9 @@ class Scorer:
         return sees
 
     def record_flight(self, k: int, poses: np.ndarray, turns: np.ndarray, live: np.ndarray) -> None:
-        """The closest approach while flying the turns from `poses` over [t_k, t_k+1] of the pairs
+        """The closest approach over [t_k, t_k+1] of the pairs that can meet.
+
+        The closest approach while flying the turns from `poses` over [t_k, t_k+1] of the pairs
         that can meet: both `live` (steered by a live companion), or on near layers (an aircraft
         nobody steers holds its layer, so only those on layers closer than the vertical separation
         can meet it)."""
@@ -167,6 +177,7 @@ class Scorer:
         )
 
     def result(self, run: int, seed: int, seconds: float, **extra: object) -> RunResult:
+        """The run's `RunResult`, with `extra` fields."""
         steps = len(self.unc)
         m = self.world.mission
         return RunResult(
@@ -213,12 +224,15 @@ class Radio:
 
 
 def initial_poses(mission: Mission) -> np.ndarray:
+    """The vehicles' start poses (x, y, heading in radians), a row each."""
     return np.array([(v.x, v.y, math.radians(v.heading_deg)) for v in mission.vehicles], dtype=float)
 
 
 @dataclass
 class Faults:
-    """The companions that die (`kills`: UAV -> step) and stop steering (`takeovers`: UAV -> step)
+    """The companions that die or stop steering in a run, and the dead ones' vehicles.
+
+    The companions that die (`kills`: UAV -> step) and stop steering (`takeovers`: UAV -> step)
     in a run of `steps` steps, and the vehicles of the dead ones (`DeadVehicle`)."""
 
     death: dict[int, int]
@@ -227,9 +241,11 @@ class Faults:
     dead: dict[int, DeadVehicle] = field(default_factory=dict)
 
     def dead_at(self, uav: int, k: int) -> bool:
+        """Whether `uav`'s companion is dead at step k."""
         return self.death.get(uav, self.steps) <= k
 
     def steered_at(self, uav: int, k: int) -> bool:
+        """Whether `uav`'s companion steers its vehicle at step k."""
         return self.held.get(uav, self.steps) > k
 
 
@@ -318,7 +334,9 @@ def _step_agents(
     target_xy: np.ndarray,
     inboxes: list[list[Message]],
 ) -> tuple[np.ndarray, list[list[Message]], np.ndarray]:
-    """Step k of every UAV from `poses`, each agent with its inbox and the targets it `sees` (at
+    """Step k of every UAV: the turns flown, the outboxes and each agent's task.
+
+    Step k of every UAV from `poses`, each agent with its inbox and the targets it `sees` (at
     `target_xy`): the turns flown over [t_k, t_k+1] (a dead companion's vehicle flies its
     `DeadVehicle` from its `last` turn; an unsteered one the loiter turn), the outboxes (empty for
     the dead) and each agent's task (-1 for the dead)."""

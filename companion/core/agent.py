@@ -54,7 +54,9 @@ Track = tuple[tuple[float, float], ...]  # points of a plan, from its anchor on
 
 
 class Observation(msgspec.Struct, frozen=True, kw_only=True):
-    """The UAV's own pose at step k (local frame, heading CCW from east), its camera's detections,
+    """The UAV's own pose at step k, its camera's detections and whether it steers its vehicle.
+
+    The UAV's own pose at step k (local frame, heading CCW from east), its camera's detections,
     and whether its vehicle flies what the agent commands (False: a pilot, a failsafe or the guard's
     way back inside flies it; the agent then commits to nothing: `UavState.steered`). `closing`: the
     mission is over; the agent proposes nothing new and commands its trajectory in force, which ends
@@ -70,7 +72,9 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class StepDelta(msgspec.Struct, frozen=True, array_like=True):
-    """What one step changed in an agent's own knowledge (`Agent.last`): every FOV cell applied to its
+    """What one step changed in an agent's own knowledge (`Agent.last`).
+
+    What one step changed in an agent's own knowledge (`Agent.last`): every FOV cell applied to its
     map (its own and its neighbours', in order), the cells newly known to hold a target, and its task
     and commitments after the step. Replaying the deltas of steps k+1..k' on the snapshot of step k
     (`Agent.replay`) gives the agent's map, targets, task and trajectory in force of step k'."""
@@ -85,7 +89,9 @@ class StepDelta(msgspec.Struct, frozen=True, array_like=True):
 
 
 class AgentSnapshot(msgspec.Struct, frozen=True, array_like=True):
-    """An agent's own knowledge after step `step` (`Agent.snapshot`, `Agent.restore`): its uncertainty
+    """An agent's own knowledge after step `step` (`Agent.snapshot`, `Agent.restore`).
+
+    An agent's own knowledge after step `step` (`Agent.snapshot`, `Agent.restore`): its uncertainty
     map (float64, little-endian), the cells it has looked at (packed bits), the target cells it knows
     of, its task, its trajectory in force and tethers, and the pheromone field (that algorithm only).
     What it knew of the others is not kept: their next messages tell it again."""
@@ -169,7 +175,9 @@ class Agent:
         self.commitments.gone(uav)
 
     def _remember(self, states: Iterable[UavState]) -> None:
-        """Keep the newest state of each peer, and its `swarm_view` row: a plan shorter than the
+        """Keep the newest state of each peer and its `swarm_view` row.
+
+        Keep the newest state of each peer, and its `swarm_view` row: a plan shorter than the
         horizon goes on at its last velocity, headings past the plan stay at the last one."""
         horizon = self._horizon
         for state in states:
@@ -190,7 +198,9 @@ class Agent:
             self._rows[state.uav] = (state.stamp, state.x, state.y, *flat, state.heading, *heads)
 
     def _ingest(self, inbox: Iterable[Message], k: int, looks: list[int]) -> dict[int, tuple[float, ...]]:
-        """Sort the inbox by kind: the neighbours' FOV cells go onto `looks`, states and claims into
+        """Sort the inbox by kind into looks, states and claims; return this round's bids.
+
+        Sort the inbox by kind: the neighbours' FOV cells go onto `looks`, states and claims into
         what this UAV knows of the others (and its commitments: `Commitments.observe`); returns the
         bids of this auction round. Messages are validated where they enter (`messages.check`);
         here only their timing counts."""
@@ -224,8 +234,7 @@ class Agent:
         return bids
 
     def _relay(self) -> tuple[int, ...]:
-        """The peers whose latest state goes out in this step's ClaimsMsg, ascending (`relay_set`
-        of this step's reports; a swarm keeps its layout for many steps, so answers are reused)."""
+        """The peers whose latest state goes out in this step's ClaimsMsg (`relay_set`), memoised."""
         if not self.neighbours:
             return ()
         key = (self._heard, tuple(self.neighbours.items()), tuple(self.peers))
@@ -245,7 +254,9 @@ class Agent:
 
     # -- mission planning ----------------------------------------------------------------------
     def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> tuple[float, ...]:
-        """Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21: complete or too costly)
+        """Eq. 15 rewards, filtered by eq. 21 and the task held.
+
+        Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21: complete or too costly)
         and, when it holds a task, for tasks not worth more than the task it holds (Algorithm 2's
         greedy bidder would not take them: lines 10-11)."""
         w, tasks = self.world, self._tasks
@@ -309,7 +320,9 @@ class Agent:
         return swarm_view(table, k, position)
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
-        """Step k: fuse the inbox and the camera into the map (eqs. 10-11), resolve the trajectory in
+        """Step k of the algorithm: `step(observation, inbox) -> (command, outbox)`.
+
+        Step k: fuse the inbox and the camera into the map (eqs. 10-11), resolve the trajectory in
         force, plan the task (Algorithm 2, eqs. 20-21) and the path (eq. 22) from the pose at t_k+1,
         and answer the command for [t_k, t_k+1] and the outbox stamped k."""
         k = obs.step
@@ -369,9 +382,9 @@ class Agent:
     def _rank(
         self, pose: tuple[float, float, float], nxt: FloatArray, nbr_tracks: FloatArray
     ) -> tuple[IntArray, FloatArray]:
-        """The paths of eq. 23 from `pose` (at t_k+1, position `nxt`) in eq. 22's order of preference
-        (eqs. 24-25, 29, scored on eta, on s = eta Pr for no-ta, or on the pheromone field), and
-        their points."""
+        """The paths of eq. 23 from `pose` (t_k+1, at `nxt`) in eq. 22's order, and their points.
+
+        Scored (eqs. 24-25, 29) on eta, on s = eta Pr for no-ta, or on the pheromone field."""
         w, grid = self.world, self.world.grid
         x1, y1, h1 = pose
         if self.algorithm == "no-ta":
@@ -405,9 +418,9 @@ class Agent:
         inforce: Trajectory,
         obs: Observation,
     ) -> tuple[Trajectory | None, Track, tuple[float, ...]]:
-        """The proposal of path `best` (points `path`) with loiter side `side` from `pose` at t_k+1,
-        and the plan it announces (its first M points and the heading at each); with none (no path
-        allowed, or the mission closing), the trajectory in force's track."""
+        """The proposal of path `best` (side `side`) from `pose`, and the plan (points, headings) announced.
+
+        With no path allowed, or the mission closing, no proposal and the trajectory in force's track."""
         x1, y1, h1 = pose
         horizon, paths = self._horizon, self.world.paths
         if best >= 0 and not obs.closing:
@@ -421,15 +434,12 @@ class Agent:
     def _outbox(
         self, obs: Observation, me: UavState, cells: tuple[int, ...], found: tuple[int, ...], announce: bool
     ) -> list[Message]:
-        """This step's messages: its state, its FOV cells and every target known, the relayed peers'
-        states (`_relay`) and its bids when it announces them."""
-        k, x, y = obs.step, obs.x, obs.y
+        """This step's messages: state, coverage (every target known), relayed states and bids."""
+        k, x, y, parents = obs.step, obs.x, obs.y, self.commitments.parents
         heard, relay = tuple(sorted(self.neighbours)), self._relay()
         self._heard = heard
         outbox: list[Message] = [
-            StateMsg(
-                sender=self.uav, stamp=k, x=x, y=y, state=me, heard=heard, parents=self.commitments.parents
-            ),
+            StateMsg(sender=self.uav, stamp=k, x=x, y=y, state=me, heard=heard, parents=parents),
             CoverageMsg(sender=self.uav, stamp=k, x=x, y=y, cells=cells, detections=found),
         ]
         if relay:

@@ -1,4 +1,6 @@
-"""One UAV's side of the commitment protocol that keeps every pair of UAVs separated and the
+"""One UAV's side of the commitment protocol that keeps the swarm separated and linked.
+
+One UAV's side of the commitment protocol that keeps every pair of UAVs separated and the
 tethers (links that must hold) within range (docs/algorithm.md, "Safety layer").
 
 Every UAV i always has a trajectory in force, T_i^k, which it flies over [t_k, t_k+1]; it is
@@ -51,7 +53,9 @@ SIDE_RANGE = 600.0  # m: a UAV nearer than this makes a new loiter turn away fro
 
 
 class Commitments:
-    """The trajectories in force and proposed of UAV `uav`, its tethers, and what it knows of the
+    """UAV `uav`'s trajectories in force and proposed, its tethers, and the others' commitments.
+
+    The trajectories in force and proposed of UAV `uav`, its tethers, and what it knows of the
     others' commitments."""
 
     def __init__(self, world: World, uav: int) -> None:
@@ -151,7 +155,9 @@ class Commitments:
             self.dead.add(uav)
 
     def _possible(self, k: int, j: int, both: bool) -> tuple[list[Trajectory], list[Disk]]:
-        """Trajectories and disks that hold whatever UAV j flies from t_k on (for the check at step
+        """Trajectories and disks that hold whatever UAV j flies from t_k on.
+
+        Trajectories and disks that hold whatever UAV j flies from t_k on (for the check at step
         k of a proposal): its step k-1 trajectory in force (and proposal when `both`) if heard,
         else what it can reach since it was last known, or, if gone, its last commitments (their
         loiters' disks are `failsafe_loiters`)."""
@@ -168,7 +174,9 @@ class Commitments:
         return [], [(s.x, s.y, (k + 1 - s.stamp) * r.step + r.extent)]
 
     def failsafe_loiters(self, j: int) -> list[Disk]:
-        """Where the aircraft of gone UAV j circles once its failsafe fires: `safety.failsafe_reach`
+        """Where the aircraft of gone UAV j circles once its failsafe fires.
+
+        Where the aircraft of gone UAV j circles once its failsafe fires: `safety.failsafe_reach`
         about the centre of the loiter of its last trajectory in force, of its last proposal, or of
         the trajectory in force it announced before (its companion moves the failsafe mission to the
         loiter of its trajectory in force after announcing it, so a companion that dies in between
@@ -184,7 +192,9 @@ class Commitments:
         ]
 
     def failsafe_regions(self, k: int, j: int) -> list[tuple[Disk, FloatArray]]:
-        """Where the aircraft of gone UAV j flies from its companion's death on (`clears_loiters`):
+        """Where the aircraft of gone UAV j flies from its companion's death on.
+
+        Where the aircraft of gone UAV j flies from its companion's death on (`clears_loiters`):
         for each of its `failsafe_loiters`, the fan of each path it may have been flying (its last
         trajectory in force and proposal, from their anchors to their loiters' entries) about that
         loiter's centre, inflated by `fan_reach`; once it must be circling (`settle` steps after
@@ -210,7 +220,9 @@ class Commitments:
         return {c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead}
 
     def _gather(self, k: int, x: float, y: float) -> None:
-        """What every other UAV may fly from t_k on (`_possible`, both trajectories), expanded once
+        """Expand what every other UAV may fly from t_k on, once for this step's checks.
+
+        What every other UAV may fly from t_k on (`_possible`, both trajectories), expanded once
         for this step's checks over steps k..k + window + 1, with their owners. UAVs too far from
         (x, y), this UAV's position at t_k, to matter for a trajectory anchored within a step of it
         are left out (every point of a trajectory lies within `Reach.extent` of its anchor), unless
@@ -283,7 +295,9 @@ class Commitments:
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
-        """T_i^k: switch to the pending proposal if it is still compatible with everything the others
+        """T_i^k: the pending proposal if it may still be switched to, else the trajectory in force.
+
+        T_i^k: switch to the pending proposal if it is still compatible with everything the others
         may fly (see the module docstring), anchored at the UAV's pose at t_k."""
         lim = self.limits
         turn = lim.reach.loiter_turn
@@ -308,7 +322,9 @@ class Commitments:
         return all(abs(t - turn) < 1e-9 for t in self.inforce.turns)
 
     def _flyable(self, k: int, trajectory: Trajectory, links: IntArray) -> Trajectory:
-        """`trajectory` if it is inside the fence and compatible with the others' trajectories in force
+        """`trajectory` if it is flyable from its anchor, else the first start contingency that is.
+
+        `trajectory` if it is inside the fence and compatible with the others' trajectories in force
         and its tethers, else a start contingency from its anchor that is (straight for M >= s >= 0
         steps, then loiter).
 
@@ -338,7 +354,9 @@ class Commitments:
         return step_pose(x, y, heading, turn, lim.grid, lim.speed, lim.dt, lim.cell)
 
     def update_parents(self, k: int, position: FloatArray) -> None:
-        """Make-before-break re-tethering: name the nearest UAV of a lower rank as a second parent
+        """Make-before-break re-tethering to a nearer UAV of a lower rank.
+
+        Make-before-break re-tethering: name the nearest UAV of a lower rank as a second parent
         when it is clearly nearer than the parent and the trajectories in force keep the link; drop
         the old parent once the new one has heard it named; drop parents that are gone."""
         self.parents = tuple(p for p in self.parents if p not in self.dead)
@@ -354,6 +372,7 @@ class Commitments:
         lim = self.limits
 
         def distance(j: int) -> float:
+            """How far UAV j was last known to be from `position`."""
             s = self.latest[j]
             return math.hypot(s.x - position[0], s.y - position[1])
 
@@ -379,7 +398,9 @@ class Commitments:
                 return
 
     def first_allowed(self, k: int, pose: tuple[float, float, float], order: np.ndarray) -> tuple[int, int]:
-        """The first path of eq. 23 (`PathTree.sequences`) in `order` (the RHC's preference) whose
+        """The first path of eq. 23 in the RHC's order that may be proposed, and its side.
+
+        The first path of eq. 23 (`PathTree.sequences`) in `order` (the RHC's preference) whose
         trajectory from `pose` at t_k+1 may be proposed (in the fence, and compatible with what the
         others may fly then), and its loiter side; (-1, 0) if none."""
         lim = self.limits
@@ -405,7 +426,9 @@ class Commitments:
         return best, side
 
     def _turn_towards(self, x: float, y: float) -> FloatArray:
-        """The point a new proposal's loiter should turn towards (that side is tried first; both are
+        """The point a new proposal's loiter turns towards: away from a near UAV.
+
+        The point a new proposal's loiter should turn towards (that side is tried first; both are
         checked): far away from the nearest other UAV within `SIDE_RANGE` of (x, y) on a near layer
         (`SafetyPlan.near`) that is not taken as gone (its last position may be stale), so that the
         two UAVs' failsafe regions, each reaching `failsafe_reach` + `failsafe_stray` about its
@@ -422,4 +445,5 @@ class Commitments:
         return np.array([x + (x - at[0]) / nearest * FAR, y + (y - at[1]) / nearest * FAR])
 
     def propose(self, proposal: Trajectory | None) -> None:
+        """Announce `proposal` (P_i^k), to be resolved at step k + 1."""
         self.proposal = proposal

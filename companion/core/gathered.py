@@ -22,7 +22,9 @@ from companion.core.safety.switch import may_switch
 
 
 class Gathered(NamedTuple):
-    """What the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
+    """What the others may fly from t_k on, expanded once a step, a row each.
+
+    What the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
     `pts` (n, window + 2, 2), their `owners`, whether each is a trajectory `in_force` (else a
     proposal), their loiter `centres` and loiter `entries` indices, the rows of the UAVs whose
     trajectories in force before their latest are `lone` and those trajectories' loiter centres,
@@ -45,7 +47,9 @@ class Gathered(NamedTuple):
 def select_checked(
     gathered: Gathered, links: IntArray, uav: int, resolving: bool, proposals: bool
 ) -> Checked:
-    """What a check reads from this step's gathering and the tethered UAVs `links` (sorted): the
+    """The rows of this step's gathering a check holds a trajectory against (`Checked`).
+
+    What a check reads from this step's gathering and the tethered UAVs `links` (sorted): the
     rows checked, the disks, the tethers and their disks, the `lone` centres and their owners'
     rows (`Checked`). Rows checked: trajectories in force, and the others' proposals unless not
     `proposals`, or when `resolving` only those of lower ids than `uav`; their window from t_k
@@ -111,7 +115,9 @@ def may_switch_from(
     regions: Regions,
     rules: Rules,
 ) -> bool:
-    """`safety.switch.may_switch` of the proposal rows[0] against what this step's gathering holds
+    """`may_switch` against this step's gathering (resolving the pending proposal).
+
+    `safety.switch.may_switch` of the proposal rows[0] against what this step's gathering holds
     (`select_checked` for the resolution: the others' proposals only of lower ids, from t_k)."""
     checked = select_checked(gathered, links, uav, True, True)
     return may_switch(rows, first, entry, reference_entry, checked, regions, rules)
@@ -121,7 +127,9 @@ def may_switch_from(
 def flyable_from(
     gathered: Gathered, links: IntArray, uav: int, row: FloatArray, first: int, rules: Rules
 ) -> bool:
-    """`safety.separation.flyable` against the others' trajectories in force of this step's
+    """`flyable` against the others' trajectories in force and the tethers, from t_k.
+
+    `safety.separation.flyable` against the others' trajectories in force of this step's
     gathering and the tethers among them, from t_k (`Commitments._flyable`)."""
     checked = select_checked(gathered, links, uav, True, False)
     return flyable(row, first, rules, checked.others, checked.tethers)
@@ -139,7 +147,9 @@ def first_allowed_from(
     regions: Regions,
     rules: Rules,
 ) -> tuple[int, int]:
-    """`safety.proposal.first_allowed` against everything this step's gathering holds, from t_k+1
+    """`first_allowed` against this step's gathering, from t_k+1.
+
+    `safety.proposal.first_allowed` against everything this step's gathering holds, from t_k+1
     = `first` (`select_checked` for a new proposal), with the trajectory in force `reference_row`
     expanded from there (loiter entry index `reference_entry`) as the reference."""
     checked = select_checked(gathered, links, uav, False, True)

@@ -19,7 +19,9 @@ PENALTY_KNEE = 10.0
 
 
 class TaskRegion(NamedTuple):
-    """The UAV's assigned region V* of eq. 25: its task (-1: none, hence no penalty), generator q*
+    """The UAV's assigned region V* of eq. 25: task, generator q* and circumradius R*.
+
+    The UAV's assigned region V* of eq. 25: its task (-1: none, hence no penalty), generator q*
     and circumradius R*."""
 
     task: int
@@ -28,7 +30,9 @@ class TaskRegion(NamedTuple):
 
 
 class ScoreWeights(NamedTuple):
-    """The constants of eq. 22's ranking: (delta_1, delta_2) of eq. 25, (chi_1, chi_2) of eq. 22,
+    """The constants of eq. 22's ranking (eqs. 25, 28, 29 and the region constraint).
+
+    The constants of eq. 22's ranking: (delta_1, delta_2) of eq. 25, (chi_1, chi_2) of eq. 22,
     (R_c, R'_c, R_s, R'_s) of eq. 28, the region's half-planes and the cell size (`region_key`)."""
 
     delta: tuple[float, float]
@@ -40,7 +44,9 @@ class ScoreWeights(NamedTuple):
 
 
 class GridCells(NamedTuple):
-    """Grid mode's cell lookup (`grid_path_cells`): the lattice's origin (x0, y0), the cell of each
+    """Grid mode's cell lookup: lattice origin, lattice cells and each cell's FOV (eq. 3).
+
+    Grid mode's cell lookup (`grid_path_cells`): the lattice's origin (x0, y0), the cell of each
     lattice node (-1 outside) and each cell's FOV cells (eq. 3; the last row is padding)."""
 
     x0: float
@@ -102,7 +108,9 @@ def search_benefit(
 def path_expense(
     points: FloatArray, neighbour_tracks: FloatArray, r_c: float, r_c_attr: float, r_s: float, r_s_rep: float
 ) -> FloatArray:
-    """Eq. 29: J^B = sum_m sum_{j in MST neighbours} F(d~_{j,m}) with F of eq. 28 and d~_{j,m} the
+    """Eq. 29: J^B, the virtual force's cost of each path against the MST neighbours.
+
+    Eq. 29: J^B = sum_m sum_{j in MST neighbours} F(d~_{j,m}) with F of eq. 28 and d~_{j,m} the
     distance from path point m to neighbour j's predicted position at the same step.
 
     `neighbour_tracks` (n_j, M + 1, 2) holds each MST neighbour's predicted positions at the path's
@@ -124,7 +132,9 @@ def path_expense(
 def grid_path_cells(
     points: FloatArray, x0: float, y0: float, size: float, lattice: IntArray, fov_table: IntArray
 ) -> tuple[IntArray, IntArray, IntArray]:
-    """Grid mode: the cell under each path point (-1 outside), its FOV cells (eq. 3, a row of
+    """Grid mode: each path point's cell and FOV cells (eq. 3), and the in-region prefix.
+
+    Grid mode: the cell under each path point (-1 outside), its FOV cells (eq. 3, a row of
     `fov_table`, whose last row is padding) and the number of leading points inside the region."""
     n_paths, horizon = points.shape[0], points.shape[1]
     ny, nx = lattice.shape
@@ -150,7 +160,9 @@ def grid_path_cells(
 def continuous_path_cells(
     grid: Grid, kin: Kinematics, pts: FloatArray
 ) -> tuple[IntArray, IntArray, IntArray]:
-    """Continuous mode: the cell under each path point, the FOV cells of each point (eq. 3), and
+    """Continuous mode: each path point's cell and FOV cells (eq. 3), and the in-region prefix.
+
+    Continuous mode: the cell under each path point, the FOV cells of each point (eq. 3), and
     the in-region prefix (grid mode does all this inside `rank_grid_candidates`).
 
     A path's last point must also leave room to turn back (a turning diameter from the
@@ -169,7 +181,9 @@ def continuous_path_cells(
 def region_key(
     prefix: IntArray, points: FloatArray, normals: FloatArray, offsets: FloatArray, cell_size: float
 ) -> FloatArray:
-    """How well each path keeps to the region (the region constraint of eq. 23): its in-region prefix
+    """How well each path keeps to the region (the region constraint of eq. 23).
+
+    How well each path keeps to the region (the region constraint of eq. 23): its in-region prefix
     (M when it never leaves), and for a path whose first point is outside, minus the distance its
     points lie beyond the boundary (summed, in cells), so that a UAV outside turns back at once."""
     if prefix.max() > 0:  # paths that leave at once cannot compete with one that does not
@@ -188,7 +202,9 @@ def region_key(
 
 @njit(cache=True)
 def rank_paths(scores: FloatArray, region: FloatArray) -> IntArray:
-    """Eq. 22's order of preference: paths by `region_key` (all M steps in the region first), then
+    """Eq. 22's order of preference: by region key, then score, then index.
+
+    Eq. 22's order of preference: paths by `region_key` (all M steps in the region first), then
     by score, then by index (the straightest first). The safety layer takes the first path of this
     order that it allows (`Commitments.first_allowed`)."""
     by_score = np.argsort(-scores, kind="mergesort")
@@ -206,7 +222,9 @@ def rank_candidates(
     neighbour_tracks: FloatArray,
     weights: ScoreWeights,
 ) -> IntArray:
-    """Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
+    """Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first.
+
+    Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
     (`region_key`, `rank_paths`)."""
     delta, chi, comms = weights.delta, weights.chi, weights.comms
     task, generator, circumradius = region
@@ -230,7 +248,9 @@ def rank_grid_candidates(
     neighbour_tracks: FloatArray,
     weights: ScoreWeights,
 ) -> tuple[IntArray, FloatArray]:
-    """Grid mode in one call: the paths of eq. 23 from (x, y) (`offsets` is the `PathTree` table of
+    """Grid mode's eq. 22 in one call: the paths of eq. 23 from (x, y), ranked.
+
+    Grid mode in one call: the paths of eq. 23 from (x, y) (`offsets` is the `PathTree` table of
     the UAV's heading), their cells and FOVs (`grid_path_cells`), and `rank_candidates`. The task of
     each path point is read from `cell_labels` (-1 outside the region). Returns the paths' order
     and their points."""

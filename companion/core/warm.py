@@ -26,7 +26,9 @@ WARM_UP_UAVS = 4  # compiled code does not depend on the swarm's size
 
 
 def warm_up(mission: Mission) -> float:
-    """Fly the agents of the mission's first few vehicles for a few steps, as the batch engine does
+    """Compile or load every kernel the agents use; returns the seconds taken.
+
+    Fly the agents of the mission's first few vehicles for a few steps, as the batch engine does
     (eq. 2 kinematics, messages delivered within R_c, a detection under each UAV at step 1), so
     that numba compiles every kernel they use or loads it from its disk cache. Returns the seconds
     taken."""

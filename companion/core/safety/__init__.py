@@ -1,4 +1,6 @@
-"""The safety layer's geometry: when two committed trajectories are compatible, which candidate
+"""The safety layer's geometry: compatibility, proposals, and the start contingencies.
+
+The safety layer's geometry: when two committed trajectories are compatible, which candidate
 paths may be proposed, and the contingencies every UAV starts with.
 
 Two trajectories are *compatible* when, for every time from the first step compared on (between

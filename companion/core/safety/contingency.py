@@ -24,7 +24,9 @@ def _clearly_clear(
     oy: float,
     beyond: float,
 ) -> bool:
-    """Whether `contingency_clearance` is certainly above `beyond`, from the disks about the centres
+    """Whether the pair surely clears the clause, judged from the disks that hold the fans.
+
+    Whether `contingency_clearance` is certainly above `beyond`, from the disks about the centres
     that hold the fans (cheap: most pairs are far apart)."""
     mine = point_clearance(pts, ox, oy) - fan_radius(other, other_count, ox, oy)
     theirs = point_clearance(other, cx, cy) - fan_radius(pts, count, cx, cy)
@@ -43,7 +45,9 @@ def contingency_clearance(
     oy: float,
     reach: float,
 ) -> float:
-    """How far each of two trajectories (positions `pts` and `other` over the same steps, loiter
+    """The clearance of two trajectories from each other's failsafe fans, the smaller of the two.
+
+    How far each of two trajectories (positions `pts` and `other` over the same steps, loiter
     entry indices `entry` and `other_entry`, loiter centres (cx, cy) and (ox, oy)) keeps from the
     region where the other UAV's aircraft may fly if its companion falls silent now or later: the
     other's fan (`fan_clearance`: its path from now to its loiter, spoked to the loiter's centre)
@@ -58,7 +62,9 @@ def contingency_clearance(
 def keeps_contingencies(
     mine: Expanded, reference: Expanded, checked: Checked, rules: Rules, known: FloatArray, hint: IntArray
 ) -> tuple[int, float]:
-    """The contingency clause of compatibility for the trajectory `mine`, against the others'
+    """The contingency clause: whether a trajectory clears the others' failsafe regions.
+
+    The contingency clause of compatibility for the trajectory `mine`, against the others'
     trajectories (`checked.others`, their loiter entries and centres) and the loiter centres
     `checked.lone` of the trajectories in force a UAV announced before its latest (its failsafe
     may still circle there, reached along its trajectory in force, others[lone_owners];
@@ -92,7 +98,9 @@ def keeps_contingencies(
 def _against(
     o: int, mine: Expanded, reference: Expanded, checked: Checked, rules: Rules, known: FloatArray
 ) -> tuple[int, float]:
-    """`keeps_contingencies` against its entry o (a row of `others`, then a `lone` centre): 2 it
+    """`keeps_contingencies` against one region: 2 clears, 1 keeps as far as the reference, 0 not.
+
+    `keeps_contingencies` against its entry o (a row of `others`, then a `lone` centre): 2 it
     clears the region, 1 it does not but keeps as far as the reference (and its clearance), 0 it
     keeps less far."""
     pts, others = mine.pts, checked.others
@@ -136,7 +144,9 @@ def _against(
 
 @njit(cache=True)
 def _centre_clearance(a: FloatArray, cx: float, cy: float) -> float:
-    """The closest approach of the chords of `a` to (cx, cy), computed as `fan_clearance` does for
+    """The closest approach of the chords of `a` to (cx, cy), as `fan_clearance` measures it.
+
+    The closest approach of the chords of `a` to (cx, cy), computed as `fan_clearance` does for
     the fan's centre: never below `fan_clearance(a, ..., cx, cy)`, to the last bit."""
     best = math.inf
     for t in range(a.shape[0] - 1):

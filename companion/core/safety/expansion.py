@@ -11,7 +11,9 @@ from companion.core.trajectory import HEAD, expand
 
 @njit(cache=True)
 def loiter_centre(pts: FloatArray, first: int) -> tuple[float, float]:
-    """The centre of the loiter whose sampling points are pts[first:] (at least three of them, all
+    """The centre of a loiter from three consecutive sampling points: their circumcentre.
+
+    The centre of the loiter whose sampling points are pts[first:] (at least three of them, all
     of them if `first` < 0): the circumcentre of three consecutive ones (grid mode's loiter octagon
     has concyclic vertices)."""
     i = min(max(first, 0), pts.shape[0] - 3)
@@ -54,7 +56,9 @@ def expand_rows(
 def expand_with_centres(
     rows: FloatArray, first: int, count: int, kinematics: tuple[float, bool, float, float, float]
 ) -> tuple[FloatArray, FloatArray]:
-    """`expand_rows` from step `first` (count + 1 points) and the loiter centres of the rows
+    """`expand_rows` from step `first`, with the loiter centres of the rows.
+
+    `expand_rows` from step `first` (count + 1 points) and the loiter centres of the rows
     (`loiter_centre`: the loiter begins after a row's M planned turns, at index start + M - first)."""
     pts = expand_rows(rows, first, count, *kinematics)
     horizon = rows.shape[1] - HEAD

@@ -20,7 +20,9 @@ def clears_loiters(
     horizon: int,
     progress: float,
 ) -> bool:
-    """Whether the trajectory at `pts` (window + 1 positions, its M = `horizon` planned steps first)
+    """Whether a trajectory keeps clear of every region where a silent UAV's aircraft flies.
+
+    Whether the trajectory at `pts` (window + 1 positions, its M = `horizon` planned steps first)
     keeps clear of every region where a silent UAV's aircraft flies (`Commitments`): the fan of
     paths[d][:counts[d]] about (cx, cy) of loiters[d] = (cx, cy, r), inflated by r (a disk where
     counts[d] is 0): either it is out of the region, farther than `disk_separation` from it, from
@@ -48,7 +50,9 @@ def clears_loiters(
 
 @njit(cache=True)
 def loiter_clearance(pts: FloatArray, loiters: FloatArray, paths: FloatArray, counts: IntArray) -> float:
-    """The trajectory's closest approach over the window to the nearest of the regions of
+    """The trajectory's closest approach to the nearest region of `clears_loiters`.
+
+    The trajectory's closest approach over the window to the nearest of the regions of
     `clears_loiters`: negative inside one, infinite without any."""
     best = math.inf
     for d in range(loiters.shape[0]):
@@ -68,7 +72,9 @@ def leaves_loiters(
     horizon: int,
     progress: float,
 ) -> bool:
-    """Whether the trajectory at `pts` may replace the one in force at `reference` (the same steps)
+    """Whether a trajectory may replace the one in force near regions it does not clear.
+
+    Whether the trajectory at `pts` may replace the one in force at `reference` (the same steps)
     near the regions of `clears_loiters`: for each, it clears it, or its closest approach to the
     region's fan over the window is larger than the reference's. Where nothing that clears them
     all is flyable (a UAV boxed in by the fence and its neighbours), flying it keeps the UAV

@@ -49,7 +49,9 @@ def _in_fan(px: float, py: float, path: FloatArray, count: int, cx: float, cy: f
 
 @njit(cache=True)
 def fan_clearance(a: FloatArray, path: FloatArray, count: int, cx: float, cy: float) -> float:
-    """The closest approach of the polyline `a` (its chords between sampling moments; a point if
+    """The closest approach of a polyline to the fan of a path about a centre.
+
+    The closest approach of the polyline `a` (its chords between sampling moments; a point if
     it has one) to the *fan* of path[:count] about the centre (cx, cy): the union of the triangles
     (path[p], path[p + 1], centre), the spokes path[p] -> centre and the centre itself. A silent
     UAV's aircraft, from wherever on its path its failsafe fires, flies towards that centre (its
@@ -93,7 +95,9 @@ def fan_clearance(a: FloatArray, path: FloatArray, count: int, cx: float, cy: fl
 
 @njit(cache=True)
 def fan_count(entry: int, width: int) -> int:
-    """How many points of an expanded trajectory (`width` of them) its fan takes: those up to its
+    """How many points of an expanded trajectory its fan takes (up to its loiter's entry).
+
+    How many points of an expanded trajectory (`width` of them) its fan takes: those up to its
     loiter's entry index `entry`; none once it loiters (its aircraft, holding the loiter turn, then
     stays on the loiter circle: the centre, inflated, covers it)."""
     return 0 if entry <= 0 else min(entry, width - 1) + 1

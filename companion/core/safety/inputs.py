@@ -1,7 +1,7 @@
 """The safety kernels' bundled arguments: one UAV's constants, a step's checked rows, its regions.
 
 NamedTuples of arrays and numbers, so that the compiled checks (`switch`, `proposal`,
-`contingency`, `commitment.checks`) take a few arguments each and numba compiles and caches them
+`contingency`, `gathered`) take a few arguments each and numba compiles and caches them
 like any tuple.
 """
 
@@ -15,7 +15,9 @@ KinematicsArgs = tuple[float, bool, float, float, float]  # loiter turn, grid, s
 
 
 class Rules(NamedTuple):
-    """The constants of one UAV's checks: the `window` compared and the plan's `horizon` (M), the
+    """The constants of one UAV's safety checks.
+
+    The constants of one UAV's checks: the `window` compared and the plan's `horizon` (M), the
     kinematics of eq. 2 (`Limits.kinematics_args`), the fence's half-planes, the clearances of
     `Limits` (separation, disk separation, link), the contingency clause's fan `reach` (-inf: the
     clause is off) and the `progress` per planned step of a UAV leaving a failsafe region."""
@@ -33,7 +35,9 @@ class Rules(NamedTuple):
 
 
 class Regions(NamedTuple):
-    """Where gone UAVs' aircraft fly (`failsafe_regions.clears_loiters`): disks (cx, cy, r), the
+    """Where gone UAVs' aircraft fly: disks and the fans of their paths.
+
+    Where gone UAVs' aircraft fly (`failsafe_regions.clears_loiters`): disks (cx, cy, r), the
     fans' paths (n, M + 1, 2) and how many points of each path the fan takes."""
 
     loiters: FloatArray
@@ -42,7 +46,9 @@ class Regions(NamedTuple):
 
 
 class Checked(NamedTuple):
-    """What a check holds a trajectory against (`commitment.checks.select_checked`): the others'
+    """What a check holds a trajectory against, selected from a step's gathering.
+
+    What a check holds a trajectory against (`gathered.select_checked`): the others'
     expanded trajectories, which are `in_force` (else proposals), their loiter `centres` and entry
     indices, the disks (cx, cy, r) of UAVs not heard, the tethers and the tethers' disks, the
     `lone` loiter centres of trajectories in force announced before the latest and the rows of
@@ -70,7 +76,9 @@ class Expanded(NamedTuple):
 
 
 class Candidates(NamedTuple):
-    """The candidate paths of a new proposal (`proposal.first_allowed`): their `order` of
+    """The candidate paths of a new proposal (eq. 23), placed at the UAV's pose.
+
+    The candidate paths of a new proposal (`proposal.first_allowed`): their `order` of
     preference, their `shapes` (n_paths, 2 sides, window + 1, 2) and loiter `centres` (n_paths,
     2 sides, 2) relative to the anchor (`Limits.shapes`), placed at (x, y) and turned by the
     heading (cos_h, sin_h), and the point their loiters turn `towards`."""

@@ -48,6 +48,7 @@ class Limits:
         margin: float,
         buffer: float,
     ) -> Limits:
+        """The limits of a mission's kinematics, horizon, region, R_s, R_c, margin and buffer."""
         reach = Reach.of(kin, horizon)
         sag = reach.sagitta
         return cls(
@@ -70,7 +71,9 @@ class Limits:
         return expand_rows(rows, first, r.window, r.loiter_turn, self.grid, self.speed, self.dt, self.cell)
 
     def shapes(self, sequences: FloatArray) -> FloatArray:
-        """Every candidate trajectory relative to its anchor, for each loiter side (+1, -1):
+        """Every candidate trajectory relative to its anchor, for each heading and loiter side.
+
+        Every candidate trajectory relative to its anchor, for each loiter side (+1, -1):
         (headings, n_paths, 2, window + 1, 2). Grid mode keeps one table per 45-degree heading;
         continuous mode one for heading 0, which `feasible_sides` turns (eq. 2 turns with the
         heading it starts from)."""
@@ -98,7 +101,9 @@ class Limits:
         return self.expand(self.rows([trajectory]), trajectory.start)[0, : self.horizon + 1]
 
     def loiter_circle(self, trajectory: Trajectory) -> tuple[float, float, float]:
-        """The circle (centre x, centre y, radius) of `trajectory`'s loiter: through its sampling points
+        """The circle (centre x, centre y, radius) of a trajectory's loiter.
+
+        The circle (centre x, centre y, radius) of `trajectory`'s loiter: through its sampling points
         in continuous mode; in grid mode the loiter octagon's circumscribed circle (its vertices are
         concyclic: equal angles, alternating sides). The centre is the circumcentre of three
         consecutive loiter points, the radius the farthest of a whole loop's points from it."""
@@ -109,7 +114,9 @@ class Limits:
         return ux, uy, float(np.max(np.hypot(pts[:, 0] - ux, pts[:, 1] - uy)))
 
     def shape_centres(self, shapes: FloatArray) -> FloatArray:
-        """The loiter centre of every candidate of `shapes` (`Limits.shapes`) relative to its anchor:
+        """The loiter centre of every candidate of `shapes`, relative to its anchor.
+
+        The loiter centre of every candidate of `shapes` (`Limits.shapes`) relative to its anchor:
         (headings, n_paths, 2 sides, 2)."""
         out = np.empty((*shapes.shape[:3], 2))
         for index in np.ndindex(*shapes.shape[:3]):
@@ -129,6 +136,7 @@ class Limits:
 
     @property
     def kinematics_args(self) -> tuple[float, bool, float, float, float]:
+        """The kinematics arguments of eq. 2 (loiter turn, grid, speed, dt, cell)."""
         return self.reach.loiter_turn, self.grid, self.speed, self.dt, self.cell
 
     @property

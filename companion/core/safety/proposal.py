@@ -18,7 +18,9 @@ from companion.core.safety.separation import compatible, inside_fence, keeps_apa
 def first_allowed(
     candidates: Candidates, reference: Expanded, checked: Checked, regions: Regions, rules: Rules
 ) -> tuple[int, int]:
-    """The first candidate path in `candidates.order` whose trajectory, with one of the loiter
+    """The first candidate path that may be proposed, and its loiter side.
+
+    The first candidate path in `candidates.order` whose trajectory, with one of the loiter
     sides, stays in the fence, is compatible with everything `checked`, clears the others'
     contingency regions (`keeps_contingencies`) and the gone UAVs' `regions` (`clears_loiters`):
     (path, side +1 or -1); if none does, of those in the fence and compatible that may replace
@@ -85,7 +87,9 @@ def _turned(candidates: Candidates, ox: float, oy: float) -> tuple[float, float]
 
 @njit(cache=True)
 def _first_side(candidates: Candidates, i: int, horizon: int) -> int:
-    """The loiter side to try first for path i (0: +1, 1: -1): the one that turns towards
+    """The loiter side to try first for path i: the one that turns towards `towards`.
+
+    The loiter side to try first for path i (0: +1, 1: -1): the one that turns towards
     `candidates.towards` from the direction of the plan's last step."""
     c = candidates
     s0 = c.shapes[i, 0]

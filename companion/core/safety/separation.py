@@ -33,7 +33,9 @@ def compatible(
     disk_separation: float,
     link: float,
 ) -> bool:
-    """Whether the trajectory at `pts` (window + 1 positions) keeps clear of every expanded
+    """Whether a trajectory keeps its separation from others and disks and its tethers' links.
+
+    Whether the trajectory at `pts` (window + 1 positions) keeps clear of every expanded
     trajectory in `others` and every disk (cx, cy, r) in `disks` between sampling moments, and
     within `link` of every trajectory in `tethers` and of all of every disk in `tether_disks` at
     every sampling moment."""
@@ -69,7 +71,9 @@ def clearances(pts: FloatArray, others: FloatArray) -> FloatArray:
 
 @njit(cache=True)
 def keeps_apart(pts: FloatArray, crowded: FloatArray, need: FloatArray) -> tuple[bool, float]:
-    """Recovery for pairs already closer than the separation (after a fault: a partition, a vehicle
+    """Recovery: whether a trajectory keeps a crowded pair's clearance from shrinking.
+
+    Recovery for pairs already closer than the separation (after a fault: a partition, a vehicle
     that strayed): whether the trajectory at `pts` keeps at least `need[o]` (the trajectory in force's
     clearance) from each of `crowded`, so the pair's clearance never shrinks, and how far it keeps
     from them after its first point (fixed by the trajectory in force: the next plan starts there)."""
@@ -85,7 +89,9 @@ def keeps_apart(pts: FloatArray, crowded: FloatArray, need: FloatArray) -> tuple
 def split_crowded(
     reference: FloatArray, others: FloatArray, in_force: BoolArray, separation: float
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """`others` split by whether the trajectory in force (at `reference`, the same steps) is
+    """The others split by whether the trajectory in force is compatible with them.
+
+    `others` split by whether the trajectory in force (at `reference`, the same steps) is
     compatible with them: those it is, and the others' trajectories in force (`in_force`) it is
     already too close to (after a fault), with its clearance from each (`keeps_apart`). A proposal
     it is too close to stays a strict obstacle: its owner will not switch to it."""
@@ -96,7 +102,9 @@ def split_crowded(
 
 @njit(cache=True)
 def flyable(row: FloatArray, first: int, rules: Rules, others: FloatArray, tethers: FloatArray) -> bool:
-    """Whether the trajectory `row`, expanded from step `first` over `rules.window`, stays in the
+    """Whether a trajectory stays in the fence and is compatible with `others` and `tethers`.
+
+    Whether the trajectory `row`, expanded from step `first` over `rules.window`, stays in the
     fence and is compatible with the trajectories `others` and `tethers` (`Commitments._flyable`)."""
     pts = expand(row, first, rules.window, *rules.kinematics)
     if not inside_fence(pts, rules.normals, rules.offsets):

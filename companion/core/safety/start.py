@@ -15,7 +15,9 @@ from companion.core.trajectory import HEAD, Reach, Trajectory, expand
 
 
 def tether_tree(positions: FloatArray, link: float) -> tuple[tuple[int, ...], tuple[int, ...]]:
-    """Ranks and parents of the start layout: ranks in breadth-first order from UAV 0 over the graph
+    """Ranks and parents of the tree of links that must hold in the start layout.
+
+    Ranks and parents of the start layout: ranks in breadth-first order from UAV 0 over the graph
     of pairs closer than `link` (nearer neighbours first), each UAV's parent the nearest UAV of a
     lower rank within `link`, -1 for the root. A layout that is not connected gives a forest: each
     further component is ranked from its lowest id, whose parent is -1 too."""
@@ -38,6 +40,7 @@ def tether_tree(positions: FloatArray, link: float) -> tuple[tuple[int, ...], tu
                     queue.append(v)
 
     def parent(v: int) -> int:
+        """The nearest UAV of a lower rank within `link` of v, -1 for none."""
         lower = [u for u in range(n) if rank[u] < rank[v] and d[u, v] < link]
         return min(lower, key=lambda u: d[u, v]) if lower else -1
 
@@ -47,7 +50,9 @@ def tether_tree(positions: FloatArray, link: float) -> tuple[tuple[int, ...], tu
 def initial_trajectories(
     poses: FloatArray, parents: tuple[int, ...], ranks: tuple[int, ...], limits: Limits
 ) -> list[Trajectory]:
-    """A contingency per UAV from its start pose, pairwise compatible and keeping every tether to a
+    """A start contingency per UAV, pairwise compatible and keeping every tether.
+
+    A contingency per UAV from its start pose, pairwise compatible and keeping every tether to a
     parent: straight for s steps (0 <= s <= M, shorter first), then loiter on one side. Searched in
     rank order with backtracking; raises ValueError when the start layout admits none."""
     n, m = len(poses), limits.horizon
@@ -71,6 +76,7 @@ def initial_trajectories(
     no_disks = np.zeros((0, 3))
 
     def place(i: int) -> bool:
+        """Place the UAVs from rank i on, backtracking; whether all fit."""
         if i == len(order):
             return True
         u = order[i]
@@ -103,7 +109,9 @@ def initial_trajectories(
 
 
 def minimum_margin(kin: Kinematics, horizon: int) -> float:
-    """The smallest operating margin with which a UAV anywhere on the region's edge, with any
+    """The smallest operating margin that leaves every edge UAV a contingency inside the fence.
+
+    The smallest operating margin with which a UAV anywhere on the region's edge, with any
     heading, has a contingency inside the fence: the largest, over headings, of how far beyond the
     edge its best start contingency (straight for s <= M steps, then loiter) reaches. The edge is a
     straight line through the UAV with outward normal +y."""

@@ -23,7 +23,9 @@ def may_switch(
     regions: Regions,
     rules: Rules,
 ) -> bool:
-    """Whether the proposal rows[0] may replace the trajectory in force rows[1] at step `first`
+    """The switch rule: whether the proposal rows[0] may replace the trajectory in force rows[1].
+
+    Whether the proposal rows[0] may replace the trajectory in force rows[1] at step `first`
     (`Commitments.resolve`): both expanded from `first`, with their loiters' entry indices `entry`
     and `reference_entry`, the proposal must be compatible with everything `checked` (the others,
     the disks, the tethers and their disks), except that from a trajectory in force that is
