@@ -154,8 +154,8 @@ class Agent:
         self._labels = np.append(tess.labels, -1) if tess else np.zeros(n + 1, dtype=np.int64)
         self.phi = np.zeros(n) if self.algorithm == "pheromone" else None
         grid, c = world.grid, m.comms
-        self._grid_cells = GridCells(grid.x0, grid.y0, grid.lattice, grid.fov_table)
-        self._weights = ScoreWeights(
+        self._grid_cells: GridCells = (grid.x0, grid.y0, grid.lattice, grid.fov_table)
+        self._weights: ScoreWeights = (
             m.algorithm.delta,
             m.algorithm.chi,
             (c.range, c.attraction, c.safety, c.repulsion),
@@ -163,7 +163,9 @@ class Agent:
             grid.region.offsets,
             grid.cell_size,
         )
-        self._tasks = TaskSet(tess.labels, tess.cell_counts, tess.generators, tess.areas) if tess else None
+        self._tasks: TaskSet | None = (
+            (tess.labels, tess.cell_counts, tess.generators, tess.areas) if tess else None
+        )
         self.commitments = Commitments(world, uav)
         self.last: StepDelta | None = None  # what the latest step changed (journals keep it)
 
@@ -395,9 +397,9 @@ class Agent:
             )
         tess = w.tessellation
         if self.task >= 0 and tess is not None:
-            region = TaskRegion(self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
+            region: TaskRegion = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
         else:
-            region = TaskRegion(-1, nxt, 1.0)
+            region = (-1, nxt, 1.0)
         if w.kinematics.mode == "grid":
             return rank_grid_candidates(
                 x1, y1, w.paths.offsets_from(h1), self._grid_cells, self._values, self._labels, region,
@@ -405,7 +407,7 @@ class Agent:
             )  # fmt: skip
         pts = w.paths.expand(x1, y1, h1)
         cells, fov, prefix = continuous_path_cells(grid, w.kinematics, pts)
-        labels = self._labels[cells] if region.task >= 0 else cells  # cell -1 reads the trailing -1
+        labels = self._labels[cells] if region[0] >= 0 else cells  # cell -1 reads the trailing -1
         return rank_candidates(pts, fov, prefix, self._values, labels, region, nbr_tracks, self._weights), pts
 
     def _plan_of(

@@ -40,7 +40,7 @@ from companion.core.gathered import Gathered, first_allowed_from, flyable_from, 
 from companion.core.geometry import FloatArray, IntArray
 from companion.core.messages import StateMsg, UavState
 from companion.core.safety.expansion import expand_with_centres
-from companion.core.safety.inputs import Candidates, Regions, Rules
+from companion.core.safety.inputs import CandidatesArgs, RegionsArgs, RulesArgs
 from companion.core.safety.separation import compatible
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
@@ -98,7 +98,7 @@ class Commitments:
         ]
         # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
         # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
-        self._gathered = Gathered(
+        self._gathered: Gathered = (
             np.zeros((0, plan.limits.reach.window + 2, 2)),
             np.zeros(0, dtype=np.int64),
             np.zeros(0, dtype=bool),
@@ -112,11 +112,11 @@ class Commitments:
         )
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
-        self._no_regions = Regions(np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64))
+        self._no_regions: RegionsArgs = (np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64))
         self._regions = self._no_regions
         self.progress = LEAVING_PROGRESS * plan.limits.reach.step  # per planned step, leaving a disk
         lim = plan.limits
-        self.rules = Rules(
+        self.rules: RulesArgs = (
             lim.reach.window,
             lim.horizon,
             lim.kinematics_args,
@@ -265,7 +265,7 @@ class Commitments:
         kinematics = lim.kinematics_args
         pts, centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
         turn = lim.reach.loiter_turn
-        self._gathered = Gathered(
+        self._gathered = (
             pts,
             np.array(owners, dtype=np.int64),
             ~np.array(proposals, dtype=bool),
@@ -283,7 +283,7 @@ class Commitments:
         fans = np.zeros((len(regions), lim.horizon + 1, 2))
         for i, (_, path) in enumerate(regions):
             fans[i, : len(path)] = path
-        self._regions = Regions(
+        self._regions = (
             np.array([d for d, _ in regions], dtype=float).reshape(-1, 3),
             fans,
             np.array([len(p) for _, p in regions], dtype=np.int64),
@@ -393,7 +393,7 @@ class Commitments:
             if compatible(pts, empty_o, empty_d, tethers, empty_d, *lim.clearances):
                 self.parents = (*self.parents, j)
                 self.parent_since = k
-                if j not in self._gathered.owners:  # left out as too far to matter: not as a tether
+                if j not in self._gathered[1]:  # left out as too far to matter: not as a tether
                     self._gather(k, float(position[0]), float(position[1]))
                 return
 
@@ -407,9 +407,8 @@ class Commitments:
         x, y, heading = pose
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
-        candidates = Candidates(
-            order, self._shapes[h], self._shape_centres[h], x, y, c, s, self._turn_towards(x, y)
-        )
+        towards = self._turn_towards(x, y)
+        candidates: CandidatesArgs = (order, self._shapes[h], self._shape_centres[h], x, y, c, s, towards)
         best, side = first_allowed_from(
             self._gathered,
             self._links(),

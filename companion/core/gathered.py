@@ -8,39 +8,43 @@ force flyable (`flyable_from`) and searching a new proposal (`first_allowed_from
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 from numba import njit
 
 from companion.core.geometry import BoolArray, FloatArray, IntArray
 from companion.core.safety.expansion import expand_with_centres
-from companion.core.safety.inputs import Candidates, Checked, Expanded, Regions, Rules
+from companion.core.safety.inputs import (
+    Candidates,
+    CandidatesArgs,
+    Checked,
+    Expanded,
+    Regions,
+    RegionsArgs,
+    Rules,
+    RulesArgs,
+)
 from companion.core.safety.proposal import first_allowed
 from companion.core.safety.separation import flyable
 from companion.core.safety.switch import may_switch
 
-
-class Gathered(NamedTuple):
-    """What the others may fly from t_k on, expanded once a step, a row each.
-
-    What the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
-    `pts` (n, window + 2, 2), their `owners`, whether each is a trajectory `in_force` (else a
-    proposal), their loiter `centres` and loiter `entries` indices, the rows of the UAVs whose
-    trajectories in force before their latest are `lone` and those trajectories' loiter centres,
-    the `disks` (cx, cy, r) of UAVs not heard and their owners, and whether the contingency
-    clause holds against each row (its owner's layer is near)."""
-
-    pts: FloatArray
-    owners: IntArray
-    in_force: BoolArray
-    centres: FloatArray
-    entries: IntArray
-    lone_rows: IntArray
-    lone: FloatArray
-    disks: FloatArray
-    disk_owners: IntArray
-    clause: BoolArray
+# What the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
+# (n, window + 2, 2), their owners, whether each is a trajectory in force (else a proposal), their
+# loiter centres and loiter entry indices, the rows of the UAVs whose trajectories in force before
+# their latest are lone and those trajectories' loiter centres, the disks (cx, cy, r) of UAVs not
+# heard and their owners, and whether the contingency clause holds against each row (its owner's
+# layer is near). A plain tuple, as `safety.inputs.RulesArgs`.
+Gathered = tuple[
+    FloatArray,
+    IntArray,
+    BoolArray,
+    FloatArray,
+    IntArray,
+    IntArray,
+    FloatArray,
+    FloatArray,
+    IntArray,
+    BoolArray,
+]
 
 
 @njit(cache=True)
@@ -112,27 +116,27 @@ def may_switch_from(
     first: int,
     entry: int,
     reference_entry: int,
-    regions: Regions,
-    rules: Rules,
+    regions: RegionsArgs,
+    rules: RulesArgs,
 ) -> bool:
     """`may_switch` against this step's gathering (resolving the pending proposal).
 
     `safety.switch.may_switch` of the proposal rows[0] against what this step's gathering holds
     (`select_checked` for the resolution: the others' proposals only of lower ids, from t_k)."""
     checked = select_checked(gathered, links, uav, True, True)
-    return may_switch(rows, first, entry, reference_entry, checked, regions, rules)
+    return may_switch(rows, first, entry, reference_entry, checked, Regions(*regions), Rules(*rules))
 
 
 @njit(cache=True)
 def flyable_from(
-    gathered: Gathered, links: IntArray, uav: int, row: FloatArray, first: int, rules: Rules
+    gathered: Gathered, links: IntArray, uav: int, row: FloatArray, first: int, rules: RulesArgs
 ) -> bool:
     """`flyable` against the others' trajectories in force and the tethers, from t_k.
 
     `safety.separation.flyable` against the others' trajectories in force of this step's
     gathering and the tethers among them, from t_k (`Commitments._flyable`)."""
     checked = select_checked(gathered, links, uav, True, False)
-    return flyable(row, first, rules, checked.others, checked.tethers)
+    return flyable(row, first, Rules(*rules), checked.others, checked.tethers)
 
 
 @njit(cache=True)
@@ -143,9 +147,9 @@ def first_allowed_from(
     first: int,
     reference_row: FloatArray,
     reference_entry: int,
-    candidates: Candidates,
-    regions: Regions,
-    rules: Rules,
+    candidates: CandidatesArgs,
+    regions: RegionsArgs,
+    rules: RulesArgs,
 ) -> tuple[int, int]:
     """`first_allowed` against this step's gathering, from t_k+1.
 
@@ -153,11 +157,7 @@ def first_allowed_from(
     = `first` (`select_checked` for a new proposal), with the trajectory in force `reference_row`
     expanded from there (loiter entry index `reference_entry`) as the reference."""
     checked = select_checked(gathered, links, uav, False, True)
-    reference, centre = expand_with_centres(reference_row, first, rules.window, rules.kinematics)
-    return first_allowed(
-        candidates,
-        Expanded(reference[0], reference_entry, centre[0, 0], centre[0, 1]),
-        checked,
-        regions,
-        rules,
-    )
+    named = Rules(*rules)
+    reference, centre = expand_with_centres(reference_row, first, named.window, named.kinematics)
+    reference_trajectory = Expanded(reference[0], reference_entry, centre[0, 0], centre[0, 1])
+    return first_allowed(Candidates(*candidates), reference_trajectory, checked, Regions(*regions), named)

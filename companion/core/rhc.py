@@ -6,7 +6,6 @@ The scoring loops run compiled (numba): they are the hot path of every agent ste
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -18,41 +17,18 @@ from companion.core.potential import link_cost, safety_cost
 PENALTY_KNEE = 10.0
 
 
-class TaskRegion(NamedTuple):
-    """The UAV's assigned region V* of eq. 25: task, generator q* and circumradius R*.
-
-    The UAV's assigned region V* of eq. 25: its task (-1: none, hence no penalty), generator q*
-    and circumradius R*."""
-
-    task: int
-    generator: FloatArray
-    circumradius: float
-
-
-class ScoreWeights(NamedTuple):
-    """The constants of eq. 22's ranking (eqs. 25, 28, 29 and the region constraint).
-
-    The constants of eq. 22's ranking: (delta_1, delta_2) of eq. 25, (chi_1, chi_2) of eq. 22,
-    (R_c, R'_c, R_s, R'_s) of eq. 28, the region's half-planes and the cell size (`region_key`)."""
-
-    delta: tuple[float, float]
-    chi: tuple[float, float]
-    comms: tuple[float, float, float, float]
-    normals: FloatArray
-    offsets: FloatArray
-    cell_size: float
-
-
-class GridCells(NamedTuple):
-    """Grid mode's cell lookup: lattice origin, lattice cells and each cell's FOV (eq. 3).
-
-    Grid mode's cell lookup (`grid_path_cells`): the lattice's origin (x0, y0), the cell of each
-    lattice node (-1 outside) and each cell's FOV cells (eq. 3; the last row is padding)."""
-
-    x0: float
-    y0: float
-    lattice: IntArray
-    fov_table: IntArray
+# Plain tuples (numba types them in C, a NamedTuple costs about a microsecond a call):
+# the UAV's assigned region V* of eq. 25: its task (-1: none, hence no penalty), generator q* and
+# circumradius R*
+TaskRegion = tuple[int, FloatArray, float]
+# eq. 22's constants: (delta_1, delta_2) of eq. 25, (chi_1, chi_2) of eq. 22, (R_c, R'_c, R_s,
+# R'_s) of eq. 28, the region's half-planes (normals, offsets) and the cell size (`region_key`)
+ScoreWeights = tuple[
+    tuple[float, float], tuple[float, float], tuple[float, float, float, float], FloatArray, FloatArray, float
+]
+# grid mode's cell lookup (`grid_path_cells`): the lattice's origin x0, y0, the cell of each lattice
+# node (-1 outside) and each cell's FOV cells (eq. 3; the last row is padding)
+GridCells = tuple[float, float, IntArray, IntArray]
 
 
 @njit(cache=True)
@@ -226,13 +202,13 @@ def rank_candidates(
 
     Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
     (`region_key`, `rank_paths`)."""
-    delta, chi, comms = weights.delta, weights.chi, weights.comms
+    delta, chi, comms, normals, offsets, cell_size = weights
     task, generator, circumradius = region
     benefit = search_benefit(
         points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1]
     )
     expense = path_expense(points, neighbour_tracks, comms[0], comms[1], comms[2], comms[3])
-    region_keys = region_key(prefix, points, weights.normals, weights.offsets, weights.cell_size)
+    region_keys = region_key(prefix, points, normals, offsets, cell_size)
     return rank_paths(chi[0] * benefit - chi[1] * expense, region_keys)
 
 
@@ -259,9 +235,9 @@ def rank_grid_candidates(
         for m in range(offsets.shape[1]):
             pts[i, m, 0], pts[i, m, 1] = offsets[i, m, 0] + x, offsets[i, m, 1] + y
     x0, y0, lattice, fov_table = cells_of
-    cells, fov, prefix = grid_path_cells(pts, x0, y0, weights.cell_size, lattice, fov_table)
+    cells, fov, prefix = grid_path_cells(pts, x0, y0, weights[5], lattice, fov_table)
     point_labels = np.full(cells.shape, -1, dtype=np.int64)
-    if region.task >= 0:
+    if region[0] >= 0:
         for i in range(cells.shape[0]):
             for m in range(cells.shape[1]):
                 if cells[i, m] >= 0:

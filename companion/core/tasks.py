@@ -28,16 +28,9 @@ class CostWeights(NamedTuple):
     comm_cap: float
 
 
-class TaskSet(NamedTuple):
-    """The tasks V_j a bidder bids for (eq. 15).
-
-    The tasks V_j a bidder bids for (eq. 15): each cell's task label, and each task's cell
-    count, generator q_j and area S_j (`cvt.Tessellation`)."""
-
-    labels: IntArray
-    cell_counts: IntArray
-    generators: FloatArray
-    areas: FloatArray
+# The tasks V_j a bidder bids for (eq. 15): each cell's task label, and each task's cell count,
+# generator q_j and area S_j (`cvt.Tessellation`); a plain tuple, which numba types in C
+TaskSet = tuple[IntArray, IntArray, FloatArray, FloatArray]
 
 
 @njit(cache=True)

@@ -12,9 +12,6 @@ from hypothesis import strategies as st
 from companion.core.geometry import ConvexPolygon, Grid
 from companion.core.kinematics import Kinematics, PathTree
 from companion.core.rhc import (
-    GridCells,
-    ScoreWeights,
-    TaskRegion,
     grid_path_cells,
     path_expense,
     rank_candidates,
@@ -210,10 +207,10 @@ def test_grid_path_ranking_in_one_call_matches_its_parts(
     cell_labels = np.append(rng.integers(0, 10, g.n_cells), -1)
     n_nbrs = int(rng.integers(0, 3))
     tracks = np.array([x, y]) + rng.normal(0, 150, (n_nbrs, 4, 2))
-    region = TaskRegion(task, np.array([x + 100.0, y - 50.0]), 200.0)
+    region = (task, np.array([x + 100.0, y - 50.0]), 200.0)
     comms = (500.0, 400.0, 60.0, 100.0)
-    weights = ScoreWeights((1.0, 0.5), (1.0, 0.01), comms, g.region.normals, g.region.offsets, g.cell_size)
-    cells_of = GridCells(g.x0, g.y0, g.lattice, g.fov_table)
+    weights = ((1.0, 0.5), (1.0, 0.01), comms, g.region.normals, g.region.offsets, g.cell_size)
+    cells_of = (g.x0, g.y0, g.lattice, g.fov_table)
     order, path_points = rank_grid_candidates(
         x, y, tree.offsets_from(heading), cells_of, values, cell_labels, region, tracks, weights
     )

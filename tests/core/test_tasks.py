@@ -10,7 +10,6 @@ import pytest
 from companion.core.cvt import describe
 from companion.core.tasks import (
     CostWeights,
-    TaskSet,
     bid_rewards,
     communication_costs,
     keep_task,
@@ -95,7 +94,7 @@ def test_income_and_reward_on_a_tiny_tessellation() -> None:
 
     def bids(covered: tuple[int, int] = (0, 0), c_max: float = 1e9, held: int = -1) -> np.ndarray:
         counts = np.array(covered, dtype=np.int64)
-        tasks = TaskSet(tess.labels, tess.cell_counts, tess.generators, tess.areas)
+        tasks = (tess.labels, tess.cell_counts, tess.generators, tess.areas)
         return bid_rewards(eta, prior, counts, tasks, 0.85, c_max, here, none, W, held)
 
     # r_j = sum of eta Pr over V_j: 0.3 and 0.7; from (40, 20), no neighbours:

@@ -12,6 +12,12 @@ from typing import NamedTuple
 from companion.core.geometry import BoolArray, FloatArray, IntArray
 
 KinematicsArgs = tuple[float, bool, float, float, float]  # loiter turn, grid, speed, dt, cell (eq. 2)
+# Python hands the compiled entry points (`gathered`) the fields of `Rules`, `Regions` and
+# `Candidates` as plain tuples, which numba types in C (a NamedTuple costs about a microsecond a
+# call); the entry points name them, `Rules(*rules)`.
+RulesArgs = tuple[int, int, KinematicsArgs, FloatArray, FloatArray, float, float, float, float, float]
+RegionsArgs = tuple[FloatArray, FloatArray, IntArray]
+CandidatesArgs = tuple[IntArray, FloatArray, FloatArray, float, float, float, float, FloatArray]
 
 
 class Rules(NamedTuple):
