@@ -46,12 +46,18 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """Compile the core's numba kernels into numba's disk cache once, before xdist starts its
-    workers (as `uavsearch run` does before its companions): on a fresh checkout every process
-    would otherwise compile them at once, for tens of seconds each."""
+    """Compile the numba kernels into numba's disk cache once, before xdist starts its workers.
+
+    As `uavsearch run` does before its companions: on a fresh checkout every process would
+    otherwise compile them at once, for tens of seconds each. The agents' kernels come from the
+    core's warm-up, the batch engine's scoring kernels from a few steps of the engine.
+    """
     if hasattr(session.config, "workerinput"):
         return  # an xdist worker: the controller has done it
-    from companion.batch.engine import warm_up
+    from companion.batch.engine import simulate
     from companion.core.feasibility import load_mission
+    from companion.core.warm import warm_up
 
-    warm_up(load_mission(Path(__file__).parents[1] / "mission_files" / "scenario1.toml"))
+    mission = load_mission(Path(__file__).parents[1] / "mission_files" / "scenario1.toml")
+    warm_up(mission)
+    simulate(mission, mission.seed, 0, 5)

@@ -24,7 +24,6 @@ from companion.app.evaluation import CompanionLogs, truth_cells
 from companion.app.progress import Progress
 from companion.app.run_options import RunOptions, check_options
 from companion.app.run_report import report_run
-from companion.batch.engine import warm_up
 from companion.contracts.frames import LocalFrame
 from companion.contracts.keys import (
     ROLES,
@@ -37,6 +36,7 @@ from companion.contracts.keys import (
 )
 from companion.contracts.mission import Mission
 from companion.core.feasibility import load_mission
+from companion.core.warm import warm_up
 from companion.core.world import build_world
 from sim_vehicles import camera as cam
 

@@ -11,7 +11,6 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-import msgspec
 import numpy as np
 from numba import njit
 
@@ -68,7 +67,9 @@ def _ground_truth(
     fov_cells: np.ndarray,
     comm_range: float,
 ) -> tuple[np.ndarray, int, int, float, float]:
-    """One step of `Scorer.record`: (UAV, target) pairs in view, targets found so far (first-seen
+    """One step of `Scorer.record`, compiled.
+
+    One step of `Scorer.record`: (UAV, target) pairs in view, targets found so far (first-seen
     steps updated in place), cells looked at for the first time, lambda_2 and the minimum distance."""
     n, n_targets = positions.shape[0], target_xy.shape[0]
     sees = np.zeros((n, n_targets), dtype=np.bool_)
@@ -99,7 +100,9 @@ def closest_approach(
     substeps: int,
     pairs: np.ndarray,
 ) -> float:
-    """min over the pairs marked in `pairs` (n, n) of the horizontal distance between two UAVs
+    """The closest approach over one step of the pairs marked in `pairs` (eq. 2 flights).
+
+    min over the pairs marked in `pairs` (n, n) of the horizontal distance between two UAVs
     flying eq. 2 from `poses` with `turns` over one step: grid UAVs fly straight between cell centres
     (exact); continuous UAVs fly arcs, sampled at `substeps` points with straight motion between
     them (within the sagitta of 1/substeps of a turn)."""
@@ -120,7 +123,9 @@ def closest_approach(
 
 
 class Scorer:
-    """Ground-truth metrics of one run, step by step (a target is found when its cell centre is
+    """Ground-truth metrics of one run, step by step.
+
+    Ground-truth metrics of one run, step by step (a target is found when its cell centre is
     within R_A of some UAV): targets found, coverage, lambda_2 and the minimum pairwise distance,
     with the uncertainty of eq. 30 handed in. The batch engine and the flown-mission evaluator
     both score with it."""
@@ -136,6 +141,8 @@ class Scorer:
 
     def record(self, k: int, positions: np.ndarray, uncertainty: float = math.nan) -> np.ndarray:
         """Score the UAVs at `positions` at step k; returns which UAV sees which target (eq. 3).
+
+        Score the UAVs at `positions` at step k; returns which UAV sees which target (eq. 3).
         The uncertainty of step k may be handed in later (`unc[k]`)."""
         m, grid = self.world.mission, self.world.grid
         sees, found, new, lam, mind = _ground_truth(
@@ -155,7 +162,9 @@ class Scorer:
         return sees
 
     def record_flight(self, k: int, poses: np.ndarray, turns: np.ndarray, live: np.ndarray) -> None:
-        """The closest approach while flying the turns from `poses` over [t_k, t_k+1] of the pairs
+        """The closest approach over [t_k, t_k+1] of the pairs that can meet.
+
+        The closest approach while flying the turns from `poses` over [t_k, t_k+1] of the pairs
         that can meet: both `live` (steered by a live companion), or on near layers (an aircraft
         nobody steers holds its layer, so only those on layers closer than the vertical separation
         can meet it)."""
@@ -168,6 +177,7 @@ class Scorer:
         )
 
     def result(self, run: int, seed: int, seconds: float, **extra: object) -> RunResult:
+        """The run's `RunResult`, with `extra` fields."""
         steps = len(self.unc)
         m = self.world.mission
         return RunResult(
@@ -214,7 +224,29 @@ class Radio:
 
 
 def initial_poses(mission: Mission) -> np.ndarray:
+    """The vehicles' start poses (x, y, heading in radians), a row each."""
     return np.array([(v.x, v.y, math.radians(v.heading_deg)) for v in mission.vehicles], dtype=float)
+
+
+@dataclass
+class Faults:
+    """The companions that die or stop steering in a run, and the dead ones' vehicles.
+
+    The companions that die (`kills`: UAV -> step) and stop steering (`takeovers`: UAV -> step)
+    in a run of `steps` steps, and the vehicles of the dead ones (`DeadVehicle`)."""
+
+    death: dict[int, int]
+    held: dict[int, int]
+    steps: int
+    dead: dict[int, DeadVehicle] = field(default_factory=dict)
+
+    def dead_at(self, uav: int, k: int) -> bool:
+        """Whether `uav`'s companion is dead at step k."""
+        return self.death.get(uav, self.steps) <= k
+
+    def steered_at(self, uav: int, k: int) -> bool:
+        """Whether `uav`'s companion steers its vehicle at step k."""
+        return self.held.get(uav, self.steps) > k
 
 
 def simulate(
@@ -252,39 +284,25 @@ def simulate(
     traj = np.zeros((steps, n, 3)) if record else None
     tasks = np.full((steps, n), -1, dtype=np.int64) if record else None
     inboxes: list[list[Message]] = [[] for _ in range(n)]
-    death = {i: d for i, d in (kills or {}).items() if 0 <= i < n}
-    held = {i: d for i, d in (takeovers or {}).items() if 0 <= i < n}
-    loiter_turn = world.safety.limits.reach.loiter_turn
-    dead: dict[int, DeadVehicle] = {}
+    faults = Faults(
+        {i: d for i, d in (kills or {}).items() if 0 <= i < n},
+        {i: d for i, d in (takeovers or {}).items() if 0 <= i < n},
+        steps,
+    )
     last = np.zeros(n)  # each vehicle's latest turn: the command a dead companion leaves held
     for k in range(steps):
         sees = scorer.record(k, poses[:, :2])
-        turns = np.empty(n)
-        outboxes: list[list[Message]] = []
-        seen = sees.any(axis=1).tolist()
-        for i, agent in enumerate(agents):
-            if death.get(i, steps) <= k:
-                if i not in dead:
-                    dead[i] = DeadVehicle.of(world, k, float(last[i]), agent.commitments.inforce)
-                turns[i] = dead[i].turn(k, *poses[i].tolist())
-                outboxes.append([])
-                continue
-            x, y, h = poses[i].tolist()
-            detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
-            steered = held.get(i, steps) > k
-            obs = Observation(step=k, x=x, y=y, heading=h, detections=detections, steered=steered)
-            command, outbox = agent.step(obs, inboxes[i])
-            turns[i] = command.turn if steered else loiter_turn
-            outboxes.append(outbox)
-            if tasks is not None:
-                tasks[k, i] = command.task
+        stepped = _step_agents(k, agents, world, faults, poses, last, sees, scorer.target_xy, inboxes)
+        turns, outboxes, commanded = stepped
+        if tasks is not None:
+            tasks[k] = commanded
         if probe is not None:
             probe(k, agents)
         scorer.unc[k] = global_average_uncertainty([a.eta for a in agents])
         if traj is not None:
             traj[k] = poses
         inboxes = radio.deliver(poses[:, :2], outboxes)
-        live = np.array([death.get(i, steps) > k and held.get(i, steps) > k for i in range(n)])
+        live = np.array([not faults.dead_at(i, k) and faults.steered_at(i, k) for i in range(n)])
         scorer.record_flight(k, poses, turns, live)
         last = turns
         poses = world.kinematics.advance_poses(poses, turns)
@@ -305,14 +323,41 @@ def simulate(
     )
 
 
-WARM_UP_STEPS = 30  # enough for bids, an auction and reevaluation (algorithm "proposed")
-WARM_UP_UAVS = 4  # compiled code does not depend on the swarm's size
+def _step_agents(
+    k: int,
+    agents: list[Agent],
+    world: World,
+    faults: Faults,
+    poses: np.ndarray,
+    last: np.ndarray,
+    sees: np.ndarray,
+    target_xy: np.ndarray,
+    inboxes: list[list[Message]],
+) -> tuple[np.ndarray, list[list[Message]], np.ndarray]:
+    """Step k of every UAV: the turns flown, the outboxes and each agent's task.
 
-
-def warm_up(mission: Mission) -> float:
-    """Run the batch engine for a few steps of the mission (its first few vehicles) so that numba
-    compiles every kernel the agents use, or loads it from its disk cache (`cache=True`): a fresh
-    checkout compiles for tens of seconds, which a companion must not spend inside its first
-    real-time steps. Returns the seconds taken."""
-    small = msgspec.structs.replace(mission, vehicles=mission.vehicles[:WARM_UP_UAVS])
-    return simulate(small, mission.seed, 0, WARM_UP_STEPS).seconds
+    Step k of every UAV from `poses`, each agent with its inbox and the targets it `sees` (at
+    `target_xy`): the turns flown over [t_k, t_k+1] (a dead companion's vehicle flies its
+    `DeadVehicle` from its `last` turn; an unsteered one the loiter turn), the outboxes (empty for
+    the dead) and each agent's task (-1 for the dead)."""
+    n = len(agents)
+    turns, commanded = np.empty(n), np.full(n, -1, dtype=np.int64)
+    outboxes: list[list[Message]] = []
+    seen: list[bool] = np.any(sees, axis=1).tolist()
+    loiter_turn = world.safety.limits.reach.loiter_turn
+    for i, agent in enumerate(agents):
+        if faults.dead_at(i, k):
+            if i not in faults.dead:
+                faults.dead[i] = DeadVehicle.of(world, k, float(last[i]), agent.commitments.inforce)
+            turns[i] = faults.dead[i].turn(k, *poses[i].tolist())
+            outboxes.append([])
+            continue
+        x, y, h = poses[i].tolist()
+        detections = tuple(map(tuple, target_xy[sees[i]].tolist())) if seen[i] else ()
+        steered = faults.steered_at(i, k)
+        obs = Observation(step=k, x=x, y=y, heading=h, detections=detections, steered=steered)
+        command, outbox = agent.step(obs, inboxes[i])
+        turns[i] = command.turn if steered else loiter_turn
+        outboxes.append(outbox)
+        commanded[i] = command.task
+    return turns, outboxes, commanded

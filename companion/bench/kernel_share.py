@@ -38,7 +38,7 @@ class Share:
 def _modules() -> list[ModuleType]:
     import companion.core
 
-    names = [f"companion.core.{m.name}" for m in pkgutil.iter_modules(companion.core.__path__)]
+    names = [m.name for m in pkgutil.walk_packages(companion.core.__path__, "companion.core.")]
     return [importlib.import_module(n) for n in (*names, "companion.batch.engine")]
 
 

@@ -1,4 +1,6 @@
-"""One UAV's side of the commitment protocol that keeps every pair of UAVs separated and the
+"""One UAV's side of the commitment protocol that keeps the swarm separated and linked.
+
+One UAV's side of the commitment protocol that keeps every pair of UAVs separated and the
 tethers (links that must hold) within range (docs/algorithm.md, "Safety layer").
 
 Every UAV i always has a trajectory in force, T_i^k, which it flies over [t_k, t_k+1]; it is
@@ -18,12 +20,12 @@ latest report (`adrift_reach`). Rejecting a proposal is always safe: the traject
 in a loiter inside the fence.
 
 With `safety.contingency`, compatibility also asks each of two trajectories to keep clear of the
-other's failsafe disk (`safety.keeps_contingencies`; docs/algorithm.md, "The contingency
+other's failsafe disk (`safety.contingency.keeps_contingencies`; docs/algorithm.md, "The contingency
 clause"), and of the disk of the trajectory in force a live UAV announced before its latest. The
 clause and a gone UAV's failsafe regions guard only pairs on altitude layers closer than the
 vertical separation (`SafetyPlan.near`): an aircraft whose companion died holds its layer. A
 pair whose trajectories in force are already too close (after a fault) is only kept from getting
-closer, and the proposal that opens it fastest is taken (`safety.keeps_apart`, "Recovery").
+closer, and the proposal that opens it fastest is taken (`safety.separation.keeps_apart`, "Recovery").
 """
 
 from __future__ import annotations
@@ -33,29 +35,17 @@ import math
 from collections.abc import Iterable
 
 import numpy as np
-from numba import njit
 
-from companion.core.geometry import BoolArray, FloatArray, IntArray
+from companion.core.gathered import Gathered, first_allowed_from, flyable_from, may_switch_from
+from companion.core.geometry import FloatArray, IntArray
 from companion.core.messages import StateMsg, UavState
-from companion.core.safety import (
-    compatible,
-    expand_with_centres,
-    first_allowed,
-    flyable,
-    may_switch,
-)
+from companion.core.safety.expansion import expand_with_centres
+from companion.core.safety.inputs import CandidatesArgs, RegionsArgs, RulesArgs
+from companion.core.safety.separation import compatible
 from companion.core.trajectory import Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
-# what the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
-# (n, window + 2, 2), owners, whether a trajectory in force (else a proposal), loiter centres, loiter
-# entry indices, the rows of the UAVs whose trajectories in force before their latest are `_lone`,
-# the disks (cx, cy, r) of UAVs not heard, the disks' owners, and whether the contingency clause
-# holds against each row (its owner's layer is near)
-Gathered = tuple[
-    FloatArray, IntArray, BoolArray, FloatArray, IntArray, IntArray, FloatArray, IntArray, BoolArray
-]
 ACK_STEPS = 2  # a new parent is taken as tethered once it has heard the UAV name it
 LEAVING_PROGRESS = 0.25  # of a step, outwards per planned step, for a UAV inside a failsafe disk
 FAR = 1e4  # m: a point this far in a direction stands for the direction
@@ -63,7 +53,9 @@ SIDE_RANGE = 600.0  # m: a UAV nearer than this makes a new loiter turn away fro
 
 
 class Commitments:
-    """The trajectories in force and proposed of UAV `uav`, its tethers, and what it knows of the
+    """UAV `uav`'s trajectories in force and proposed, its tethers, and the others' commitments.
+
+    The trajectories in force and proposed of UAV `uav`, its tethers, and what it knows of the
     others' commitments."""
 
     def __init__(self, world: World, uav: int) -> None:
@@ -113,16 +105,29 @@ class Commitments:
             np.zeros((0, 2)),
             np.zeros(0, dtype=np.int64),
             np.zeros(0, dtype=np.int64),
+            np.zeros((0, 2)),
             np.zeros((0, 3)),
             np.zeros(0, dtype=np.int64),
             np.zeros(0, dtype=bool),
         )
-        self._lone = np.zeros((0, 2))
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
-        self._no_regions = np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64)
-        self._loiters, self._fans, self._fan_counts = self._no_regions
+        self._no_regions: RegionsArgs = (np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64))
+        self._regions = self._no_regions
         self.progress = LEAVING_PROGRESS * plan.limits.reach.step  # per planned step, leaving a disk
+        lim = plan.limits
+        self.rules: RulesArgs = (
+            lim.reach.window,
+            lim.horizon,
+            lim.kinematics_args,
+            lim.fence_normals,
+            lim.fence_offsets,
+            lim.separation,
+            lim.disk_separation,
+            lim.link,
+            self.contingency,
+            self.progress,
+        )
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
 
@@ -150,7 +155,9 @@ class Commitments:
             self.dead.add(uav)
 
     def _possible(self, k: int, j: int, both: bool) -> tuple[list[Trajectory], list[Disk]]:
-        """Trajectories and disks that hold whatever UAV j flies from t_k on (for the check at step
+        """Trajectories and disks that hold whatever UAV j flies from t_k on.
+
+        Trajectories and disks that hold whatever UAV j flies from t_k on (for the check at step
         k of a proposal): its step k-1 trajectory in force (and proposal when `both`) if heard,
         else what it can reach since it was last known, or, if gone, its last commitments (their
         loiters' disks are `failsafe_loiters`)."""
@@ -167,7 +174,9 @@ class Commitments:
         return [], [(s.x, s.y, (k + 1 - s.stamp) * r.step + r.extent)]
 
     def failsafe_loiters(self, j: int) -> list[Disk]:
-        """Where the aircraft of gone UAV j circles once its failsafe fires: `safety.failsafe_reach`
+        """Where the aircraft of gone UAV j circles once its failsafe fires.
+
+        Where the aircraft of gone UAV j circles once its failsafe fires: `safety.failsafe_reach`
         about the centre of the loiter of its last trajectory in force, of its last proposal, or of
         the trajectory in force it announced before (its companion moves the failsafe mission to the
         loiter of its trajectory in force after announcing it, so a companion that dies in between
@@ -183,7 +192,9 @@ class Commitments:
         ]
 
     def failsafe_regions(self, k: int, j: int) -> list[tuple[Disk, FloatArray]]:
-        """Where the aircraft of gone UAV j flies from its companion's death on (`clears_loiters`):
+        """Where the aircraft of gone UAV j flies from its companion's death on.
+
+        Where the aircraft of gone UAV j flies from its companion's death on (`clears_loiters`):
         for each of its `failsafe_loiters`, the fan of each path it may have been flying (its last
         trajectory in force and proposal, from their anchors to their loiters' entries) about that
         loiter's centre, inflated by `fan_reach`; once it must be circling (`settle` steps after
@@ -209,7 +220,9 @@ class Commitments:
         return {c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead}
 
     def _gather(self, k: int, x: float, y: float) -> None:
-        """What every other UAV may fly from t_k on (`_possible`, both trajectories), expanded once
+        """Expand what every other UAV may fly from t_k on, once for this step's checks.
+
+        What every other UAV may fly from t_k on (`_possible`, both trajectories), expanded once
         for this step's checks over steps k..k + window + 1, with their owners. UAVs too far from
         (x, y), this UAV's position at t_k, to matter for a trajectory anchored within a step of it
         are left out (every point of a trajectory lies within `Reach.extent` of its anchor), unless
@@ -259,19 +272,22 @@ class Commitments:
             centres,
             np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64),
             np.array(lone_rows, dtype=np.int64),
+            expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1],
             np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:]),
             np.array([j for j, *_ in disks], dtype=np.int64),
             np.array(clause, dtype=bool),
         )
-        self._lone = expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1]
         if not regions:  # (empty arrays are never written to)
-            self._loiters, self._fans, self._fan_counts = self._no_regions
+            self._regions = self._no_regions
             return
-        self._loiters = np.array([d for d, _ in regions], dtype=float).reshape(-1, 3)
-        self._fans = np.zeros((len(regions), lim.horizon + 1, 2))
-        self._fan_counts = np.array([len(p) for _, p in regions], dtype=np.int64)
+        fans = np.zeros((len(regions), lim.horizon + 1, 2))
         for i, (_, path) in enumerate(regions):
-            self._fans[i, : len(path)] = path
+            fans[i, : len(path)] = path
+        self._regions = (
+            np.array([d for d, _ in regions], dtype=float).reshape(-1, 3),
+            fans,
+            np.array([len(p) for _, p in regions], dtype=np.int64),
+        )
 
     def _links(self) -> IntArray:
         """The tethered UAVs (parents and children) not taken as gone, ascending."""
@@ -279,7 +295,9 @@ class Commitments:
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
-        """T_i^k: switch to the pending proposal if it is still compatible with everything the others
+        """T_i^k: the pending proposal if it may still be switched to, else the trajectory in force.
+
+        T_i^k: switch to the pending proposal if it is still compatible with everything the others
         may fly (see the module docstring), anchored at the UAV's pose at t_k."""
         lim = self.limits
         turn = lim.reach.loiter_turn
@@ -289,23 +307,7 @@ class Commitments:
         if self.proposal is not None and self.proposal.start == k:
             both = lim.rows([self.proposal, self.inforce])
             pe, ie = (t.loiter_entry(turn) - k for t in (self.proposal, self.inforce))
-            fans = self._loiters, self._fans, self._fan_counts
-            if may_switch_from(
-                self._gathered,
-                links,
-                self.uav,
-                both,
-                k,
-                lim.reach.window,
-                lim.kinematics_args,
-                pe,
-                ie,
-                fans,
-                self.progress,
-                self._lone,
-                self.contingency,
-                lim.clearances,
-            ):
+            if may_switch_from(self._gathered, links, self.uav, both, k, pe, ie, self._regions, self.rules):
                 chosen = self.proposal
                 self.accepted += 1
             else:
@@ -320,7 +322,9 @@ class Commitments:
         return all(abs(t - turn) < 1e-9 for t in self.inforce.turns)
 
     def _flyable(self, k: int, trajectory: Trajectory, links: IntArray) -> Trajectory:
-        """`trajectory` if it is inside the fence and compatible with the others' trajectories in force
+        """`trajectory` if it is flyable from its anchor, else the first start contingency that is.
+
+        `trajectory` if it is inside the fence and compatible with the others' trajectories in force
         and its tethers, else a start contingency from its anchor that is (straight for M >= s >= 0
         steps, then loiter).
 
@@ -335,11 +339,9 @@ class Commitments:
             Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
             for turns, side in self._contingencies
         )
-        window, fence = lim.reach.window, (lim.fence_normals, lim.fence_offsets)
-        gathered = self._gathered, links, self.uav
         for option in itertools.chain((trajectory,), contingencies):
             row = lim.rows([option])[0]
-            if flyable_from(*gathered, row, k, window, lim.kinematics_args, *fence, lim.clearances):
+            if flyable_from(self._gathered, links, self.uav, row, k, self.rules):
                 if option is not trajectory:
                     self.recovered += 1
                 return option
@@ -352,7 +354,9 @@ class Commitments:
         return step_pose(x, y, heading, turn, lim.grid, lim.speed, lim.dt, lim.cell)
 
     def update_parents(self, k: int, position: FloatArray) -> None:
-        """Make-before-break re-tethering: name the nearest UAV of a lower rank as a second parent
+        """Make-before-break re-tethering to a nearer UAV of a lower rank.
+
+        Make-before-break re-tethering: name the nearest UAV of a lower rank as a second parent
         when it is clearly nearer than the parent and the trajectories in force keep the link; drop
         the old parent once the new one has heard it named; drop parents that are gone."""
         self.parents = tuple(p for p in self.parents if p not in self.dead)
@@ -368,6 +372,7 @@ class Commitments:
         lim = self.limits
 
         def distance(j: int) -> float:
+            """How far UAV j was last known to be from `position`."""
             s = self.latest[j]
             return math.hypot(s.x - position[0], s.y - position[1])
 
@@ -393,45 +398,36 @@ class Commitments:
                 return
 
     def first_allowed(self, k: int, pose: tuple[float, float, float], order: np.ndarray) -> tuple[int, int]:
-        """The first path of eq. 23 (`PathTree.sequences`) in `order` (the RHC's preference) whose
+        """The first path of eq. 23 in the RHC's order that may be proposed, and its side.
+
+        The first path of eq. 23 (`PathTree.sequences`) in `order` (the RHC's preference) whose
         trajectory from `pose` at t_k+1 may be proposed (in the fence, and compatible with what the
         others may fly then), and its loiter side; (-1, 0) if none."""
         lim = self.limits
         x, y, heading = pose
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
+        towards = self._turn_towards(x, y)
+        candidates: CandidatesArgs = (order, self._shapes[h], self._shape_centres[h], x, y, c, s, towards)
         best, side = first_allowed_from(
             self._gathered,
             self._links(),
             self.uav,
-            lim.rows([self.inforce]),  # a proposal not clearing the regions keeps as far from them as this
             k + 1,
-            lim.reach.window,
-            lim.kinematics_args,
-            order,
-            self._shapes[h],
-            x,
-            y,
-            c,
-            s,
-            lim.horizon,
-            self._turn_towards(x, y),
-            lim.fence_normals,
-            lim.fence_offsets,
-            (self._loiters, self._fans, self._fan_counts),
-            self.progress,
+            lim.rows([self.inforce]),  # a proposal not clearing the regions keeps as far from them as this
             self.inforce.loiter_entry(lim.reach.loiter_turn) - (k + 1),
-            self._shape_centres[h],
-            self._lone,
-            self.contingency,
-            lim.clearances,
+            candidates,
+            self._regions,
+            self.rules,
         )
         self.first_asked += 1
         self.first_refused += bool(len(order)) and best != order[0]
         return best, side
 
     def _turn_towards(self, x: float, y: float) -> FloatArray:
-        """The point a new proposal's loiter should turn towards (that side is tried first; both are
+        """The point a new proposal's loiter turns towards: away from a near UAV.
+
+        The point a new proposal's loiter should turn towards (that side is tried first; both are
         checked): far away from the nearest other UAV within `SIDE_RANGE` of (x, y) on a near layer
         (`SafetyPlan.near`) that is not taken as gone (its last position may be stale), so that the
         two UAVs' failsafe regions, each reaching `failsafe_reach` + `failsafe_stray` about its
@@ -448,202 +444,5 @@ class Commitments:
         return np.array([x + (x - at[0]) / nearest * FAR, y + (y - at[1]) / nearest * FAR])
 
     def propose(self, proposal: Trajectory | None) -> None:
+        """Announce `proposal` (P_i^k), to be resolved at step k + 1."""
         self.proposal = proposal
-
-
-@njit(cache=True)
-def select_checked(
-    gathered: Gathered,
-    links: IntArray,
-    uav: int,
-    resolving: bool,
-    proposals: bool,
-) -> tuple[
-    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, BoolArray, IntArray, IntArray, BoolArray
-]:
-    """What a check reads from this step's gathering (`Gathered`: `pts` (n, window + 2, 2) from t_k,
-    their `owners`, which are trajectories `in_force`, their loiter `centres` and `entries`, the
-    rows of the `lone` centres' owners, the `disks` (cx, cy, r) and their owners, and whether the
-    contingency clause holds against each row) and the tethered UAVs `links` (sorted): what to keep
-    clear of, the disks, the tethers and their disks, and the checked rows' centres, in-force flags,
-    entries, the rows of the `lone` centres' owners and their clause flags.
-    Rows checked: trajectories in force, and the others' proposals unless not `proposals`, or when
-    `resolving` only those of lower ids than `uav`; their window from t_k when `resolving`, else
-    from t_k+1. Contiguous copies: the kernels are compiled for C-ordered arrays. Called inside the
-    compiled checks (`may_switch_from`, `flyable_from`, `first_allowed_from`), so its arrays never
-    cross back into Python."""
-    pts, owners, in_force, centres, entries, lone_rows, disks, disk_owners, clause = gathered
-    n, width = pts.shape[0], pts.shape[1] - 1
-    lo = 0 if resolving else 1
-    keep = np.empty(n, dtype=np.bool_)
-    for i in range(n):
-        keep[i] = in_force[i] or (proposals and not (resolving and owners[i] > uav))
-    rows = np.flatnonzero(keep)
-    linked = np.empty(n, dtype=np.bool_)
-    for i in range(n):
-        linked[i] = keep[i] and _member(owners[i], links)
-    tethered = np.flatnonzero(linked)
-    others = np.empty((rows.shape[0], width, 2))
-    for r in range(rows.shape[0]):
-        others[r] = pts[rows[r], lo : lo + width]
-    tethers = np.empty((tethered.shape[0], width, 2))
-    for r in range(tethered.shape[0]):
-        tethers[r] = pts[tethered[r], lo : lo + width]
-    tether_disks = np.empty((0, 3))
-    for d in range(disks.shape[0]):
-        if _member(disk_owners[d], links):
-            tether_disks = np.concatenate((tether_disks, disks[d : d + 1]))
-    position = np.full(n, -1, dtype=np.int64)
-    for r in range(rows.shape[0]):
-        position[rows[r]] = r
-    lone_owners = np.empty(lone_rows.shape[0], dtype=np.int64)
-    for o in range(lone_rows.shape[0]):
-        lone_owners[o] = position[lone_rows[o]]
-    return (
-        others,
-        disks,
-        tethers,
-        tether_disks,
-        centres[rows],
-        in_force[rows],
-        entries[rows] - lo,
-        lone_owners,
-        clause[rows],
-    )
-
-
-@njit(cache=True)
-def _member(value: int, sorted_values: IntArray) -> bool:
-    i = np.searchsorted(sorted_values, value)
-    return i < sorted_values.shape[0] and sorted_values[i] == value
-
-
-@njit(cache=True)
-def may_switch_from(
-    gathered: Gathered,
-    links: IntArray,
-    uav: int,
-    rows: FloatArray,
-    first: int,
-    window: int,
-    kinematics: tuple[float, bool, float, float, float],
-    entry: int,
-    reference_entry: int,
-    fans: tuple[FloatArray, FloatArray, IntArray],
-    progress: float,
-    lone: FloatArray,
-    reach: float,
-    clearances: tuple[float, float, float],
-) -> bool:
-    """`safety.may_switch` of the proposal rows[0] against what this step's gathering holds
-    (`select_checked` for the resolution: the others' proposals only of lower ids, from t_k)."""
-    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners, clause = select_checked(
-        gathered, links, uav, True, True
-    )
-    return may_switch(
-        rows,
-        first,
-        window,
-        kinematics,
-        entry,
-        reference_entry,
-        others,
-        in_force,
-        disks,
-        tethers,
-        tether_disks,
-        fans,
-        progress,
-        entries,
-        centres,
-        lone,
-        lone_owners,
-        clause,
-        reach,
-        clearances,
-    )
-
-
-@njit(cache=True)
-def flyable_from(
-    gathered: Gathered,
-    links: IntArray,
-    uav: int,
-    row: FloatArray,
-    first: int,
-    window: int,
-    kinematics: tuple[float, bool, float, float, float],
-    normals: FloatArray,
-    offsets: FloatArray,
-    clearances: tuple[float, float, float],
-) -> bool:
-    """`safety.flyable` against the others' trajectories in force of this step's gathering and the
-    tethers among them, from t_k (`Commitments._flyable`)."""
-    others, _, tethers, _, _, _, _, _, _ = select_checked(gathered, links, uav, True, False)
-    return flyable(row, first, window, kinematics, normals, offsets, others, tethers, clearances)
-
-
-@njit(cache=True)
-def first_allowed_from(
-    gathered: Gathered,
-    links: IntArray,
-    uav: int,
-    reference_row: FloatArray,
-    first: int,
-    window: int,
-    kinematics: tuple[float, bool, float, float, float],
-    order: IntArray,
-    shapes: FloatArray,
-    x: float,
-    y: float,
-    cos_h: float,
-    sin_h: float,
-    horizon: int,
-    centre: FloatArray,
-    normals: FloatArray,
-    offsets: FloatArray,
-    fans: tuple[FloatArray, FloatArray, IntArray],
-    progress: float,
-    reference_entry: int,
-    centres_rel: FloatArray,
-    lone: FloatArray,
-    reach: float,
-    clearances: tuple[float, float, float],
-) -> tuple[int, int]:
-    """`safety.first_allowed` against everything this step's gathering holds, from t_k+1 = `first`
-    (`select_checked` for a new proposal), with the trajectory in force `reference_row` expanded
-    from there as the reference."""
-    others, disks, tethers, tether_disks, centres, in_force, entries, lone_owners, clause = select_checked(
-        gathered, links, uav, False, True
-    )
-    reference, reference_centre = expand_with_centres(reference_row, first, window, kinematics)
-    return first_allowed(
-        order,
-        shapes,
-        x,
-        y,
-        cos_h,
-        sin_h,
-        horizon,
-        centre,
-        normals,
-        offsets,
-        others,
-        in_force,
-        disks,
-        tethers,
-        tether_disks,
-        fans,
-        progress,
-        reference[0],
-        reference_entry,
-        centres_rel,
-        entries,
-        centres,
-        lone,
-        lone_owners,
-        clause,
-        reference_centre[0],
-        reach,
-        clearances,
-    )

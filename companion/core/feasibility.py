@@ -21,8 +21,8 @@ from companion.contracts.mission import (
     MissionError,
 )
 from companion.contracts.mission_file import convert_schema, parse_schema, read_schema
-from companion.core import safety
 from companion.core.geometry import ConvexPolygon, Grid
+from companion.core.safety.start import minimum_margin, tether_tree
 from companion.core.world import build_grid, build_kinematics, build_safety
 
 
@@ -110,7 +110,7 @@ def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
     """
     kin = build_kinematics(m)
     horizon = m.algorithm.horizon
-    need = safety.minimum_margin(kin, horizon)
+    need = minimum_margin(kin, horizon)
     if m.safety.margin < need:
         fail(
             "safety.margin",
@@ -129,7 +129,7 @@ def _validate_start(m: Mission, fail: Callable[[str, str], None]) -> None:
                     f"R_s + safety.buffer = {c.safety + buffer:g} m",
                 )
     link = c.range - buffer
-    _, parents = safety.tether_tree(np.array(poses, dtype=float), link)
+    _, parents = tether_tree(np.array(poses, dtype=float), link)
     apart = [i for i, p in enumerate(parents) if p < 0 and i > 0]
     if apart:
         fail(

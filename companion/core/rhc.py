@@ -10,10 +10,25 @@ import math
 import numpy as np
 from numba import njit
 
-from companion.core.geometry import FloatArray, IntArray
+from companion.core.geometry import FloatArray, Grid, IntArray
+from companion.core.kinematics import Kinematics
 from companion.core.potential import link_cost, safety_cost
 
 PENALTY_KNEE = 10.0
+
+
+# Plain tuples (numba types them in C, a NamedTuple costs about a microsecond a call):
+# the UAV's assigned region V* of eq. 25: its task (-1: none, hence no penalty), generator q* and
+# circumradius R*
+TaskRegion = tuple[int, FloatArray, float]
+# eq. 22's constants: (delta_1, delta_2) of eq. 25, (chi_1, chi_2) of eq. 22, (R_c, R'_c, R_s,
+# R'_s) of eq. 28, the region's half-planes (normals, offsets) and the cell size (`region_key`)
+ScoreWeights = tuple[
+    tuple[float, float], tuple[float, float], tuple[float, float, float, float], FloatArray, FloatArray, float
+]
+# grid mode's cell lookup (`grid_path_cells`): the lattice's origin x0, y0, the cell of each lattice
+# node (-1 outside) and each cell's FOV cells (eq. 3; the last row is padding)
+GridCells = tuple[float, float, IntArray, IntArray]
 
 
 @njit(cache=True)
@@ -69,7 +84,9 @@ def search_benefit(
 def path_expense(
     points: FloatArray, neighbour_tracks: FloatArray, r_c: float, r_c_attr: float, r_s: float, r_s_rep: float
 ) -> FloatArray:
-    """Eq. 29: J^B = sum_m sum_{j in MST neighbours} F(d~_{j,m}) with F of eq. 28 and d~_{j,m} the
+    """Eq. 29: J^B, the virtual force's cost of each path against the MST neighbours.
+
+    Eq. 29: J^B = sum_m sum_{j in MST neighbours} F(d~_{j,m}) with F of eq. 28 and d~_{j,m} the
     distance from path point m to neighbour j's predicted position at the same step.
 
     `neighbour_tracks` (n_j, M + 1, 2) holds each MST neighbour's predicted positions at the path's
@@ -91,7 +108,9 @@ def path_expense(
 def grid_path_cells(
     points: FloatArray, x0: float, y0: float, size: float, lattice: IntArray, fov_table: IntArray
 ) -> tuple[IntArray, IntArray, IntArray]:
-    """Grid mode: the cell under each path point (-1 outside), its FOV cells (eq. 3, a row of
+    """Grid mode: each path point's cell and FOV cells (eq. 3), and the in-region prefix.
+
+    Grid mode: the cell under each path point (-1 outside), its FOV cells (eq. 3, a row of
     `fov_table`, whose last row is padding) and the number of leading points inside the region."""
     n_paths, horizon = points.shape[0], points.shape[1]
     ny, nx = lattice.shape
@@ -114,11 +133,33 @@ def grid_path_cells(
     return cells, fov, prefix
 
 
+def continuous_path_cells(
+    grid: Grid, kin: Kinematics, pts: FloatArray
+) -> tuple[IntArray, IntArray, IntArray]:
+    """Continuous mode: each path point's cell and FOV cells (eq. 3), and the in-region prefix.
+
+    Continuous mode: the cell under each path point, the FOV cells of each point (eq. 3), and
+    the in-region prefix (grid mode does all this inside `rank_grid_candidates`).
+
+    A path's last point must also leave room to turn back (a turning diameter from the
+    boundary), else the path counts one point short: three steps of eq. 2 cannot see the
+    U-turn a corner needs.
+    """
+    cells = grid.cell_at(pts)
+    depth = -np.max(pts @ grid.region.normals.T - grid.region.offsets, axis=-1)  # metres inside
+    prefix = np.cumprod(depth >= 0, axis=1).sum(axis=1)
+    diameter = 2 * kin.speed * kin.dt / kin.turn_limit
+    prefix -= (prefix == pts.shape[1]) & (depth[:, -1] < diameter)
+    return cells, grid.fov_cells(pts), prefix
+
+
 @njit(cache=True)
 def region_key(
     prefix: IntArray, points: FloatArray, normals: FloatArray, offsets: FloatArray, cell_size: float
 ) -> FloatArray:
-    """How well each path keeps to the region (the region constraint of eq. 23): its in-region prefix
+    """How well each path keeps to the region (the region constraint of eq. 23).
+
+    How well each path keeps to the region (the region constraint of eq. 23): its in-region prefix
     (M when it never leaves), and for a path whose first point is outside, minus the distance its
     points lie beyond the boundary (summed, in cells), so that a UAV outside turns back at once."""
     if prefix.max() > 0:  # paths that leave at once cannot compete with one that does not
@@ -137,7 +178,9 @@ def region_key(
 
 @njit(cache=True)
 def rank_paths(scores: FloatArray, region: FloatArray) -> IntArray:
-    """Eq. 22's order of preference: paths by `region_key` (all M steps in the region first), then
+    """Eq. 22's order of preference: by region key, then score, then index.
+
+    Eq. 22's order of preference: paths by `region_key` (all M steps in the region first), then
     by score, then by index (the straightest first). The safety layer takes the first path of this
     order that it allows (`Commitments.first_allowed`)."""
     by_score = np.argsort(-scores, kind="mergesort")
@@ -151,25 +194,22 @@ def rank_candidates(
     prefix: IntArray,
     values_padded: FloatArray,
     point_labels: IntArray,
-    task: int,
-    generator: FloatArray,
-    circumradius: float,
-    delta: tuple[float, float],
-    chi: tuple[float, float],
+    region: TaskRegion,
     neighbour_tracks: FloatArray,
-    comms: tuple[float, float, float, float],
-    normals: FloatArray,
-    offsets: FloatArray,
-    cell_size: float,
+    weights: ScoreWeights,
 ) -> IntArray:
-    """Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
-    (`region_key`, `rank_paths`). `comms` is (R_c, R'_c, R_s, R'_s)."""
+    """Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first.
+
+    Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
+    (`region_key`, `rank_paths`)."""
+    delta, chi, comms, normals, offsets, cell_size = weights
+    task, generator, circumradius = region
     benefit = search_benefit(
         points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1]
     )
     expense = path_expense(points, neighbour_tracks, comms[0], comms[1], comms[2], comms[3])
-    region = region_key(prefix, points, normals, offsets, cell_size)
-    return rank_paths(chi[0] * benefit - chi[1] * expense, region)
+    region_keys = region_key(prefix, points, normals, offsets, cell_size)
+    return rank_paths(chi[0] * benefit - chi[1] * expense, region_keys)
 
 
 @njit(cache=True)
@@ -177,30 +217,30 @@ def rank_grid_candidates(
     x: float,
     y: float,
     offsets: FloatArray,
-    x0: float,
-    y0: float,
-    lattice: IntArray,
-    fov_table: IntArray,
+    cells_of: GridCells,
     values_padded: FloatArray,
     cell_labels: IntArray,
-    task: int,
-    *rest: object,
-) -> tuple[int, FloatArray]:
-    """Grid mode in one call: the paths of eq. 23 from (x, y) (`offsets` is the `PathTree` table of
-    the UAV's heading), their cells and FOVs (`grid_path_cells`), and `choose_path`, which takes
-    `rest` (its arguments after `task`: generator, circumradius, ..., cell_size). The task of each
-    path point is read from `cell_labels` (-1 outside the region). Returns the chosen path's index
-    and its points."""
-    cell_size = rest[-1]
+    region: TaskRegion,
+    neighbour_tracks: FloatArray,
+    weights: ScoreWeights,
+) -> tuple[IntArray, FloatArray]:
+    """Grid mode's eq. 22 in one call: the paths of eq. 23 from (x, y), ranked.
+
+    Grid mode in one call: the paths of eq. 23 from (x, y) (`offsets` is the `PathTree` table of
+    the UAV's heading), their cells and FOVs (`grid_path_cells`), and `rank_candidates`. The task of
+    each path point is read from `cell_labels` (-1 outside the region). Returns the paths' order
+    and their points."""
     pts = np.empty(offsets.shape)
     for i in range(offsets.shape[0]):
         for m in range(offsets.shape[1]):
             pts[i, m, 0], pts[i, m, 1] = offsets[i, m, 0] + x, offsets[i, m, 1] + y
-    cells, fov, prefix = grid_path_cells(pts, x0, y0, cell_size, lattice, fov_table)
+    x0, y0, lattice, fov_table = cells_of
+    cells, fov, prefix = grid_path_cells(pts, x0, y0, weights[5], lattice, fov_table)
     point_labels = np.full(cells.shape, -1, dtype=np.int64)
-    if task >= 0:
+    if region[0] >= 0:
         for i in range(cells.shape[0]):
             for m in range(cells.shape[1]):
                 if cells[i, m] >= 0:
                     point_labels[i, m] = cell_labels[cells[i, m]]
-    return rank_candidates(pts, fov, prefix, values_padded, point_labels, task, *rest), pts
+    order = rank_candidates(pts, fov, prefix, values_padded, point_labels, region, neighbour_tracks, weights)
+    return order, pts

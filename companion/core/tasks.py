@@ -13,7 +13,9 @@ from companion.core.potential import link_cost
 
 
 class CostWeights(NamedTuple):
-    """beta_1, beta_2 (eq. 18), kappa (eq. 16), the FOV area S_A, the cell diagonal, R_c, R'_c and the
+    """The weights and constants of the task costs (eqs. 16-18).
+
+    beta_1, beta_2 (eq. 18), kappa (eq. 16), the FOV area S_A, the cell diagonal, R_c, R'_c and the
     exponent cap of eq. 17."""
 
     beta1: float
@@ -24,6 +26,11 @@ class CostWeights(NamedTuple):
     r_c: float
     r_c_attr: float
     comm_cap: float
+
+
+# The tasks V_j a bidder bids for (eq. 15): each cell's task label, and each task's cell count,
+# generator q_j and area S_j (`cvt.Tessellation`); a plain tuple, which numba types in C
+TaskSet = tuple[IntArray, IntArray, FloatArray, FloatArray]
 
 
 @njit(cache=True)
@@ -40,7 +47,9 @@ def time_cost(position: FloatArray, generators: FloatArray, areas: FloatArray, w
 def communication_costs(
     neighbours: FloatArray, generators: FloatArray, w: CostWeights
 ) -> tuple[FloatArray, FloatArray]:
-    """Eq. 17: C^c_ij = sum over MST neighbours l of (exp(max(0, (d_lj - R'_c)/(R_c - d_lj))) - 1),
+    """Eq. 17: C^c_ij, capped for the auction and uncapped for eq. 21.
+
+    Eq. 17: C^c_ij = sum over MST neighbours l of (exp(max(0, (d_lj - R'_c)/(R_c - d_lj))) - 1),
     twice: with each neighbour's term capped at exp(comm_cap) - 1, for the auction (a task beyond
     R_c of a neighbour is expensive, not impossible, since the swarm moves as a whole and the RHC
     keeps the links), and uncapped, for eq. 21 (beyond R_c is prohibitive)."""
@@ -60,7 +69,9 @@ def communication_costs(
 def task_costs(
     position: FloatArray, neighbours: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights
 ) -> tuple[FloatArray, FloatArray]:
-    """Eq. 18, C_ij = beta_1 C^t_ij + beta_2 C^c_ij, for the tasks given by their generators and areas:
+    """Eq. 18: C_ij = beta_1 C^t_ij + beta_2 C^c_ij, for the auction and for eq. 21.
+
+    Eq. 18, C_ij = beta_1 C^t_ij + beta_2 C^c_ij, for the tasks given by their generators and areas:
     the auction's cost (eq. 15; eq. 17 capped) and C*_{i,k} of eq. 21 (eq. 17 uncapped, so a task
     whose generator is near or beyond R_c of an MST neighbour, keeping it threatens that link,
     costs more than any C_max)."""
@@ -73,22 +84,22 @@ def task_costs(
 def bid_rewards(
     eta: FloatArray,
     prior: FloatArray,
-    labels: IntArray,
     covered: IntArray,
-    cell_counts: IntArray,
+    tasks: TaskSet,
     v_max: float,
     c_max: float,
     position: FloatArray,
     neighbours: FloatArray,
-    generators: FloatArray,
-    areas: FloatArray,
     w: CostWeights,
     held: int,
 ) -> FloatArray:
-    """A bidder's rewards (eq. 15, importance eta * Pr summed over each task's cells in cell
-    order), zero for tasks it could not keep (eq. 21: complete, covered beyond v_max, or
-    costing more than C_max) and, when it holds task `held` (>= 0), for tasks not worth more than
+    """A bidder's rewards R_ij (eq. 15), filtered by eq. 21 and the task held.
+
+    A bidder's rewards (eq. 15, importance eta * Pr summed over each task's cells in cell
+    order), zero for tasks it could not keep (eq. 21: complete, its `covered` cells beyond v_max,
+    or costing more than C_max) and, when it holds task `held` (>= 0), for tasks not worth more than
     that one; empty when every task is complete."""
+    labels, cell_counts, generators, areas = tasks
     n = generators.shape[0]
     done = np.empty(n, dtype=np.bool_)
     for j in range(n):

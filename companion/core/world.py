@@ -17,7 +17,8 @@ from companion.core.cvt import Tessellation, lloyd_cvt
 from companion.core.geometry import BoolArray, ConvexPolygon, FloatArray, Grid
 from companion.core.kinematics import Kinematics, PathTree
 from companion.core.prior import prior_map
-from companion.core.safety import Limits, initial_trajectories, tether_tree
+from companion.core.safety.limits import Limits
+from companion.core.safety.start import initial_trajectories, tether_tree
 from companion.core.tasks import CostWeights
 from companion.core.trajectory import Trajectory
 

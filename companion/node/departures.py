@@ -4,7 +4,7 @@ A peer whose token goes is forgotten at once, so that its task goes back to the 
 waiting for the agent's peer timeout, and again at every step while the token stays away: the
 others may still relay what they last heard of it. The token is only what this companion's own
 Zenoh links report, though. A restarted companion that the mesh links to the others but not (yet)
-to this one is alive all the same, and the others relay its states here (`core.agent.relay_set`).
+to this one is alive all the same, and the others relay its states here (`core.relay.relay_set`).
 So a departed peer counts as back, and is no longer forgotten, as soon as a state of it stamped
 after its token vanished and flown under its companion's guidance (`steered`) is known here: a
 dead companion cannot send one, and one that left the mesh because it cannot steer sends only

@@ -15,9 +15,9 @@ import logging
 import threading
 from dataclasses import asdict
 
-from companion.batch.engine import warm_up
 from companion.contracts.detections import camera_key
 from companion.contracts.mission import Mission
+from companion.core.warm import warm_up
 from companion.node.camera_feed import CameraFeed
 from companion.node.flyout import fly_out
 from companion.node.lockstep import LockstepLoop

@@ -10,7 +10,8 @@ from collections.abc import Callable
 import numpy as np
 
 from companion.core.agent import Agent
-from companion.core.safety import contingency_clearance, expand_with_centres
+from companion.core.safety.contingency import contingency_clearance
+from companion.core.safety.expansion import expand_with_centres
 from companion.core.world import World
 
 

@@ -9,9 +9,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from companion.batch.engine import Radio, initial_poses
-from companion.core.agent import Agent, Observation, predict_tracks
+from companion.core.agent import Agent, Observation
 from companion.core.connectivity import pairwise_distances
 from companion.core.messages import BidsMsg, ClaimsMsg, Message, StateMsg, check, decode, encode
+from companion.core.swarm_view import predict_tracks
 from companion.core.world import build_world
 
 

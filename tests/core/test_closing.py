@@ -20,7 +20,7 @@ from companion.contracts.mission import Layers
 from companion.core.agent import Agent, Observation
 from companion.core.feasibility import load_mission
 from companion.core.messages import StateMsg
-from companion.core.safety import expand_with_centres
+from companion.core.safety.expansion import expand_with_centres
 from companion.core.world import FAILSAFE_WIDE, Stream, build_world, instance_rng
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -11,7 +11,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.core.safety import fan_clearance
+from companion.core.safety.fans import fan_clearance
 
 coordinate = st.floats(-300, 300, allow_nan=False)
 point = st.tuples(coordinate, coordinate)

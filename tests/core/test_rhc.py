@@ -207,14 +207,15 @@ def test_grid_path_ranking_in_one_call_matches_its_parts(
     cell_labels = np.append(rng.integers(0, 10, g.n_cells), -1)
     n_nbrs = int(rng.integers(0, 3))
     tracks = np.array([x, y]) + rng.normal(0, 150, (n_nbrs, 4, 2))
-    rest = (task, np.array([x + 100.0, y - 50.0]), 200.0, (1.0, 0.5), (1.0, 0.01), tracks)
-    rest += ((500.0, 400.0, 60.0, 100.0),)
-    rest += (g.region.normals, g.region.offsets, g.cell_size)
+    region = (task, np.array([x + 100.0, y - 50.0]), 200.0)
+    comms = (500.0, 400.0, 60.0, 100.0)
+    weights = ((1.0, 0.5), (1.0, 0.01), comms, g.region.normals, g.region.offsets, g.cell_size)
+    cells_of = (g.x0, g.y0, g.lattice, g.fov_table)
     order, path_points = rank_grid_candidates(
-        x, y, tree.offsets_from(heading), g.x0, g.y0, g.lattice, g.fov_table, values, cell_labels, *rest
+        x, y, tree.offsets_from(heading), cells_of, values, cell_labels, region, tracks, weights
     )
     pts = tree.expand(x, y, heading)
     cells, fov, prefix = grid_path_cells(pts, g.x0, g.y0, g.cell_size, g.lattice, g.fov_table)
     labels = np.where(cells >= 0, cell_labels[cells], -1)
-    assert np.array_equal(order, rank_candidates(pts, fov, prefix, values, labels, *rest))
+    assert np.array_equal(order, rank_candidates(pts, fov, prefix, values, labels, region, tracks, weights))
     assert np.array_equal(path_points, pts)

@@ -14,14 +14,10 @@ from companion.contracts.mission import MissionError
 from companion.core.feasibility import parse_mission
 from companion.core.geometry import ConvexPolygon
 from companion.core.kinematics import Kinematics, arc_advance
-from companion.core.safety import (
-    Limits,
-    clears_loiters,
-    compatible,
-    initial_trajectories,
-    minimum_margin,
-    tether_tree,
-)
+from companion.core.safety.failsafe_regions import clears_loiters
+from companion.core.safety.limits import Limits
+from companion.core.safety.separation import compatible
+from companion.core.safety.start import initial_trajectories, minimum_margin, tether_tree
 from companion.core.trajectory import (
     HEAD,
     Reach,

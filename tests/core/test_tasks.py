@@ -94,10 +94,8 @@ def test_income_and_reward_on_a_tiny_tessellation() -> None:
 
     def bids(covered: tuple[int, int] = (0, 0), c_max: float = 1e9, held: int = -1) -> np.ndarray:
         counts = np.array(covered, dtype=np.int64)
-        return bid_rewards(
-            eta, prior, tess.labels, counts, tess.cell_counts, 0.85, c_max, here, none, tess.generators,
-            tess.areas, W, held,
-        )  # fmt: skip
+        tasks = (tess.labels, tess.cell_counts, tess.generators, tess.areas)
+        return bid_rewards(eta, prior, counts, tasks, 0.85, c_max, here, none, W, held)
 
     # r_j = sum of eta Pr over V_j: 0.3 and 0.7; from (40, 20), no neighbours:
     # C^t = d / 50 + 3 * 3200 / 1000 = [0 + 9.6, 80/50 + 9.6] = [9.6, 11.2]
