@@ -4,14 +4,12 @@ It reads each vehicle's position over MAVLink (one link per vehicle, e.g. SITL's
 `sim.camera_hz` of each vehicle's own time, publishes that vehicle's CameraFrame on its Zenoh camera
 key with the detections of the mission's ground truth, built by the bundled simulator's camera
 (`camera.Camera.frame`): a flight on external vehicles is searched and scored like a bundled one.
-The ground truth leaves only through `--truth FILE`.
+The ground truth leaves only through `--truth FILE`. Usage: docs/companion.md, "The stand-alone camera".
 
 With `--approach FILE` it also keeps the simulator's separation record (`sim_vehicles.approach`)
 for these vehicles: every position sample (GLOBAL_POSITION_INT, POSITION_HZ per vehicle) updates
 every pair's closest approach with each vehicle's latest position (once it has a 3D GPS fix), at
 the newest vehicle time seen.
-
-`uavsearch camera --mission FILE --vehicles URL,URL,... [--seed S] [--truth FILE] [--approach FILE]`
 """
 
 from __future__ import annotations

@@ -20,8 +20,10 @@ class Interrupted(RuntimeError):
 
 
 class Children:
-    """The subprocesses this launcher started, stopped by PID and never left behind; `stop` (set by
-    SIGINT/SIGTERM) cuts any wait for one of them short."""
+    """The subprocesses this launcher started, stopped by PID and never left behind.
+
+    `stop` (set by SIGINT/SIGTERM) cuts any wait for one of them short.
+    """
 
     def __init__(self, stop: threading.Event | None = None) -> None:
         self.procs: dict[str, subprocess.Popen] = {}
@@ -39,10 +41,12 @@ class Children:
         extra: dict[str, str] | None = None,
         stop_signal: int = signal.SIGTERM,
     ) -> subprocess.Popen:
-        """Start `argv` in its own session, output to `log`, with `extra` added to the environment;
+        """Start `argv` in its own session, output to `log`, with `extra` added to the environment.
+
         `stop` sends it `stop_signal`: SIGTERM, which our processes handle as they do SIGINT but
         which, unlike SIGINT, ends one still loading its modules with no traceback. Our own
-        processes end with this one (`lifeline`)."""
+        processes end with this one (`lifeline`).
+        """
         env = {**os.environ, "PYTHONUNBUFFERED": "1", **launcher_env(), **self.env, **(extra or {})}
         with log.open("w") as f:
             proc = subprocess.Popen(
@@ -52,8 +56,11 @@ class Children:
         return proc
 
     def wait_for_line(self, name: str, text: str, timeout: float = START_TIMEOUT_S) -> str:
-        """The first line of child `name`'s log holding `text`, once it is there; RuntimeError if
-        the child exits first or `timeout` seconds pass, Interrupted if a signal comes first."""
+        """The first line of child `name`'s log holding `text`, once it is there.
+
+        It raises RuntimeError if the child exits first or `timeout` seconds pass, Interrupted if a
+        signal comes first.
+        """
         log, proc = self.logs[name], self.procs[name]
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -70,9 +77,11 @@ class Children:
         raise RuntimeError(f"{log.name}: '{text}' not seen within {timeout:.0f} s")
 
     def stop(self) -> None:
-        """Each child's stop signal (SIGTERM unless started otherwise), the companions first: a
-        companion ends its step and writes its report while its vehicle, camera and router still
-        answer. Whatever has not exited `STOP_TIMEOUT_S` after its signal is killed."""
+        """Send each child its stop signal (SIGTERM unless started otherwise), the companions first.
+
+        A companion ends its step and writes its report while its vehicle, camera and router still
+        answer. Whatever has not exited `STOP_TIMEOUT_S` after its signal is killed.
+        """
         companions = [n for n in self.procs if n.startswith("companion")]
         for group in (companions, [n for n in self.procs if n not in companions]):
             for name in group:

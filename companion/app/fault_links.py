@@ -16,10 +16,12 @@ LOCKSTEP_COMMAND = 31010
 
 
 class LockstepDriver(threading.Thread):
-    """Releases one vehicle's lockstep steps up to `until`, and at least `span` steps past the step
-    it takes over at (the companion may have stepped once more before its link was cut), in place
-    of its companion: the vehicle flies on with the guidance it last had (then its autopilot's
-    failsafe)."""
+    """Releases one vehicle's lockstep steps in place of its companion, whose link is cut.
+
+    It releases them up to `until`, and at least `span` steps past the step it takes over at (the
+    companion may have stepped once more before its link was cut): the vehicle flies on with the
+    guidance it last had (then its autopilot's failsafe).
+    """
 
     def __init__(self, port: int, sysid: int, dt: float, until: int, span: int = 0) -> None:
         super().__init__(daemon=True)
@@ -68,8 +70,10 @@ class LockstepDriver(threading.Thread):
 
 
 class LinkProxy(threading.Thread):
-    """A UDP relay between a companion (`port`, where it sends) and its vehicle (`vehicle_port`);
-    `cut()` drops everything both ways until `restore()`."""
+    """A UDP relay between a companion (`port`, where it sends) and its vehicle (`vehicle_port`).
+
+    `cut()` drops everything both ways until `restore()`.
+    """
 
     def __init__(self, vehicle_port: int) -> None:
         super().__init__(daemon=True)

@@ -55,8 +55,10 @@ def _no_none(value: object) -> object:
 def loopback_mission(
     base: Mission, directory: Path, steps: int, network: list[NetworkFault] | None = None
 ) -> tuple[Path, Mission]:
-    """`base` on free loopback ports and its own mesh key space, with `steps` steps and the injected
-    mesh faults; written into `directory`."""
+    """`base` on free loopback ports and its own mesh key space, written into `directory`.
+
+    The mission has `steps` steps and the injected mesh faults.
+    """
     *ports, seed, router = free_ports(base.n_uavs + 2)
     s = msgspec.structs.replace
     mission = s(
@@ -183,8 +185,10 @@ class Swarm:
         proc.wait()
 
     def finish(self, timeout: float) -> dict[str, int | None]:
-        """Wait for every companion to exit by itself (its step budget spent), then stop the rest;
-        returns each process's exit code."""
+        """Wait for every companion to exit by itself, then stop the rest; return each process's exit code.
+
+        A companion exits by itself once its step budget is spent.
+        """
         deadline = time.monotonic() + timeout
         for i in range(self.mission.n_uavs):
             proc = self.children.procs[self.current(f"companion{i}")]
@@ -249,9 +253,11 @@ def _restart(swarm: Swarm, plan: Plan, outcome: RowOutcome) -> set[int]:
 
 
 def _sim_restart(swarm: Swarm, plan: Plan, outcome: RowOutcome) -> set[int]:
-    """The simulator killed after step `at` and started again on a state it saved a few steps
-    earlier (as when it dies between its telemetry of a step and saving that step): the restarted
-    simulator is behind its companions, and they must let it catch up."""
+    """The simulator killed after step `at` and started again on a state it saved a few steps earlier.
+
+    This is what happens when it dies between its telemetry of a step and saving that step: the
+    restarted simulator is behind its companions, and they must let it catch up.
+    """
     everyone = list(range(swarm.mission.n_uavs))
     state = swarm.out / "sim.state"
     swarm.wait_steps(everyone, max(plan.at - REWIND_STEPS, 0))

@@ -1,11 +1,11 @@
-"""`uavsearch fuzz`: fuzzing campaigns against the inputs a companion and the simulator take from
-outside (docs/reliability.md, "Fuzzing").
+"""`uavsearch fuzz`: fuzzing campaigns against the inputs a companion and the simulator take from outside.
 
-Each input, drawn by Hypothesis (`companion.app.fuzz_inputs`), goes through the real code that
-receives it: `mesh` bundles into the mesh's checks, an `Agent` and a real Zenoh `Mesh`; `mavlink`
-datagrams into a running simulator and a companion's `VehicleLink`; `camera` frames into a real
-`CameraFeed`; `mission` files into `load_mission` and `uavsearch mc`. Every campaign counts what
-was accepted and what was rejected; any other outcome is a failure.
+docs/reliability.md, "Fuzzing", describes the campaigns. Each input, drawn by Hypothesis
+(`companion.app.fuzz_inputs`), goes through the real code that receives it: `mesh` bundles into the
+mesh's checks, an `Agent` and a real Zenoh `Mesh`; `mavlink` datagrams into a running simulator and
+a companion's `VehicleLink`; `camera` frames into a real `CameraFeed`; `mission` files into
+`load_mission` and `uavsearch mc`. Every campaign counts what was accepted and what was rejected;
+any other outcome is a failure.
 """
 
 from __future__ import annotations

@@ -75,7 +75,9 @@ def _start_camera(
     children: Children, opts: RunOptions, links: list[str], seed: int, n: int, setup_signing: bool = False
 ) -> subprocess.Popen:
     """The stand-alone camera on `links`; returns once it has every vehicle's position stream.
-    `setup_signing`: it gives each vehicle its MAVLink signing secret first (SITL's SERIAL0)."""
+
+    With `setup_signing` it first gives each vehicle its MAVLink signing secret (SITL's SERIAL0).
+    """
     out = opts.out
     camera = children.start(
         "camera",
@@ -104,8 +106,10 @@ def _start_camera(
 
 
 def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: int) -> list[str]:
-    """One ArduPlane SITL per UAV and the stand-alone camera on their SERIAL0 (which starts their
-    clocks together); returns the companions' links (SERIAL1)."""
+    """One ArduPlane SITL per UAV and the stand-alone camera; returns the companions' links (SERIAL1).
+
+    The camera is on their SERIAL0, which starts their clocks together.
+    """
     binary = sitl.find_binary(opts.sitl_binary)
     defaults = sitl.find_defaults(binary, opts.sitl_defaults)
     for i in range(mission.n_uavs):
@@ -120,8 +124,10 @@ def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: in
 
 
 def _start_px4(children: Children, opts: RunOptions, mission: Mission, seed: int) -> list[str]:
-    """One PX4 SITL per UAV (its own working directory, made afresh) and the stand-alone camera on
-    their camera links; returns the companions' links."""
+    """One PX4 SITL per UAV and the stand-alone camera; returns the companions' links.
+
+    Each SITL has its own working directory, made afresh; the camera is on their camera links.
+    """
     build = px4_sitl.find_build(opts.sitl_binary)
     px4 = px4_sitl.link_folder(build, opts.out / "px4_bin")
     instances = px4_sitl.free_instances(mission.n_uavs, opts.sitl_instance)
@@ -165,8 +171,10 @@ def _start_bundled(children: Children, opts: RunOptions, mission: Mission, seed:
 
 
 def _stopped_early(children: Children) -> str | None:
-    """What went wrong if a vehicle, the camera or the router exited, or a companion refused to fly
-    (exit code 2); a companion that stops otherwise leaves the others flying."""
+    """What went wrong if a vehicle, the camera or the router exited, or a companion refused to fly.
+
+    A refusal is exit code 2; a companion that stops otherwise leaves the others flying.
+    """
     for name, proc in children.procs.items():
         rc = proc.poll()
         if rc is None or (name.startswith("companion") and rc != 2):
@@ -178,8 +186,10 @@ def _stopped_early(children: Children) -> str | None:
 
 
 def security_summary(mission: Mission) -> str:
-    """What authenticates this run, after checking that every identity's keys load; the insecure
-    warning when nothing does."""
+    """What authenticates this run, after checking that every identity's keys load.
+
+    When nothing does, it is the insecure warning.
+    """
     if not mission.secured:
         return insecure_warning(mission)
     for identity in [uav_identity(i) for i in range(mission.n_uavs)] + list(ROLES):
@@ -246,8 +256,10 @@ def run_mission(opts: RunOptions) -> int:
 
 
 def _start_swarm(children: Children, opts: RunOptions, mission: Mission, seed: int) -> None:
-    """The router (client-mode mesh), the vehicles, the live map and the companions, each once it
-    can start; returns when the swarm flies."""
+    """Start the router (client-mode mesh), the vehicles, the live map and the companions.
+
+    Each starts once it can; the call returns when the swarm flies.
+    """
     out = opts.out
     if mission.mesh.mode == "client":
         children.start(
@@ -290,8 +302,11 @@ def _start_swarm(children: Children, opts: RunOptions, mission: Mission, seed: i
 def _watch(
     children: Children, opts: RunOptions, logs: CompanionLogs, progress: Progress, stop: threading.Event
 ) -> str | None:
-    """Follow the flight until every target is found (unless `keep_going`), every companion has
-    exited or a signal comes; returns what went wrong, if anything did."""
+    """Follow the flight until it ends; returns what went wrong, if anything did.
+
+    The flight ends when every target is found (unless `keep_going`), every companion has exited
+    or a signal comes.
+    """
     last_print = 0.0
     while not stop.is_set():
         time.sleep(0.5)

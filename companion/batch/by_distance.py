@@ -1,5 +1,7 @@
-"""Which targets one algorithm finds sooner than another: an `uavsearch mc` output's targets.csv,
-paired target by target, binned by the target's distance from its run's start layout.
+"""Which targets one algorithm finds sooner than another, binned by distance from the start.
+
+The input is an `uavsearch mc` output's targets.csv, paired target by target and binned by the
+target's distance from its run's start layout.
 
 Run r of every algorithm has the same targets (common random numbers), listed in the same order,
 so each target's first-seen step (an unfound target counting as the run's length) is compared

@@ -1,12 +1,14 @@
-"""The aircraft of a UAV whose companion died, as the batch engine flies it (eq. 2 kinematics): what
-ArduPlane does once it stops hearing its companion (docs/companion.md, "The failsafe for a silent
-companion"). (A) It holds its last command, the turn of the companion's last step, until the GCS
-failsafe fires `Mission.failsafe_seconds` plus one failsafe check later (whole steps, rounded
-down: the safety layer's bound, `world.failsafe_stray`, covers the rest). (B) In AUTO it flies to
-the failsafe loiter, the loiter circle of the last trajectory in force its companion published
-(`Limits.loiter_circle`), towards the tangent on the loiter's side, at the turns eq. 2 allows. (C)
-Within half a step of that circle it circles for good at the loiter turn, on the loiter's side,
-at a phase and about a centre of its own."""
+"""The aircraft of a UAV whose companion died, as the batch engine flies it (eq. 2 kinematics).
+
+It does what ArduPlane does once it stops hearing its companion (docs/companion.md, "The failsafe
+for a silent companion"). (A) It holds its last command, the turn of the companion's last step,
+until the GCS failsafe fires `Mission.failsafe_seconds` plus one failsafe check later (whole
+steps, rounded down: the safety layer's bound, `world.failsafe_stray`, covers the rest). (B) In
+AUTO it flies to the failsafe loiter, the loiter circle of the last trajectory in force its
+companion published (`Limits.loiter_circle`), towards the tangent on the loiter's side, at the
+turns eq. 2 allows. (C) Within half a step of that circle it circles for good at the loiter
+turn, on the loiter's side, at a phase and about a centre of its own.
+"""
 
 from __future__ import annotations
 

@@ -62,8 +62,11 @@ class RunExecutor(Protocol):
 def open_executor(
     scheduler: str | None = None, workers: int | None = None, keep: bool = False
 ) -> Iterator[RunExecutor]:
-    """A `DaskCluster` at `scheduler` (e.g. tcp://10.0.0.1:8786), or else a `LocalPool` of `workers`
-    (kept across maps with `keep`)."""
+    """The executor that runs the maps: a `DaskCluster` at `scheduler`, or else a `LocalPool`.
+
+    The scheduler is an address such as tcp://10.0.0.1:8786; the pool has `workers` processes and is
+    kept across maps with `keep`.
+    """
     executor: RunExecutor = LocalPool(workers, keep) if scheduler is None else DaskCluster(scheduler)
     try:
         yield executor
@@ -74,8 +77,11 @@ def open_executor(
 def in_order(
     pairs: Iterable[tuple[int, R]], n: int, on_result: Callable[[], object] | None = None
 ) -> Iterator[R]:
-    """The results of items 0..n-1 in item order, each as soon as every item before it is in
-    (`on_result` is called as each one arrives); RuntimeError if one is missing or comes twice."""
+    """The results of items 0..n-1 in item order, each as soon as every item before it is in.
+
+    `on_result` is called as each one arrives. A missing item, or one that comes twice, raises
+    RuntimeError.
+    """
     waiting: dict[int, R] = {}
     following = 0
     for i, result in pairs:
@@ -123,10 +129,12 @@ def _sigterm_interrupts() -> Iterator[None]:
 
 
 class LocalPool:
-    """A spawn pool of `workers` processes (default: every core), started for each map and stopped
-    after it, or with `keep` started once and kept until `close` (for studies made of many small
-    maps, such as a tune's trials: a fresh pool costs seconds); `workers == 1` runs in this process.
-    An interrupted map (Ctrl-C, SIGTERM) terminates the pool: no process is left behind."""
+    """A spawn pool of `workers` processes (default: every core); `workers == 1` runs in this process.
+
+    The pool is started for each map and stopped after it, or with `keep` started once and kept
+    until `close` (for studies made of many small maps, such as a tune's trials: a fresh pool costs
+    seconds). An interrupted map (Ctrl-C, SIGTERM) terminates the pool: no process is left behind.
+    """
 
     def __init__(self, workers: int | None = None, keep: bool = False) -> None:
         self.workers = workers or os.cpu_count() or 1
@@ -167,8 +175,10 @@ RUN_LIBRARIES = ("numpy", "scipy", "numba", "msgspec")  # what a run computes wi
 
 @cache
 def code_fingerprint() -> str:
-    """SHA-256 of the `companion` package's sources and the versions of `RUN_LIBRARIES`: equal on
-    two machines when they compute the same runs."""
+    """SHA-256 of the `companion` package's sources and the versions of `RUN_LIBRARIES`.
+
+    Two machines have the same fingerprint when they compute the same runs.
+    """
     root = Path(__file__).resolve().parents[1]
     digest = hashlib.sha256()
     for name in RUN_LIBRARIES:

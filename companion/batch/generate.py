@@ -71,8 +71,11 @@ def _polygon(rng: np.random.Generator, fam: Family) -> np.ndarray:
 def _peaks(
     rng: np.random.Generator, cells: np.ndarray, centres: np.ndarray, sigmas: np.ndarray, targets: int
 ) -> np.ndarray:
-    """Peaks of eq. 1 in proportion to random weights, scaled (bisection) so that the expected number
-    of targets, sum_p Pr_p, is the mission's target count (or as near as peaks <= 1 allow)."""
+    """Peaks of eq. 1 in proportion to random weights, scaled to the mission's target count.
+
+    The scale is found by bisection so that the expected number of targets, sum_p Pr_p, is the
+    mission's target count (or as near as peaks <= 1 allow).
+    """
     weights = rng.uniform(0.5, 1.0, len(centres))
     shape = np.exp(-np.sum((cells[:, None, :] - centres[None]) ** 2, axis=-1) / (2 * sigmas**2))
 
@@ -89,8 +92,10 @@ def _peaks(
 
 
 def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict | None:
-    """One candidate mission as a TOML-ready dict (validated by the caller), or None when the start
-    layout could not place every UAV."""
+    """One candidate mission as a TOML-ready dict, or None when the start layout fails.
+
+    The caller validates the mission. None means the start layout could not place every UAV.
+    """
     verts = _polygon(rng, fam)
     poly = ConvexPolygon.from_vertices(verts)
     mode = str(rng.choice(fam.modes))
@@ -151,8 +156,10 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict |
 
 
 def generate(count: int, seed: int, family: Family | None = None) -> list[tuple[Mission, str]]:
-    """`count` valid missions of the family (default: `Family()`) and their TOML text, reproducible
-    from `seed`."""
+    """`count` valid missions of the family and their TOML text, reproducible from `seed`.
+
+    The family defaults to `Family()`.
+    """
     family = family or Family()
     out = []
     for i in range(count):

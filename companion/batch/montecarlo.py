@@ -44,8 +44,11 @@ def specs_for(
     record: Callable[[int], bool],
     starts: Sequence[Mission] = (),
 ) -> list[RunSpec]:
-    """One spec per (algorithm, run): run r of every algorithm sees the same targets and radio draws
-    (and, given `starts`, flies the same start layout: the mission `starts[r]`)."""
+    """One spec per (algorithm, run), with common random numbers across the algorithms.
+
+    Run r of every algorithm sees the same targets and radio draws (and, given `starts`, flies the
+    same start layout: the mission `starts[r]`).
+    """
     per_run = list(starts) or [mission] * runs
     if len(per_run) != runs:
         raise ValueError(f"{len(per_run)} start layouts for {runs} runs")
@@ -62,9 +65,11 @@ def run_specs(
     executor: RunExecutor | None = None,
     on_result: Callable[[], object] | None = None,
 ) -> Iterator[RunResult]:
-    """The results of `specs` in their order, each as soon as those before it are in, computed on
-    `executor` (default: a `LocalPool` of `workers` processes); `on_result` is called as each run
-    comes back, in whatever order."""
+    """The results of `specs` in their order, each as soon as those before it are in.
+
+    They are computed on `executor` (default: a `LocalPool` of `workers` processes); `on_result` is
+    called as each run comes back, in whatever order.
+    """
     executor = executor or LocalPool(workers)
     yield from in_order(executor.imap_unordered(execute, specs), len(specs), on_result)
 

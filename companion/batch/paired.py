@@ -28,9 +28,12 @@ METRICS = ("target_time", "mean_uncertainty")
 
 
 def run_metrics(r: RunResult) -> tuple[float, float]:
-    """A run's figures of merit, both lower-is-better: the mean step at which its targets were first
-    seen (an unfound target counting as the run's length; 0 without targets) and the global average
-    uncertainty of eq. 30 averaged over the run's steps (the area under the coverage curve)."""
+    """A run's two figures of merit, both lower-is-better: mean target time and eq. 30's mean.
+
+    The first is the mean step at which its targets were first seen (an unfound target counting as
+    the run's length; 0 without targets). The second is the global average uncertainty of eq. 30
+    averaged over the run's steps (the area under the coverage curve).
+    """
     time = float(r.target_times().mean()) if len(r.target_steps) else 0.0
     return time, float(r.uncertainty.mean())
 
@@ -43,9 +46,11 @@ def specs_grid(
     layouts: tuple[str, ...] = (),
     first_run: int = 0,
 ) -> list[RunSpec]:
-    """One spec per (mission, algorithm, run), in that order, for runs first_run .. first_run +
-    runs - 1; run r of a mission has the mission's seed and, with `layouts`, the start layout
-    `random_start` draws for (mission, seed, r)."""
+    """One spec per (mission, algorithm, run), in that order.
+
+    The runs are first_run .. first_run + runs - 1. Run r of a mission has the mission's seed and,
+    with `layouts`, the start layout `random_start` draws for (mission, seed, r).
+    """
     specs = []
     indices = range(first_run, first_run + runs)
     for m in missions:
@@ -59,8 +64,11 @@ def measure(
     executor: RunExecutor | None = None,
     advance: Callable[[], object] | None = None,
 ) -> np.ndarray:
-    """`run_metrics` of every spec, shape (len(specs), len(METRICS)), in spec order, computed on
-    `executor` (default: a local pool of every core); `advance` is called as each run comes back."""
+    """`run_metrics` of every spec, shape (len(specs), len(METRICS)), in spec order.
+
+    They are computed on `executor` (default: a local pool of every core); `advance` is called as
+    each run comes back.
+    """
     out = np.empty((len(specs), len(METRICS)))
     for i, r in enumerate(run_specs(list(specs), executor=executor, on_result=advance)):
         out[i] = run_metrics(r)
@@ -100,8 +108,10 @@ def load_weights(path: str | Path) -> dict:
 
 
 def apply_weights(mission: Mission, weights: Mapping[str, object], source: str) -> Mission:
-    """The mission with `[algorithm]` fields replaced by `weights` (nested tables merged), validated;
-    a bad field or value is a MissionError naming `source`."""
+    """The mission with `[algorithm]` fields replaced by `weights` (nested tables merged), validated.
+
+    A bad field or value is a MissionError naming `source`.
+    """
 
     def merge(base: dict, new: Mapping[str, object]) -> dict:
         out = dict(base)

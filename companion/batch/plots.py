@@ -102,9 +102,12 @@ def plot_prior(path: Path, world: World) -> None:
 
 
 def _search_start(tasks: np.ndarray | None, i: int) -> int:
-    """The first step UAV i holds a task when it came after a wait: before it, it loitered while the
-    swarm started (a distributed run's companions come up one by one); 0 when it held one from the
-    second step (every batch run), or without task records."""
+    """The first step UAV i holds a task when that came after a wait, else 0.
+
+    Before that step it loitered while the swarm started (a distributed run's companions come up
+    one by one). It is 0 when the UAV held a task from the second step (every batch run), or
+    without task records.
+    """
     if tasks is None:
         return 0
     held = np.flatnonzero(tasks[:, i] >= 0)
@@ -140,10 +143,13 @@ def plot_trajectories(
     runs: Mapping[str, RunResult],
     starts: Mapping[str, np.ndarray] | None = None,
 ) -> None:
-    """Figures 8(b)-(d): one run's trajectories per algorithm over the prior (grey: prior probability,
-    darker higher), with the targets, each UAV in its own colour from its start (`starts[name]`, the
-    UAVs' start positions; default: the first step's), the steps it loitered before its first task
-    dotted, and for the proposed method the CVT regions it divides the area into."""
+    """Figures 8(b)-(d): one run's trajectories per algorithm over the prior, with the targets.
+
+    The prior is grey (darker: higher probability). Each UAV has its own colour from its start
+    (`starts[name]`, the UAVs' start positions; default: the first step's), and the steps it
+    loitered before its first task are dotted. For the proposed method the plot shows the CVT
+    regions it divides the area into.
+    """
     width = 5.5 * len(runs) + 2.6
     fig, axes = plt.subplots(1, len(runs), figsize=(width, 5.5), squeeze=False)
     loitered = False
@@ -258,9 +264,11 @@ def plot_links(path: Path, result: RunResult, safety: float) -> None:
 
 
 def _paired_panels(table: PairedTable, metrics: Sequence[str], height: float) -> tuple[Figure, list[tuple]]:
-    """A grid of axes, a row per metric and a column per baseline, each with its per-mission rows of
-    `heldout.paired_table` and their differences with 95 % intervals: (ax, baseline, metric, rows,
-    difference, low, high)."""
+    """A grid of axes, a row per metric and a column per baseline, and each panel's paired data.
+
+    A panel is (ax, baseline, metric, rows, difference, low, high): its per-mission rows of
+    `heldout.paired_table` and their differences with 95 % intervals.
+    """
     baselines = list(dict.fromkeys(row.baseline for row in table.overall))
     fig, axes = plt.subplots(
         len(metrics), len(baselines), figsize=(5.5 * len(baselines), height * len(metrics)), squeeze=False
@@ -278,8 +286,11 @@ def _paired_panels(table: PairedTable, metrics: Sequence[str], height: float) ->
 
 
 def plot_paired(path: Path, table: PairedTable, metrics: Sequence[str]) -> None:
-    """`uavsearch evaluate`: per mission, the paired difference proposed - baseline with its 95 %
-    interval (sorted), the overall mean difference (band) and the win rate, per baseline and metric."""
+    """`uavsearch evaluate`: the paired differences proposed - baseline, per baseline and metric.
+
+    A panel shows, per mission, the difference with its 95 % interval (sorted), the overall mean
+    difference (band) and the win rate.
+    """
     fig, panels = _paired_panels(table, metrics, 4.5)
     for ax, baseline, metric, rows, d, lo, hi in panels:
         y = np.arange(len(rows))
@@ -305,9 +316,11 @@ def plot_paired(path: Path, table: PairedTable, metrics: Sequence[str]) -> None:
 def plot_density(
     path: Path, table: PairedTable, info: Sequence[MissionFeatures], metrics: Sequence[str]
 ) -> None:
-    """`uavsearch evaluate`: each mission's paired difference proposed - baseline (95 % interval)
-    against its area per UAV, per baseline and metric; the median area per UAV splits the missions
-    into `heldout.by_density`'s halves."""
+    """`uavsearch evaluate`: the paired differences against area per UAV, per baseline and metric.
+
+    A panel shows each mission's paired difference proposed - baseline (95 % interval) against its
+    area per UAV; the median area per UAV splits the missions into `heldout.by_density`'s halves.
+    """
     per_uav = {i.mission: i.km2_per_uav for i in info}
     median = float(np.median(list(per_uav.values())))
     fig, panels = _paired_panels(table, metrics, 4.0)
@@ -329,8 +342,11 @@ def plot_density(
 
 
 def plot_study(path: Path, history: Sequence[Trial], title: str) -> None:
-    """`uavsearch tune`: each trial's objective and the best so far; each trial's relative change of
-    the mean target time against that of the mean uncertainty (trial 0, the weights before, at 0)."""
+    """`uavsearch tune`: each trial's objective and the best so far, and its trade-off of metrics.
+
+    The trade-off is each trial's relative change of the mean target time against that of the mean
+    uncertainty (trial 0, the weights before, at 0).
+    """
     trials = np.array([h.trial for h in history])
     objective = np.array([h.objective for h in history])
     time = 100 * np.array([h.relative_target_time for h in history])

@@ -31,8 +31,11 @@ def _minutes(seconds: float) -> str:
 
 
 class ProgressLines:
-    """`advance` counts a run; a line goes to `stream` when `every_s` seconds passed since the last
-    one (by `clock`), and `close` writes the last."""
+    """Progress as plain text lines, written at most every `every_s` seconds.
+
+    `advance` counts a run; a line goes to `stream` when `every_s` seconds passed since the last
+    one (by `clock`), and `close` writes the last.
+    """
 
     def __init__(
         self, total: int, label: str, stream: TextIO, every_s: float, clock: Callable[[], float]
@@ -70,9 +73,11 @@ def run_progress(
     every_s: float = LINE_EVERY_S,
     clock: Callable[[], float] = time.monotonic,
 ) -> Iterator[Callable[[], None]]:
-    """Progress over `total` runs; yields the function that counts one run done. On a terminal a
-    rich bar (stdout); otherwise `ProgressLines` on `stream` (default stderr); nothing if not
-    `enabled`."""
+    """Progress over `total` runs; yields the function that counts one run done.
+
+    On a terminal it is a rich bar (stdout); otherwise `ProgressLines` on `stream` (default
+    stderr); nothing if not `enabled`.
+    """
     if not enabled:
         yield lambda: None
         return

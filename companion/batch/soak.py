@@ -1,6 +1,8 @@
-"""The safety soak: generated missions, every algorithm, counting the steps that lose separation or a
-link (docs/algorithm.md, "Safety layer"). `uavsearch soak` runs it at any size; the test suite runs
-a few dozen missions of it."""
+"""The safety soak: generated missions, every algorithm, counting steps that lose separation or a link.
+
+docs/algorithm.md, "Safety layer", describes the guarantees it checks. `uavsearch soak` runs it at
+any size; the test suite runs a few dozen missions of it.
+"""
 
 from __future__ import annotations
 
@@ -35,9 +37,11 @@ class SoakRow:
 
     @property
     def clean(self) -> bool:
-        """No separation loss, and no link loss unless a companion died (a dead UAV's radio is
-        silent, and the live swarm may be split by its loss: connectivity is guaranteed without
-        faults, separation always)."""
+        """No separation loss, and no link loss unless a companion died.
+
+        A dead UAV's radio is silent, and the live swarm may be split by its loss: connectivity is
+        guaranteed without faults, separation always.
+        """
         return self.separation_losses == 0 and (self.link_losses == 0 or bool(self.killed))
 
 
@@ -50,8 +54,11 @@ def soak_specs(
     kill: bool = False,
     family: Family | None = None,
 ) -> list[RunSpec]:
-    """One spec per generated mission and algorithm; with `kill`, one UAV of each mission (drawn from
-    the seed) loses its companion at a step drawn from the first half of the run."""
+    """One spec per generated mission and algorithm, optionally with a companion that dies.
+
+    With `kill`, one UAV of each mission (drawn from the seed) loses its companion at a step drawn
+    from the first half of the run.
+    """
     specs = []
     for i, (mission, _) in enumerate(generate(missions, seed, family)):
         if loss:
@@ -69,8 +76,10 @@ def soak_specs(
 def soak(
     specs: list[RunSpec], workers: int | None = None, executor: RunExecutor | None = None
 ) -> Iterator[SoakRow]:
-    """Run the specs (in order; on `executor`, default a local pool of `workers`) and report each
-    run's safety figures."""
+    """Run the specs and report each run's safety figures.
+
+    The specs run in order, on `executor` (default: a local pool of `workers`).
+    """
     for spec, r in zip(specs, run_specs(specs, workers, executor), strict=True):
         yield row_of(spec, r)
 

@@ -1,7 +1,8 @@
-"""Start layouts: UAVs on one edge of the region heading inwards, or clustered about a point inside
-it, separated and connected. The mission generator draws its missions' layouts with `start_layout`;
-`uavsearch mc --random-starts` draws one per run with `random_start`, a pure function of
-(mission, seed, run), so run r of every algorithm starts from the same layout.
+"""Start layouts: UAVs on one edge of the region heading inwards, or clustered about a point inside.
+
+The UAVs are separated and connected. The mission generator draws its missions' layouts with
+`start_layout`; `uavsearch mc --random-starts` draws one per run with `random_start`, a pure
+function of (mission, seed, run), so run r of every algorithm starts from the same layout.
 """
 
 from __future__ import annotations
@@ -38,9 +39,12 @@ def start_layout(
     cell: float,
     link: float,
 ) -> list[tuple[float, float, float]]:
-    """Up to n start poses (x, y, heading_deg), 2-6 cells apart: on an edge, heading inwards, or
-    clustered about a point, each within `link` of another; on cell centres in grid mode. The caller
-    validates them (a clustered draw may also place fewer than n)."""
+    """Up to n start poses (x, y, heading_deg), 2-6 cells apart, on an edge or about a point.
+
+    On an edge they head inwards; otherwise they are clustered about a point. Each is within `link`
+    of another; in grid mode they sit on cell centres. The caller validates them (a clustered draw
+    may also place fewer than n).
+    """
     x0, y0 = poly.vertices.min(axis=0) + cell / 2
     spacing = rng.uniform(2.0, 6.0) * cell
     verts = poly.vertices
@@ -91,8 +95,11 @@ def parse_layouts(text: str) -> tuple[str, ...]:
 def random_start(
     mission: Mission, seed: int, run: int, layouts: tuple[str, ...] = LAYOUTS
 ) -> tuple[Mission, str]:
-    """The mission with the start layout of run `run` of seed `seed` (and the layout's kind): the
-    same UAVs (MAVLink ports kept) drawn anew from `layouts`, and validated like a mission file."""
+    """The mission with the start layout of run `run` of seed `seed`, and the layout's kind.
+
+    The same UAVs (MAVLink ports kept) are drawn anew from `layouts`, and the mission is validated
+    like a mission file.
+    """
     rng = np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(run, START_STREAM)))
     poly = ConvexPolygon.from_vertices(np.array(mission.region.polygon, dtype=float))
     n, grid = mission.n_uavs, mission.kinematics.mode == "grid"

@@ -1,5 +1,7 @@
-"""Interval estimates for paired comparisons: the mean of paired differences (Student t) and a
-proportion (Wilson score interval)."""
+"""Interval estimates for paired comparisons: a mean of paired differences and a proportion.
+
+The mean has a Student t interval, the proportion a Wilson score interval.
+"""
 
 from __future__ import annotations
 
@@ -22,8 +24,10 @@ class Interval:
 
 
 def mean_ci(values: ArrayLike, confidence: float = 0.95) -> Interval:
-    """The mean of `values` (paired differences, say) and its Student t interval; with one value
-    the interval is unbounded (NaN)."""
+    """The mean of `values` (paired differences, say) and its Student t interval.
+
+    With one value the interval is unbounded (NaN).
+    """
     x = np.asarray(values, dtype=float).ravel()
     n = len(x)
     if n == 0:

@@ -39,8 +39,11 @@ OBJECTIVE = (
 
 @dataclass(frozen=True)
 class Weight:
-    """A tunable field of `[algorithm]`: "kappa", "beta.1" (an element of a pair) or
-    "pheromone.weight" (a field of a nested table), its range, and the algorithms whose runs read it."""
+    """A tunable field of `[algorithm]`, its range, and the algorithms whose runs read it.
+
+    The field is named like "kappa", "beta.1" (an element of a pair) or "pheromone.weight" (a field
+    of a nested table).
+    """
 
     field: str
     low: float
@@ -68,8 +71,10 @@ SPACE: tuple[Weight, ...] = (
 
 
 def load_space(path: str | Path) -> tuple[Weight, ...]:
-    """A search space from a TOML file: one table per field, e.g.
-    `[kappa]` with `low`, `high`, optional `log` (false) and `read_by` (["proposed"])."""
+    """A search space from a TOML file, one table per field.
+
+    For example `[kappa]` with `low`, `high`, optional `log` (false) and `read_by` (["proposed"]).
+    """
     p = Path(path)
     try:
         raw = tomllib.loads(p.read_text(encoding="utf-8"))
@@ -107,8 +112,10 @@ def current_value(mission: Mission, field: str) -> object:
 
 
 def weights_table(mission: Mission, values: Mapping[str, float]) -> dict[str, Any]:
-    """The `[algorithm]` entries that `values` (by field) change, whole: a pair or a nested table
-    keeps its other members at the mission's values."""
+    """The `[algorithm]` entries that `values` (by field) change, whole.
+
+    A pair or a nested table keeps its other members at the mission's values.
+    """
     algorithm = msgspec.json.decode(msgspec.json.encode(mission.algorithm))  # lists and dicts, a copy
     table: dict[str, Any] = {}
     for field, value in values.items():
@@ -126,8 +133,11 @@ def weights_table(mission: Mission, values: Mapping[str, float]) -> dict[str, An
 
 
 def check_space(space: Sequence[Weight], missions: Sequence[Mission]) -> None:
-    """Every row names a numeric field of [algorithm], has low < high (low > 0 on a log scale), and
-    holds the missions' current value (trial 0), which they share."""
+    """Raise ValueError unless the search space fits the missions.
+
+    Every row names a numeric field of [algorithm], has low < high (low > 0 on a log scale), and
+    holds the missions' current value (trial 0), which they share.
+    """
     for w in space:
         value = current_value(missions[0], w.field)
         if not isinstance(value, int | float) or isinstance(value, bool):
@@ -169,9 +179,11 @@ def select(space: Sequence[Weight], algorithm: str, params: Sequence[str] | None
 
 @dataclass(frozen=True)
 class Score:
-    """A candidate against trial 0 on the same runs: the objective J and its parts (relative
-    differences per mission, mean and t interval over missions), and the missions it finds targets
-    sooner on."""
+    """A candidate against trial 0 on the same runs: the objective J, its parts and its wins.
+
+    The parts are relative differences per mission (mean and t interval over missions); the wins
+    are the missions it finds targets sooner on.
+    """
 
     objective: float
     target_time: Interval
@@ -214,9 +226,12 @@ def toml_snippet(table: Mapping[str, object]) -> str:
 
 @dataclass(frozen=True)
 class Setup:
-    """What a study flies: the algorithm, R runs of K steps per mission and candidate, a budget in
-    runs, the sampler's seed, lambda, the start layouts (empty: each mission's own), and how many of
-    the best candidates are flown again on fresh runs before one is chosen."""
+    """What a study flies: the algorithm, its runs and steps, the budget and the confirmation.
+
+    That is the algorithm, R runs of K steps per mission and candidate, a budget in runs, the
+    sampler's seed, lambda, the start layouts (empty: each mission's own), and how many of the best
+    candidates are flown again on fresh runs before one is chosen.
+    """
 
     algorithm: str
     runs: int
@@ -229,8 +244,11 @@ class Setup:
 
 
 def plan(budget: int, missions: int, runs: int, confirm: int) -> tuple[int, int]:
-    """(search trials, total runs) a budget buys: each trial flies every mission `runs` times; the
-    confirmation flies trial 0 and the `confirm` best candidates again on fresh runs."""
+    """(search trials, total runs) a budget buys.
+
+    Each trial flies every mission `runs` times; the confirmation flies trial 0 and the `confirm`
+    best candidates again on fresh runs.
+    """
     per_trial = missions * runs
     reserved = (confirm + 1) * per_trial if confirm > 0 else 0
     trials = (budget - reserved) // per_trial if per_trial > 0 else 0
@@ -244,9 +262,12 @@ def plan(budget: int, missions: int, runs: int, confirm: int) -> tuple[int, int]
 
 
 class Trial(msgspec.Struct):
-    """One row of the study's history: a candidate's weights, its `Score` against trial 0 on the
-    search runs (relative differences with their t intervals), the per-mission means of each metric,
-    and, once confirmed, the same on the fresh runs."""
+    """One row of the study's history: a candidate's weights, its score and its per-mission means.
+
+    The score is its `Score` against trial 0 on the search runs (relative differences with their t
+    intervals); the per-mission means are those of each metric; once confirmed, the row holds the
+    same on the fresh runs.
+    """
 
     trial: int
     objective: float
@@ -276,8 +297,11 @@ class Chosen(msgspec.Struct, frozen=True):
 
 
 class Study(msgspec.Struct, frozen=True):
-    """What study.json holds: the setup, the runs planned and used, the caller's metadata, the
-    search space, the chosen trial and the whole history."""
+    """What study.json holds: the setup, the runs, the search space and the trials.
+
+    That is the setup, the runs planned and used, the caller's metadata, the search space, the
+    chosen trial and the whole history.
+    """
 
     setup: Setup
     trials_planned: int
@@ -312,14 +336,17 @@ def tune(
     meta: dict[str, Any] | None = None,
     advance: Callable[[], object] | None = None,
 ) -> Study | None:
-    """Run the study on `executor` (default: a local pool of every core, kept for the whole study)
-    and write weights.toml, history.csv, study.json and tune.png into `out`; returns the `Study`
-    (None when no trial was flown). An interrupted study writes what it has.
+    """Run the study, write its files into `out`, and return the `Study` (None when no trial flew).
+
+    The study runs on `executor` (default: a local pool of every core, kept for the whole study)
+    and writes weights.toml, history.csv, study.json and tune.png. An interrupted study writes what
+    it has.
 
     The search scores each trial on runs 0..R-1 of every mission. The best `setup.confirm`
     candidates and trial 0 then fly runs R..2R-1 (new targets, CVT draws and starts), and the
     chosen weights are those with the lowest objective on these fresh runs (trial 0 if none is below
-    0): a candidate that was only lucky on the search runs does not survive this."""
+    0): a candidate that was only lucky on the search runs does not survive this.
+    """
     if setup.algorithm not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {setup.algorithm!r}; choose from {', '.join(ALGORITHMS)}")
     check_space(space, missions)
@@ -393,8 +420,10 @@ def _means(got: np.ndarray) -> dict[str, list[float]]:
 
 
 def chosen_trial(history: Sequence[Trial]) -> Trial:
-    """The confirmed trial with the lowest objective on the fresh runs (trial 0 scores 0 there), or
-    without a confirmation the trial with the lowest objective."""
+    """The confirmed trial with the lowest objective on the fresh runs (trial 0 scores 0 there).
+
+    Without a confirmation, it is the trial with the lowest objective.
+    """
     confirmed = [(r.confirmation_objective, r) for r in history if r.confirmation_objective is not None]
     if confirmed:
         return min(confirmed, key=lambda c: (c[0], c[1].trial))[1]

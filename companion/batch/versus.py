@@ -1,8 +1,11 @@
-"""Two `uavsearch mc` outputs of the same runs (the same mission, seed and run indices; two code
-versions or two settings) compared run by run: for each algorithm in both, the paired change in
-mean target time and in mean uncertainty over the run (eq. 30), with Student t 95 % intervals,
-and each output's closest approach and runs with an event. Run r is the same mission instance in
-both (common random numbers), so the paired differences isolate what changed."""
+"""Two `uavsearch mc` outputs of the same runs compared run by run, with paired changes (eq. 30).
+
+The outputs share the mission, seed and run indices (two code versions or two settings). For each
+algorithm in both: the paired change in mean target time and in mean uncertainty over the run
+(eq. 30), with Student t 95 % intervals, and each output's closest approach and runs with an
+event. Run r is the same mission instance in both (common random numbers), so the paired
+differences isolate what changed.
+"""
 
 from __future__ import annotations
 
@@ -43,8 +46,10 @@ def _event(row: dict[str, str]) -> bool:
 
 
 def compare(before: Path, after: Path) -> list[Change]:
-    """The paired changes from `before` to `after`, per algorithm present in both; raises
-    ValueError when they share no run or disagree on a run's seed or length."""
+    """The paired changes from `before` to `after`, per algorithm present in both.
+
+    Raises ValueError when they share no run or disagree on a run's seed or length.
+    """
     a, b = _runs(before), _runs(after)
     out = []
     for algorithm in dict.fromkeys(k[0] for k in a):

@@ -1,14 +1,8 @@
 """CPU seconds of one 1,000-step batch run of each scenario file and algorithm, in this process.
 
 Run as a script so that `companion` is imported from PYTHONPATH: the same measurement then times
-another checkout (docs/performance.md, "Against an older commit"), interleaved with this one so
-that the machine's drift hits both alike:
-
-    for i in 1 2; do
-      PYTHONPATH=../old python companion/bench/cpu_per_run.py --label old
-      PYTHONPATH=. python companion/bench/cpu_per_run.py --label new
-    done
-
+another checkout, interleaved with this one so that the machine's drift hits both alike
+(`uavsearch bench --against`; docs/performance.md, "Against an older commit", gives the loop).
 CPU time (`time.process_time`), not wall time: other processes on the machine slow a run's wall
 time, much less its CPU time. It uses only `load_mission`, `Mission.with_algorithm` and `simulate`,
 and the timed checkout's own mission files.

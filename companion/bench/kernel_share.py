@@ -57,8 +57,11 @@ def _timed(name: str, kernel: Callable[..., Any], into: dict[str, list[float]]) 
 
 
 def measure(mission_path: Path, algorithm: str, runs: int, steps: int, seed: int = 1) -> Share:
-    """Time `runs` batch runs of `steps` steps, with every kernel call from Python timed. Patches
-    the core modules' kernels for the rest of this process: run it in a process of its own."""
+    """Time `runs` batch runs of `steps` steps, with every kernel call from Python timed.
+
+    It patches the core modules' kernels for the rest of this process: run it in a process of its
+    own.
+    """
     from companion.batch.engine import simulate
     from companion.core.feasibility import load_mission
 

@@ -4,7 +4,6 @@ The fence's breach action is a return (ArduPilot RTL, PX4 Return: `companion.nod
 autopilot may return for reasons of its own (battery, RC loss). Its return altitude is one value
 for every aircraft unless set: they would all climb or sink to it and leave their layers. So with
 `--takeover` (when the fence is set) the companion sets it to `Mission.altitude_of(uav)`:
-
 - ArduPlane 4.5 on: RTL_ALTITUDE (m above home; -1 would be the altitude at the switch); before
   4.5: ALT_HOLD_RTL (cm above home, -1 the same). RTL_CLIMB_MIN, an extra climb on entering RTL,
   is set to 0 where it is not.
