@@ -1,31 +1,13 @@
 """One UAV's side of the commitment protocol that keeps the swarm separated and linked.
 
-One UAV's side of the commitment protocol that keeps every pair of UAVs separated and the
-tethers (links that must hold) within range (docs/algorithm.md, "Safety layer").
-
-Every UAV i always has a trajectory in force, T_i^k, which it flies over [t_k, t_k+1]; it is
-compatible (core.safety) with every other UAV's trajectory in force, for all later time. At step k
-it publishes T_i^k and a proposal P_i^k that agrees with T_i^k up to t_k+1; at step k+1, having
-heard its neighbours' step-k messages, it switches to P_i^k only if P_i^k is compatible with every
-other UAV j's T_j^k and, for j of a lower id (priority), with P_j^k too. Whatever each of two UAVs
-then decides, their new trajectories in force are compatible: the lower id checked its proposal
-against the other's old trajectory, the higher id against both of the other's. A UAV whose step-k
-message was not heard is represented by everything it could be flying: a disk around where it was
-last known, growing by a step per step of silence, or, once silent for `peer_timeout_steps`,
-what it last published plus the disks its aircraft's failsafe circles in (it is taken as gone):
-its companion kept the failsafe on its trajectory in force's loiter, so a new proposal must stay
-out of those disks, or, from inside one, head out of it. A UAV that says its vehicle is not steered
-(`UavState.steered`) commits to nothing and is kept clear of like a gone one, its disk about its
-latest report (`adrift_reach`). Rejecting a proposal is always safe: the trajectory in force ends
-in a loiter inside the fence.
-
-With `safety.contingency`, compatibility also asks each of two trajectories to keep clear of the
-other's failsafe disk (`safety.contingency.keeps_contingencies`; docs/algorithm.md, "The contingency
-clause"), and of the disk of the trajectory in force a live UAV announced before its latest. The
-clause and a gone UAV's failsafe regions guard only pairs on altitude layers closer than the
-vertical separation (`SafetyPlan.near`): an aircraft whose companion died holds its layer. A
-pair whose trajectories in force are already too close (after a fault) is only kept from getting
-closer, and the proposal that opens it fastest is taken (`safety.separation.keeps_apart`, "Recovery").
+Every UAV flies a trajectory in force compatible with every other's for all later time; at step k
+it publishes it with a proposal, and at k+1 switches to the proposal only if it is compatible
+with every neighbour's trajectory in force and, for a lower id, with its proposal too. A UAV not
+heard from is represented by everything it could be flying (a growing disk, then, once gone, its
+commitments plus its failsafe loiter disks); one not steered is kept clear of like a gone one.
+With `safety.contingency`, compatibility also asks each trajectory to keep clear of the other's
+failsafe disk, between UAVs on near layers only. Rejecting a proposal is always safe. The
+invariant and its argument: docs/algorithm.md, "Safety layer" and "The contingency clause".
 """
 
 from __future__ import annotations
