@@ -33,11 +33,10 @@ class ExportError(ValueError):
 
 @dataclass(frozen=True)
 class Track:
-    """One UAV's flown poses (x east, y north; m) from step `first`, on its layer `altitude` m up."""
+    """One UAV's poses (x east, y north; m) at steps 0, 1, ..., on its layer `altitude` m up."""
 
     uav: int
     altitude: float
-    first: int
     points: np.ndarray  # (steps, 2)
 
 
@@ -120,7 +119,7 @@ def load_picture(directory: Path, algorithm: str | None = None, run: int | None 
         [(v.x, v.y) for v in mission.vehicles], [v.layer for v in mission.vehicles], mission.layer_count
     )
     tracks = [
-        Track(i, mission.layer_altitude(layers[i]), 0, poses[:, i, :2].copy()) for i in range(mission.n_uavs)
+        Track(i, mission.layer_altitude(layers[i]), poses[:, i, :2].copy()) for i in range(mission.n_uavs)
     ]
     if world.tessellation is None:
         notes.append(
