@@ -19,7 +19,7 @@ import numpy as np
 import pygeoif
 import shapely
 from fastkml import styles
-from shapely.geometry import LineString, Point, Polygon, mapping
+from shapely.geometry import LineString, MultiPolygon, Point, Polygon, mapping
 from shapely.geometry.polygon import orient
 
 from companion.app.operator_run import Detection, Picture, Sector, Track
@@ -41,13 +41,25 @@ def colour(uav: int | None) -> str:
 
 
 def geodetic(frame: LocalFrame) -> Callable[[shapely.Geometry], shapely.Geometry]:
-    """A function taking a shape in local metres to (lon, lat) degrees, rounded to 1e-7."""
+    """A function taking a shape in local metres to (lon, lat) degrees, rounded to 1e-7.
+
+    Polygons come out counter-clockwise, holes clockwise, as RFC 7946 and KML ask."""
 
     def to_lonlat(points: np.ndarray) -> np.ndarray:
+        """(n, 2) local metres as (n, 2) (lon, lat)."""
         lat, lon = frame.cells_to_geodetic(points)
         return np.column_stack([lon, lat]).round(DECIMALS)
 
-    return lambda shape: shapely.transform(shape, to_lonlat)
+    def convert(shape: shapely.Geometry) -> shapely.Geometry:
+        """The shape in (lon, lat), its polygons oriented."""
+        shape = shapely.transform(shape, to_lonlat)
+        if isinstance(shape, Polygon):
+            return orient(shape, 1.0)
+        if isinstance(shape, MultiPolygon):
+            return MultiPolygon([orient(p, 1.0) for p in shape.geoms])
+        return shape
+
+    return convert
 
 
 def _track_line(track: Track) -> LineString:
@@ -57,6 +69,7 @@ def _track_line(track: Track) -> LineString:
 
 
 def _sector_name(sector: Sector) -> str:
+    """A sector's Placemark name."""
     return f"sector of UAV {sector.uav}" if sector.uav is not None else "tasks held by no UAV"
 
 
@@ -82,7 +95,8 @@ def _properties(picture: Picture) -> list[tuple[str, shapely.Geometry, dict[str,
 
 
 def _detection_name(d: Detection) -> str:
-    truth = {True: "", False: " (false)", None: ""}[d.true]
+    """A detection's Placemark name: its cell, step, and (flown runs) if false."""
+    truth = " (false)" if d.true is False else ""
     when = "" if d.step is None else f" at step {d.step}"
     return f"target in cell {d.cell}{when}{truth}"
 
@@ -110,10 +124,6 @@ def geojson(picture: Picture) -> dict[str, Any]:
     features = []
     for name, shape, props in _properties(picture):
         shape = to_lonlat(shape)
-        if isinstance(shape, Polygon):
-            shape = orient(shape, 1.0)
-        elif shape.geom_type == "MultiPolygon":
-            shape = shapely.MultiPolygon([orient(p, 1.0) for p in shape.geoms])
         rgb = "#000000" if props["layer"] == "region" else colour(props.get("uav"))
         style: dict[str, Any] = {"stroke": rgb}
         if props["layer"] in ("region", "sector"):
