@@ -20,6 +20,8 @@ from companion.app.evaluation import (
     read_vertical,
     truth_cells,
 )
+from companion.app.operator_files import export
+from companion.app.operator_run import ExportError, load_picture
 from companion.app.run_options import RunOptions
 from companion.batch import plots, report
 from companion.batch.engine import RunResult
@@ -102,6 +104,7 @@ def report_run(
     (out / "criteria.json").write_text(
         json.dumps({"passed": not failures, "failures": failures}, indent=2) + "\n"
     )
+    _write_operator_files(out)
     if failures:
         print("pass criteria FAILED: " + "; ".join(failures), file=sys.stderr)
         return 1
@@ -109,6 +112,14 @@ def report_run(
     if not mission.secured:
         print("this run was INSECURE (no [security] keys): see the warning at its start", flush=True)
     return 0
+
+
+def _write_operator_files(out: Path) -> None:
+    """The operator's files of the run (operator.geojson, operator.kml, sectors.plan), or a warning."""
+    try:
+        export(load_picture(out), out)
+    except ExportError as exc:
+        print(f"warning: no files for the operator: {exc}", file=sys.stderr)
 
 
 def _write_results(

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 
 from companion.batch.executors import ClusterError
-from companion.cli import area, bench, fly, generated, heldout, reliability, studies
+from companion.cli import area, bench, export, fly, generated, heldout, reliability, studies
 from companion.cli.options import CommandParser
 from companion.contracts.arguments import check_mission
 from companion.contracts.entry import INTERRUPTED
@@ -24,6 +24,7 @@ GROUPS = (
     fly.register,
     bench.register_passthrough,
     area.register,
+    export.register,
 )
 
 
