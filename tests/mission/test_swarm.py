@@ -86,6 +86,12 @@ def test_scripted_mission_scenario1_sped_up_passes_its_criteria(tmp_path: Path, 
         assert not any(closing[: -(m.algorithm.horizon + 1)])
     for png in ("prior_cvt.png", "trajectories.png", "uncertainty.png", "targets_found.png", "links.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
+    # the operator's files (docs/companion.md, "Files for the operator"): a track for every UAV
+    features = json.loads((out / "operator.geojson").read_text())["features"]
+    tracks = {f["properties"]["uav"] for f in features if f["properties"]["layer"] == "track"}
+    assert tracks == set(range(m.n_uavs))
+    assert (out / "operator.kml").read_text().lstrip().startswith("<")
+    assert json.loads((out / "sectors.plan").read_text())["fileType"] == "Plan"
     for i in range(m.n_uavs):  # real time plans from the predicted start of each step: no lag
         with (out / f"uav{i}.csv").open() as f:
             rows = list(csv.DictReader(f))
