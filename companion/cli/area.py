@@ -5,12 +5,16 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
-from companion.contracts.areas import LocalArea, LocalCircle, local_area, read_area
 from companion.contracts.mission import MissionError, Origin
+
+# shapely loads with the command, not with the command line: a Ctrl-C while numpy loads would
+# surface from shapely's extension as an ImportError instead of a clean interrupt
+if TYPE_CHECKING:
+    from companion.contracts.areas import LocalArea
 
 
 def register(subparsers: Any) -> None:
@@ -46,6 +50,8 @@ def origin(text: str) -> Origin:
 
 def run(args: argparse.Namespace) -> int:
     """Print the area of `args.file` in local metres, or its error on one line (exit code 2)."""
+    from companion.contracts.areas import local_area, read_area
+
     logging.getLogger("fastkml").addHandler(logging.NullHandler())  # its errors are ours to report
     try:
         area = read_area(args.file)
@@ -65,6 +71,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _describe(local: LocalArea) -> str:
     """The area's lines: its ring, each zone, and the areas in m^2 and km^2."""
+    from companion.contracts.areas import LocalCircle
+
     ring = ", ".join(f"({x:.2f}, {y:.2f})" for x, y in local.inclusion)
     lines = [f"inclusion polygon: {len(local.inclusion)} vertices (x east, y north; m): {ring}"]
     for i, (zone, shape) in enumerate(zip(local.nofly, local.zone_shapes(), strict=True)):
