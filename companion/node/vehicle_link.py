@@ -259,7 +259,9 @@ class VehicleLink:
         s = self.state
         source = (msg.get_srcSystem(), msg.get_srcComponent())
         if s.system and source != (s.system, mavlink.MAV_COMP_ID_AUTOPILOT1):
-            if msg.get_msgId() not in UNSIGNED_ALLOWED:  # the radio's own status: not a fault
+            # not refused: the radio's own status, and the HEARTBEATs an autopilot routes from the
+            # other systems on its links (a ground station's), as ArduPilot forwards them to all
+            if msg.get_msgId() not in UNSIGNED_ALLOWED and kind != "HEARTBEAT":
                 self.wrong_system += 1
                 self.refusals.refuse("wrong system", f"system {source[0]} component {source[1]}", kind)
             return
