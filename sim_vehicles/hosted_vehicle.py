@@ -35,8 +35,7 @@ AMSL_FRAMES = (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT)
 SILENT = frozenset({"HEARTBEAT", "SYSTEM_TIME", "RADIO_STATUS", "MISSION_ACK"})
 # a companion's reports to the ground station: routed to the other peers (`route`), not acted on
 ROUTED_ONLY = frozenset({
-    "STATUSTEXT", "NAMED_VALUE_FLOAT", "ONBOARD_COMPUTER_STATUS", "ADSB_VEHICLE",
-    "CAMERA_TRACKING_GEO_STATUS",
+    "STATUSTEXT", "NAMED_VALUE_FLOAT", "ADSB_VEHICLE", "CAMERA_TRACKING_GEO_STATUS",
 })  # fmt: skip
 NOT_ROUTED = frozenset({M.MAVLINK_MSG_ID_RADIO, M.MAVLINK_MSG_ID_RADIO_STATUS})  # as ArduPilot: a link's own
 

@@ -1,9 +1,10 @@
 """The search shown in the ground station, sent through the autopilot's own link once a step.
 
 Found targets (STATUSTEXT and CAMERA_TRACKING_GEO_STATUS), progress (NAMED_VALUE_FLOAT), the
-companion's health (ONBOARD_COMPUTER_STATUS) and the peers as traffic (ADSB_VEHICLE). None of them
-names a target system, so an autopilot forwards them to its other links, where a ground station
-connected to it sees them (docs/companion.md, "What the ground station sees").
+companion's health (its HEARTBEAT's system status, its CPU load as NAMED_VALUE_FLOAT) and the
+peers as traffic (ADSB_VEHICLE). None names a target system, so an autopilot forwards them to its
+other links, where a ground station connected to it sees them (docs/companion.md, "What the
+ground station sees").
 """
 
 from __future__ import annotations
@@ -11,7 +12,6 @@ from __future__ import annotations
 import math
 import resource
 import time
-from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -31,17 +31,7 @@ ADSB_VALID = (
     | mavlink.ADSB_FLAGS_VALID_CALLSIGN
 )
 PROGRESS_NAMES = ("coverage", "mean_eta", "found", "p_unfound")  # NAMED_VALUE_FLOAT names (<= 10 chars)
-UNUSED_U8, UNUSED_I8, UNUSED_I16, UNUSED_U32 = 255, 127, 32767, 0xFFFFFFFF
-
-
-def ram_mib() -> tuple[int, int]:
-    """(used, total) RAM of this computer in MiB from /proc/meminfo; unused values where there is none."""
-    try:
-        fields = dict(line.split(":", 1) for line in Path("/proc/meminfo").read_text().splitlines())
-        total, available = (int(fields[k].split()[0]) // 1024 for k in ("MemTotal", "MemAvailable"))
-    except (OSError, KeyError, ValueError):
-        return UNUSED_U32, UNUSED_U32
-    return total - available, total
+CPU_NAME = "cpu_pct"  # the companion process's CPU load since the previous step, percent of one core
 
 
 def target_text(uav: int, lat: float, lon: float) -> bytes:
@@ -60,8 +50,12 @@ class GroundStationFeed:
         self._start = time.monotonic()
         self._cpu = (self._start, self._cpu_seconds())
 
-    def step(self, k: int, agent: Agent) -> SearchProgress:
-        """Step k's reports: new targets, progress, health and the peers; the progress sent."""
+    def step(self, k: int, agent: Agent, steered: bool) -> SearchProgress:
+        """Step k's reports: new targets, progress, health and the peers; the progress sent.
+
+        The companion's HEARTBEAT says ACTIVE while it steers its vehicle, STANDBY while not.
+        """
+        self.link.system_status = mavlink.MAV_STATE_ACTIVE if steered else mavlink.MAV_STATE_STANDBY
         self._targets(agent)
         progress = search_progress(agent.seen, agent.eta, agent.world.prior, agent.found)
         self._progress(progress)
@@ -103,18 +97,11 @@ class GroundStationFeed:
         return usage.ru_utime + usage.ru_stime
 
     def _health(self) -> None:
-        """ONBOARD_COMPUTER_STATUS: the companion process's CPU load since the last one, the RAM used."""
+        """The companion process's CPU load since the previous report, as NAMED_VALUE_FLOAT `cpu_pct`."""
         wall, cpu = time.monotonic(), self._cpu_seconds()
         busy = 100.0 * (cpu - self._cpu[1]) / max(wall - self._cpu[0], 1e-3)
         self._cpu = (wall, cpu)
-        used, total = ram_mib()
-        cores = [min(round(busy), 100)] + [UNUSED_U8] * 7
-        self.link.mav.onboard_computer_status_send(
-            int(time.time() * 1e6), self._uptime_ms(), 0, cores, [UNUSED_U8] * 10, [UNUSED_U8] * 4,
-            [UNUSED_U8] * 10, UNUSED_I8, [UNUSED_I8] * 8, [UNUSED_I16] * 4, used, total,
-            [UNUSED_U32] * 4, [UNUSED_U32] * 4, [UNUSED_U32] * 4, [0] * 6, [UNUSED_U32] * 6,
-            [UNUSED_U32] * 6, [UNUSED_U32] * 6, [UNUSED_U32] * 6, 0,
-        )  # fmt: skip
+        self.link.mav.named_value_float_send(self._uptime_ms(), CPU_NAME.encode(), busy)
         self.sent += 1
 
     def _traffic(self, k: int, state: UavState) -> None:

@@ -178,7 +178,7 @@ class Pilot:
         self.last_position = np.array([x, y])
         self._fly(k, command, (x, y), steered)
         if self.gcs is not None:
-            self.gcs.step(k, self.agent)
+            self.gcs.step(k, self.agent, steered)
         self.last_command = command
         self.steps_done += 1
         if self.logs is not None:
