@@ -240,6 +240,7 @@ class Host:
                     self.wakeup_r.recv(4096)
                 continue
             for msg, addr in hv.endpoint.receive(time.monotonic()):
+                hv.route(msg, addr)
                 hv.handle(msg, addr)
             hv.flush()
 

@@ -33,6 +33,11 @@ RELATIVE_FRAMES = (
 )
 AMSL_FRAMES = (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT)
 SILENT = frozenset({"HEARTBEAT", "SYSTEM_TIME", "RADIO_STATUS", "MISSION_ACK"})
+# a companion's reports to the ground station: routed to the other peers (`route`), not acted on
+ROUTED_ONLY = frozenset({
+    "STATUSTEXT", "NAMED_VALUE_FLOAT", "ADSB_VEHICLE", "CAMERA_TRACKING_GEO_STATUS",
+})  # fmt: skip
+NOT_ROUTED = frozenset({M.MAVLINK_MSG_ID_RADIO, M.MAVLINK_MSG_ID_RADIO_STATUS})  # as ArduPilot: a link's own
 
 
 class HostedVehicle:
@@ -49,6 +54,7 @@ class HostedVehicle:
         self._pose: Pose | None = None
         self._stats_reported = (0, 0, 0)
         self._stats_said = -math.inf
+        self.routes: dict[int, Address] = {}  # system id -> the peer it was last heard from
 
     @property
     def t(self) -> float:
@@ -121,6 +127,26 @@ class HostedVehicle:
         return result
 
     # ---- inbound ------------------------------------------------------------------------
+    def route(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
+        """Forward what is not for this vehicle alone to its other peers, as ArduPilot routes its links.
+
+        No target system (or 0): to every other peer; another system: to the peer that system was
+        last heard from; this vehicle: kept. The frame goes as it came, its signature included.
+        """
+        self.routes[msg.get_srcSystem()] = addr
+        if msg.get_msgId() in NOT_ROUTED:
+            return
+        target = getattr(msg, "target_system", 0)
+        if target == self.vehicle.sysid:
+            return
+        if target == 0:
+            peers = [a for a in self.endpoint.peers if a != addr]
+        else:
+            to = self.routes.get(target)
+            peers = [to] if to is not None and to != addr else []
+        for peer in peers:
+            self.endpoint.forward(msg.get_msgbuf(), peer)
+
     def handle(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
         target = getattr(msg, "target_system", 0)
         if target not in (0, self.vehicle.sysid) or getattr(msg, "target_component", 0) not in (0, 1):
@@ -158,7 +184,7 @@ class HostedVehicle:
         elif kind == "TIMESYNC":
             if msg.tc1 == 0:
                 self.reply(M.MAVLink_timesync_message(round(self.t * 1e9), msg.ts1), addr)
-        elif kind not in SILENT:
+        elif kind not in SILENT and kind not in ROUTED_ONLY:
             self.stats.unhandled += 1
 
     def _position_target(self, msg: mavlink.MAVLink_message) -> None:

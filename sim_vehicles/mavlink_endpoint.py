@@ -166,5 +166,10 @@ class MavlinkEndpoint:
             with contextlib.suppress(OSError):  # a vanished peer must not stop the vehicle
                 self.sock.sendto(buf, a)
 
+    def forward(self, frame: bytes | bytearray, addr: Address) -> None:
+        """Send another sender's frame on to `addr` as it is (MAVLink routing)."""
+        with contextlib.suppress(OSError):
+            self.sock.sendto(bytes(frame), addr)
+
     def close(self) -> None:
         self.sock.close()

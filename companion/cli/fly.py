@@ -157,6 +157,13 @@ def _add_companion(sub: Subparsers) -> None:
         help="make the autopilot circle the loiter of the trajectory in force when the companion falls "
         "silent (ArduPilot's GCS failsafe; default: with --takeover)",
     )
+    co.add_argument(
+        "--gcs-reports",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="show the search to ground stations through the autopilot's links: targets, progress, "
+        "health, the peers as ADS-B traffic (docs/companion.md; default: on)",
+    )
     co.add_argument("--lockstep", action="store_true", help="step together with the simulator and the swarm")
     co.add_argument("--steps", type=step_count, default=None, help="steps to fly (default: the mission's)")
     co.add_argument("--seed", type=natural, default=None, help="target seed (default: the mission's)")

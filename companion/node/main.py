@@ -121,6 +121,7 @@ def _options(
         out=Path(args.out) if args.out else None,
         journal=journal,
         run=run,
+        gcs_reports=args.gcs_reports,
     )
     return opts, keys, secret
 

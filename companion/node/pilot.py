@@ -20,6 +20,7 @@ from companion.node.departures import Departures
 from companion.node.failsafe import FailsafeLoiter
 from companion.node.faults import InjectedFaults
 from companion.node.fence import fence_margin, fence_polygon
+from companion.node.ground_station import GroundStationFeed
 from companion.node.guidance import Guidance
 from companion.node.journal import Header, Journal, Recovered, header_of
 from companion.node.mesh import Mesh
@@ -48,6 +49,7 @@ class CompanionOptions:
     out: Path | None = None
     journal: Path | None = None  # the journal file (docs/reliability.md, "Restart without loss")
     run: str = ""  # the run identity (`keys.run_id`), kept in the journal
+    gcs_reports: bool = True  # show the search to the ground station through the autopilot (`ground_station`)
 
 
 class Pilot:
@@ -89,6 +91,7 @@ class Pilot:
         self.guard = RegionGuard(opts.uav, region, guard_fence, depth=margin, step_length=k.speed * k.step)
         self.failsafe: FailsafeLoiter | None = None  # armed: kept on the trajectory in force's loiter
         self.departures = Departures()
+        self.gcs = GroundStationFeed(link, self.frame, m, opts.uav) if opts.gcs_reports else None
         restarted = self.recovered is not None  # a restarted companion goes on with its logs
         self.logs = None if opts.out is None else RunLogs(opts.out, opts.uav, append=restarted)
 
@@ -174,6 +177,8 @@ class Pilot:
         self.mesh.publish(k, outbox, position=(x, y))
         self.last_position = np.array([x, y])
         self._fly(k, command, (x, y), steered)
+        if self.gcs is not None:
+            self.gcs.step(k, self.agent, steered)
         self.last_command = command
         self.steps_done += 1
         if self.logs is not None:

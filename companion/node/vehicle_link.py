@@ -117,6 +117,7 @@ class VehicleLink:
         self._own_system = system
         self._heartbeat = heartbeat
         self._beat_wall, self._beat_vehicle = -math.inf, -math.inf
+        self.system_status = mavlink.MAV_STATE_ACTIVE  # our HEARTBEAT's (`ground_station` sets it)
         # Called after every poll, also while a request waits for its reply: what must go on
         # meanwhile (a setpoint stream that PX4 OFFBOARD must not lose).
         self.on_poll: Callable[[], None] | None = None
@@ -204,7 +205,7 @@ class VehicleLink:
 
     def send_heartbeat(self) -> None:
         self._conn.mav.heartbeat_send(
-            mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
+            mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, self.system_status
         )
         self._beat_wall, self._beat_vehicle = time.monotonic(), self.state.time_s
 
@@ -259,7 +260,9 @@ class VehicleLink:
         s = self.state
         source = (msg.get_srcSystem(), msg.get_srcComponent())
         if s.system and source != (s.system, mavlink.MAV_COMP_ID_AUTOPILOT1):
-            if msg.get_msgId() not in UNSIGNED_ALLOWED:  # the radio's own status: not a fault
+            # not refused: the radio's own status, and the HEARTBEATs an autopilot routes from the
+            # other systems on its links (a ground station's), as ArduPilot forwards them to all
+            if msg.get_msgId() not in UNSIGNED_ALLOWED and kind != "HEARTBEAT":
                 self.wrong_system += 1
                 self.refusals.refuse("wrong system", f"system {source[0]} component {source[1]}", kind)
             return

@@ -1,0 +1,107 @@
+"""The search as a ground station connected to the autopilot (not to the companion) sees it.
+
+MAVProxy, headless, on vehicle 0's endpoint of the bundled simulator, while two companions search:
+the simulator routes the companion's reports to it as ArduPlane routes its links, and its .tlog
+must hold a STATUSTEXT and a CAMERA_TRACKING_GEO_STATUS at each target's cell for every target
+companion 0 knows, the progress and the companion's CPU load as NAMED_VALUE_FLOATs, its HEARTBEAT
+saying ACTIVE while it steers, and UAV 1 as ADSB_VEHICLE traffic at the positions it logged.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import sys
+from pathlib import Path
+
+from pymavlink import mavutil
+
+from companion.contracts.frames import LocalFrame
+from companion.core.world import build_world
+from companion.node.vehicle_link import COMPANION_COMPONENT, COMPANION_SYSTEM
+from tests.e2e.conftest import Procs, read_csv, wait_rows
+
+MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")  # installed with the test extras
+WAIT_S = 600.0  # generous: two companions, a simulator and MAVProxy on a busy 2-core machine
+TARGETS = 2  # targets companion 0 must know before the run is stopped
+TEXT = re.compile(r"UAV(\d+) target at (-?\d+\.\d+) (-?\d+\.\d+)")
+
+
+def _received(tlog: Path) -> dict[str, list]:
+    """The companion's messages in MAVProxy's .tlog, by type."""
+    log = mavutil.mavlink_connection(str(tlog))
+    kinds = ["STATUSTEXT", "CAMERA_TRACKING_GEO_STATUS", "NAMED_VALUE_FLOAT", "HEARTBEAT"]
+    out: dict[str, list] = {k: [] for k in [*kinds, "ADSB_VEHICLE"]}
+    while (msg := log.recv_match(type=list(out))) is not None:
+        if (msg.get_srcSystem(), msg.get_srcComponent()) == (COMPANION_SYSTEM, COMPANION_COMPONENT):
+            out[msg.get_type()].append(msg)
+    return out
+
+
+def test_mavproxy_on_the_autopilot_sees_the_search(make_mission, procs: Procs, tmp_path: Path) -> None:
+    mission = make_mission(n=2)
+    m = mission.mission
+    out = tmp_path / "out"
+    procs.sim(mission, "--speedup", "10")
+    gcs_dir = tmp_path / "mavproxy"
+    gcs_dir.mkdir()
+    tlog = gcs_dir / "gcs.tlog"
+    proxy = procs.start(
+        "mavproxy",
+        [MAVPROXY, f"--master=udpout:127.0.0.1:{mission.ports[0]}", "--daemon", "--state-basedir",
+         str(gcs_dir), "--logfile", str(tlog)],
+        cwd=gcs_dir,
+    )  # fmt: skip
+    proxy.wait_for_text("Mode ", timeout=WAIT_S)  # it hears the vehicle: the simulator knows it
+    comps = [procs.companion(mission, i, out, "--takeover", "--steps", "5000") for i in range(2)]
+    wait_rows(out / "uav0.csv", 1, comps[0], timeout=WAIT_S, cond=lambda r: r["found"] >= TARGETS)
+    for comp in comps:
+        assert comp.stop() == 0, comp.text()
+    assert proxy.alive(), proxy.text()
+    proxy.stop(timeout=15)
+    assert "Traceback" not in proxy.text(), proxy.text()
+    got = _received(tlog)
+
+    # every target companion 0 knows: a STATUSTEXT and a CAMERA_TRACKING_GEO_STATUS at its cell
+    report = json.loads((out / "uav0.json").read_text())
+    # MAVProxy's HEARTBEATs (one a second), routed to the companion, are not refused; its first
+    # REQUEST_DATA_STREAM to every system is, as on ArduPlane SITL
+    assert report["mavlink_wrong_system"] <= 3, report["refused"]
+    found = report["found_cells"]
+    assert len(found) >= TARGETS
+    world, frame = build_world(m, m.seed, 0), LocalFrame(m.region.origin)
+    texts = [TEXT.fullmatch(t.text) for t in got["STATUSTEXT"]]
+    said = [(float(t[2]), float(t[3])) for t in texts if t is not None and t[1] == "0"]
+    plotted = [(g.lat * 1e-7, g.lon * 1e-7) for g in got["CAMERA_TRACKING_GEO_STATUS"]]
+    for cell in found:
+        lat, lon, _ = frame.to_geodetic(*map(float, world.grid.centres[cell]))
+        assert any(abs(a - lat) < 2e-6 and abs(b - lon) < 2e-6 for a, b in said), (cell, said)
+        assert any(abs(a - lat) < 2e-7 and abs(b - lon) < 2e-7 for a, b in plotted), (cell, plotted)
+    assert len(said) == len(plotted) == len(found), (said, plotted, found)
+
+    # the progress, once a step: every name, and the targets found counted up to the last
+    values: dict[str, list[float]] = {}
+    for msg in got["NAMED_VALUE_FLOAT"]:
+        values.setdefault(msg.name, []).append(msg.value)
+    assert set(values) == {"coverage", "mean_eta", "found", "p_unfound", "cpu_pct"}, values.keys()
+    assert max(values["found"]) == len(found)
+    assert 0 < max(values["coverage"]) <= 1 and 0 < min(values["mean_eta"]) <= 1
+    assert all(0 <= p <= 1 for p in values["p_unfound"]) and values["p_unfound"][-1] < values["p_unfound"][0]
+
+    # the companion's health: its HEARTBEAT, ACTIVE while it steers, and its CPU load
+    beats = got["HEARTBEAT"]
+    assert all(b.type == mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER for b in beats)
+    assert any(b.system_status == mavutil.mavlink.MAV_STATE_ACTIVE for b in beats), len(beats)
+    assert all(0 <= c <= 200 for c in values["cpu_pct"])  # two cores: a process may use more than one
+
+    # UAV 1 as traffic, where it logged itself, at its layer
+    traffic = got["ADSB_VEHICLE"]
+    assert traffic, "no ADSB_VEHICLE"
+    rows = read_csv(out / "uav1.csv")
+    alt = m.region.origin.alt + m.altitude_of(1)
+    for msg in traffic:
+        assert msg.callsign == "UAV1" and msg.emitter_type == mavutil.mavlink.ADSB_EMITTER_TYPE_UAV
+        assert abs(msg.altitude * 1e-3 - alt) < 0.01 and msg.tslc <= 10
+        x, y = frame.to_local(msg.lat * 1e-7, msg.lon * 1e-7)
+        assert min(math.hypot(x - r["x"], y - r["y"]) for r in rows) < 0.5, (x, y)

@@ -1,0 +1,106 @@
+"""ArduPlane SITL routes the companion's reports to a ground station on another of its links.
+
+One instance on the ground (ADS-B on: ADSB_TYPE 1, AVD_* untouched): the companion's link on SERIAL1
+(system 200, as `uavsearch companion` speaks) sends what `GroundStationFeed` sends each step, for
+two known targets and one peer; MAVProxy on SERIAL2 must see every kind of message from the
+companion, and the peer in ArduPlane's own ADS-B list (ADSB_VEHICLE from the autopilot itself).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from pathlib import Path
+
+from pymavlink import mavutil
+
+from companion.app import sitl
+from companion.contracts.frames import LocalFrame
+from companion.core.agent import Agent
+from companion.core.messages import UavState
+from companion.core.world import build_world
+from companion.node.ground_station import GroundStationFeed
+from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink, open_link
+from tests.e2e.conftest import Proc
+from tests.sitl.conftest import GCS_COMPONENT, STARTUP_S, write_mission
+
+MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")
+STEPS = 15
+
+
+def _drain(link: VehicleLink, stop: threading.Event) -> None:
+    while not stop.is_set():
+        link.poll(0.2)
+
+
+def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, tmp_path: Path) -> None:
+    mission = write_mission(tmp_path, n=2)
+    m, ports = mission.mission, mission.ports(0)
+    frame = LocalFrame(m.region.origin)
+    home = tmp_path / "sitl0"
+    home.mkdir()
+    extra = tmp_path / "adsb.parm"
+    extra.write_text("ADSB_TYPE 1\n")
+    argv = sitl.sitl_argv(sitl_binary, sitl.find_defaults(sitl_binary), m, 0, 1.0)
+    argv[argv.index("--defaults") + 1] += f",{extra}"
+    proc = Proc("sitl0", argv, home / "out.log", cwd=home, stop_signal=sitl.STOP_SIGNAL)
+    stop = threading.Event()
+    links: list[VehicleLink] = []
+    proxy = None
+    try:
+        gone = lambda: not proc.alive()  # noqa: E731
+        # SERIAL0: SITL's clock starts when a client connects there (the camera's port in a run)
+        serial0 = open_link(ports.url(ports.serial0), frame, STARTUP_S, gone, component=GCS_COMPONENT)
+        assert serial0 is not None and serial0.wait_heartbeat(STARTUP_S, gone), proc.text()
+        links.append(serial0)
+        threading.Thread(target=_drain, args=(serial0, stop), daemon=True).start()
+        gcs_dir = tmp_path / "mavproxy"
+        gcs_dir.mkdir()
+        tlog = gcs_dir / "gcs.tlog"
+        proxy = Proc(
+            "mavproxy",
+            [MAVPROXY, f"--master={ports.url(ports.serial2)}", "--daemon", "--state-basedir", str(gcs_dir),
+             "--logfile", str(tlog)],
+            tmp_path / "mavproxy.log", cwd=gcs_dir,
+        )  # fmt: skip
+        proxy.wait_for_text("Mode ", timeout=STARTUP_S)
+        companion = open_link(
+            ports.url(ports.serial1), frame, STARTUP_S, gone, system=COMPANION_SYSTEM, heartbeat=True
+        )
+        assert companion is not None and companion.wait_heartbeat(STARTUP_S, gone)
+        links.append(companion)
+        agent = Agent(build_world(m, m.seed, 0), 0)
+        agent.found = {10, 20}
+        v = m.vehicles[1]
+        feed = GroundStationFeed(companion, frame, m, 0)
+        for k in range(STEPS):
+            agent.peers = {1: UavState(1, k, v.x, v.y + 20.0 * k, 1.5708, ())}
+            feed.step(k + 1, agent, steered=True)
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                companion.poll(0.1)
+        proxy.stop(timeout=15)
+    finally:
+        stop.set()
+        if proxy is not None:
+            proxy.stop(timeout=15)
+        for link in links:
+            link.close()
+        proc.stop()
+
+    seen: dict[tuple[int, str], list] = {}
+    log = mavutil.mavlink_connection(str(tlog))
+    while (msg := log.recv_match()) is not None:
+        seen.setdefault((msg.get_srcSystem(), msg.get_type()), []).append(msg)
+    kinds = ("STATUSTEXT", "CAMERA_TRACKING_GEO_STATUS", "NAMED_VALUE_FLOAT", "ADSB_VEHICLE", "HEARTBEAT")
+    for kind in kinds:
+        assert (COMPANION_SYSTEM, kind) in seen, (kind, sorted(seen))
+    targets = [t.text for t in seen[(COMPANION_SYSTEM, "STATUSTEXT")] if "target at" in t.text]
+    assert len(targets) == 2, targets
+    names = {n.name for n in seen[(COMPANION_SYSTEM, "NAMED_VALUE_FLOAT")]}
+    assert names == {"coverage", "mean_eta", "found", "p_unfound", "cpu_pct"}, names
+    beats = seen[(COMPANION_SYSTEM, "HEARTBEAT")]
+    assert any(b.system_status == mavutil.mavlink.MAV_STATE_ACTIVE for b in beats)
+    listed = [a for a in seen.get((1, "ADSB_VEHICLE"), []) if a.callsign == "UAV1"]
+    assert listed, f"UAV1 not in ArduPlane's ADS-B list; it sent {len(seen.get((1, 'ADSB_VEHICLE'), []))}"
