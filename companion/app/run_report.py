@@ -179,10 +179,10 @@ def _print_tracking(
 ) -> None:
     """Plan against flight (tracking.json), and what a secured swarm's companions refused."""
     p, h = flight.position_m, flight.heading_deg
-    if p["median"] is not None:
+    if p.median is not None and p.p95 is not None and h.median is not None and h.p95 is not None:
         print(
-            f"plan vs flight ({opts.mode}): position error median {p['median']:.1f} m, p95 {p['p95']:.1f} m; "
-            f"heading error median {h['median']:.1f} deg, p95 {h['p95']:.1f} deg; "
+            f"plan vs flight ({opts.mode}): position error median {p.median:.1f} m, p95 {p.p95:.1f} m; "
+            f"heading error median {h.median:.1f} deg, p95 {h.p95:.1f} deg; "
             f"{flight.outside_fence} logged poses outside the fence"
         )
     if mission.secured and refused:

@@ -10,10 +10,10 @@ a restarted companion go on without loss (docs/reliability.md, "Restart without 
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
-from dataclasses import asdict
+
+import msgspec
 
 from companion.contracts.detections import camera_key
 from companion.contracts.mission import Mission
@@ -25,6 +25,7 @@ from companion.node.mesh import Mesh
 from companion.node.pilot import CompanionOptions, Pilot
 from companion.node.preflight import Preflight
 from companion.node.realtime import RealtimeLoop
+from companion.node.report import CompanionReport
 from companion.node.vehicle_link import VEHICLE_WAIT_S, VehicleLink
 from companion.node.watch import VehicleWatch
 
@@ -81,33 +82,33 @@ class Companion:
             fly_out(self.pilot, self.loop, stopped=stop.is_set(), abort=abort)
         return 0
 
-    def report(self) -> dict[str, object]:
+    def report(self) -> CompanionReport:
         """The companion's end-of-run record (what it learned, what it dropped)."""
         pilot, link, preflight = self.pilot, self.link, self.preflight
-        return {
-            "uav": self.opts.uav,
-            "steps": pilot.steps_done,
-            "found_cells": sorted(int(c) for c in pilot.agent.found),
-            "task": pilot.agent.task,
-            "rejected_mavlink": link.rejected,
-            "mavlink_signed": link.signing.enabled,
-            "mavlink_unauthenticated": link.unauthenticated,
-            "mavlink_wrong_system": link.wrong_system,
-            "refused": {"mesh": self.mesh.refusals.summary(), "mavlink": link.refusals.summary()},
-            "rejected_camera": self.camera.rejected,
-            "mesh": asdict(self.mesh.stats),
-            "plan_vs_flight": pilot.tracker.summary(),
-            "command_mode": self.opts.command_mode,
-            "airframe_warnings": preflight.airframe_warnings,
-            "fence_uploaded": preflight.fence_uploaded,
-            "failsafe_armed": pilot.failsafe is not None,
-            "failsafe_uploads": pilot.failsafe.uploads if pilot.failsafe is not None else 0,
-            "fence_exits": pilot.guard.exits,
-            "guard": pilot.guard.state.value,
-            "restarted_from_step": pilot.journaled,
-            "fault_dropped": pilot.faults.dropped,
-            "journal_records": None if pilot.journal is None else pilot.journal.records,
-        }
+        return CompanionReport(
+            uav=self.opts.uav,
+            steps=pilot.steps_done,
+            found_cells=sorted(int(c) for c in pilot.agent.found),
+            task=pilot.agent.task,
+            rejected_mavlink=link.rejected,
+            mavlink_signed=link.signing.enabled,
+            mavlink_unauthenticated=link.unauthenticated,
+            mavlink_wrong_system=link.wrong_system,
+            refused={"mesh": self.mesh.refusals.summary(), "mavlink": link.refusals.summary()},
+            rejected_camera=self.camera.rejected,
+            mesh=self.mesh.stats,
+            plan_vs_flight=pilot.tracker.summary(),
+            command_mode=self.opts.command_mode,
+            airframe_warnings=preflight.airframe_warnings,
+            fence_uploaded=preflight.fence_uploaded,
+            failsafe_armed=pilot.failsafe is not None,
+            failsafe_uploads=pilot.failsafe.uploads if pilot.failsafe is not None else 0,
+            fence_exits=pilot.guard.exits,
+            guard=pilot.guard.state.value,
+            restarted_from_step=pilot.journaled,
+            fault_dropped=pilot.faults.dropped,
+            journal_records=None if pilot.journal is None else pilot.journal.records,
+        )
 
     def close(self) -> None:
         """Close the journal and the logs, and write the report (`uav<N>.json`) next to them."""
@@ -117,5 +118,5 @@ class Companion:
             self.pilot.logs.close()
         if self.opts.out is not None:
             path = self.opts.out / f"uav{self.opts.uav}.json"
-            path.write_text(json.dumps(self.report(), indent=2) + "\n")
+            path.write_bytes(msgspec.json.format(msgspec.json.encode(self.report()), indent=2) + b"\n")
             log.info("uav %d: %d steps flown; report in %s", self.opts.uav, self.pilot.steps_done, path)

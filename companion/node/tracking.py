@@ -14,8 +14,8 @@ import math
 from collections import deque
 from dataclasses import dataclass
 from enum import Enum
-from typing import TypedDict
 
+import msgspec
 import numpy as np
 
 from companion.core.geometry import ConvexPolygon
@@ -38,19 +38,16 @@ class PlanError:
     heading_deg: float
 
 
-class Percentiles(TypedDict):
-    """The median, 95th percentile and maximum of a series of errors (None: no error measured).
-
-    A TypedDict, not a Struct: it goes into the companion's report (uav{i}.json), which
-    `companion.node.process` writes with `json.dumps`."""
+class Percentiles(msgspec.Struct, frozen=True):
+    """The median, 95th percentile and maximum of a series of errors (None: no error measured)."""
 
     median: float | None
     p95: float | None
     max: float | None
 
 
-class PlanSummary(TypedDict):
-    """One UAV's plan versus flight (the "plan_vs_flight" of its report; a TypedDict as `Percentiles`)."""
+class PlanSummary(msgspec.Struct, frozen=True):
+    """One UAV's plan versus flight (the "plan_vs_flight" of its report)."""
 
     steps: int
     missed: int
@@ -63,9 +60,9 @@ class PlanSummary(TypedDict):
 def percentiles(values: list[float]) -> Percentiles:
     """The `Percentiles` of `values`."""
     if not values:
-        return {"median": None, "p95": None, "max": None}
+        return Percentiles(None, None, None)
     a = np.asarray(values)
-    return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": float(a.max())}
+    return Percentiles(float(np.median(a)), float(np.percentile(a, 95)), float(a.max()))
 
 
 class PlanTracker:
@@ -136,14 +133,14 @@ class PlanTracker:
 
     def summary(self) -> PlanSummary:
         """The figures of the errors measured so far, for the companion's report."""
-        return {
-            "steps": len(self.errors),
-            "missed": self.missed,
-            "bound_m": self.bound_m,
-            "warnings": self.warnings,
-            "position_m": percentiles([e.position_m for e in self.errors]),
-            "heading_deg": percentiles([e.heading_deg for e in self.errors]),
-        }
+        return PlanSummary(
+            steps=len(self.errors),
+            missed=self.missed,
+            bound_m=self.bound_m,
+            warnings=self.warnings,
+            position_m=percentiles([e.position_m for e in self.errors]),
+            heading_deg=percentiles([e.heading_deg for e in self.errors]),
+        )
 
 
 class Guard(Enum):

@@ -74,7 +74,7 @@ def test_plan_versus_flight() -> None:
         tracker.measure(2.0 * k, 100.0, 0.0, 0.0)
     assert tracker.warnings == 1
     summary = tracker.summary()
-    assert summary["steps"] == 5 and summary["position_m"]["max"] == pytest.approx(100.0)
+    assert summary.steps == 5 and summary.position_m.max == pytest.approx(100.0)
 
 
 def test_region_guard_repositions_then_releases() -> None:
