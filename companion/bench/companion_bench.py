@@ -18,19 +18,34 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import msgspec
 
-from companion.bench.cpu_usage import machine_load
+from companion.bench.cpu_usage import MachineLoad, machine_load
 from companion.bench.signing_cost import SigningCost, signing_cost
 from companion.bench.swarm_missions import DEFAULT_MISSION, bench_mission
+from companion.bench.trial_figures import SwarmSearch, TrialSummary
 from companion.bench.trials import format_latency, search, summarize, trial
 from companion.bench.uav_worker import viewer_main, worker_main
 from companion.bench.worker_pool import Pool
 from companion.contracts.arguments import HelpFormatter
 from companion.contracts.mission import Mission
 from companion.core.feasibility import load_mission
+
+
+class CompanionBenchReport(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
+    """Every figure of a run (`--json`); the parts left out (--skip-*, no --viewer/--secured) absent.
+
+    `realtime` maps "mode@period" to that search."""
+
+    machine: MachineLoad
+    argv: list[str]
+    latency: TrialSummary | None = None
+    latency_with_viewer: TrialSummary | None = None
+    latency_secured: TrialSummary | None = None
+    signing_cost: SigningCost | None = None
+    realtime: dict[str, SwarmSearch] | None = None
+    elapsed_s: float
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -69,7 +84,7 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _latency(pool: Pool, base: Mission, steps: int, tmp: Path, tag: str) -> dict[str, Any]:
+def _latency(pool: Pool, base: Mission, steps: int, tmp: Path, tag: str) -> TrialSummary:
     """The lockstep run of the mission's own UAVs on a peer mesh: its summary."""
     mission = bench_mission(base, None, "peer", f"{tag}lat")
     s = summarize(trial(pool, mission, steps, 0.0, tmp))
@@ -82,21 +97,22 @@ def _latency(pool: Pool, base: Mission, steps: int, tmp: Path, tag: str) -> dict
     return s
 
 
-def _latency_with_viewer(pool: Pool, base: Mission, steps: int, tmp: Path, tag: str) -> dict[str, Any]:
+def _latency_with_viewer(pool: Pool, base: Mission, steps: int, tmp: Path, tag: str) -> TrialSummary:
     """The lockstep run again with the view's live server (and a headless Chromium) on the mesh."""
     mission = bench_mission(base, None, "peer", f"{tag}latv")
     s = summarize(trial(pool, mission, steps, 0.0, tmp, viewer=True))
-    v = s["viewer"]
+    v = s.viewer
+    assert v is not None
     print(
         "the same with a viewer attached (uavsearch view's live server"
-        f"{' + headless Chromium on its page' if v['browser'] else ''}):",
+        f"{' + headless Chromium on its page' if v.browser else ''}):",
         flush=True,
     )
     print("\n".join(format_latency(s)), flush=True)
     print(
-        f"  viewer: {v['cpu_ms_per_step']:.2f} ms of CPU per step ({v['cores']:.2f} cores),"
-        f" {v['received']} bundles received,"
-        f" step {v['step']} drawn last, {v['malformed']} malformed, {v['late']} late",
+        f"  viewer: {v.cpu_ms_per_step:.2f} ms of CPU per step ({v.cores:.2f} cores),"
+        f" {v.received} bundles received,"
+        f" step {v.step} drawn last, {v.malformed} malformed, {v.late} late",
         flush=True,
     )
     return s
@@ -104,7 +120,7 @@ def _latency_with_viewer(pool: Pool, base: Mission, steps: int, tmp: Path, tag: 
 
 def _latency_secured(
     pool: Pool, base: Mission, steps: int, tmp: Path, tag: str
-) -> tuple[dict[str, Any], SigningCost]:
+) -> tuple[TrialSummary, SigningCost]:
     """The lockstep run again on a secured mesh (keys made for it), and the signing cost per bundle."""
     from companion.contracts.keys import generate
 
@@ -114,7 +130,7 @@ def _latency_secured(
     s = summarize(trial(pool, mission, steps, 0.0, tmp))
     print(
         "the same on a secured mesh (mutual TLS, access control, Ed25519-signed bundles"
-        f" checked on receipt); {s['received']} bundles received, {s['rejected']} rejected:",
+        f" checked on receipt); {s.received} bundles received, {s.rejected} rejected:",
         flush=True,
     )
     print("\n".join(format_latency(s)), flush=True)
@@ -137,15 +153,15 @@ def _realtime(
     periods: list[float],
     tmp: Path,
     tag: str,
-) -> dict[str, Any]:
-    """The largest real-time swarm of every mode at every period: {"mode@period": figures}."""
-    found: dict[str, Any] = {}
+) -> dict[str, SwarmSearch]:
+    """The largest real-time swarm of every mode at every period: {"mode@period": its search}."""
+    found: dict[str, SwarmSearch] = {}
     for p in periods:
         for mode in modes:
             best, rows = search(pool, base, mode, sizes, steps, p, tmp, tag)
-            found[f"{mode}@{p:g}"] = {"largest": best, "trials": rows}
+            found[f"{mode}@{p:g}"] = SwarmSearch(largest=best, trials=rows)
     print(
-        "largest real-time swarm: " + ", ".join(f"{k}s {v['largest']}" for k, v in found.items()),
+        "largest real-time swarm: " + ", ".join(f"{k}s {v.largest}" for k, v in found.items()),
         flush=True,
     )
     return found
@@ -176,7 +192,9 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
         f"{'default' if args.default_runtime else 'lean (1 app + 1 tx thread)'} in the UAV processes",
         flush=True,
     )
-    report: dict[str, Any] = {"machine": load, "argv": list(argv or [])}
+    latency = viewed = secured = None
+    cost: SigningCost | None = None
+    realtime: dict[str, SwarmSearch] | None = None
     pool = Pool(lean_runtime=not args.default_runtime)
     started = time.monotonic()
     try:
@@ -184,20 +202,27 @@ def bench_main(argv: Sequence[str] | None = None) -> int:
             tag = f"q{int(time.time()) % 100000}"
             steps = args.latency_steps
             if not args.skip_latency:
-                report["latency"] = _latency(pool, base, steps, Path(tmp), tag)
+                latency = _latency(pool, base, steps, Path(tmp), tag)
                 if args.viewer:
-                    report["latency_with_viewer"] = _latency_with_viewer(pool, base, steps, Path(tmp), tag)
+                    viewed = _latency_with_viewer(pool, base, steps, Path(tmp), tag)
                 if args.secured:
-                    report["latency_secured"], report["signing_cost"] = _latency_secured(
-                        pool, base, steps, Path(tmp), tag
-                    )
+                    secured, cost = _latency_secured(pool, base, steps, Path(tmp), tag)
             if not args.skip_realtime:
                 periods = [period] + ([args.stress_period] if args.stress_period > 0 else [])
-                report["realtime"] = _realtime(pool, base, modes, sizes, args.steps, periods, Path(tmp), tag)
+                realtime = _realtime(pool, base, modes, sizes, args.steps, periods, Path(tmp), tag)
     finally:
         pool.close()
-    report["elapsed_s"] = time.monotonic() - started
-    print(f"benchmark took {report['elapsed_s']:.0f} s", flush=True)
+    report = CompanionBenchReport(
+        machine=load,
+        argv=list(argv or []),
+        latency=latency,
+        latency_with_viewer=viewed,
+        latency_secured=secured,
+        signing_cost=cost,
+        realtime=realtime,
+        elapsed_s=time.monotonic() - started,
+    )
+    print(f"benchmark took {report.elapsed_s:.0f} s", flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(msgspec.to_builtins(report), indent=1) + "\n")
     return 0

@@ -13,7 +13,7 @@ import os
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,10 +21,33 @@ import msgspec
 import numpy as np
 
 from companion.contracts.mission import Mission
+from companion.node.mesh import MeshStats
 
 TAG = "@@bench "  # prefix of the workers' protocol lines on stdout
 ALIVE_S = 120.0  # how long a worker waits to see every peer's liveliness token
 PEER_WAIT_S = 30.0  # lockstep: how long a step waits for the peers' bundles
+
+
+class WorkerReady(msgspec.Struct, frozen=True):
+    """A worker's "ready" reply: the peers it did not see alive, and the seconds `open` took."""
+
+    missing: list[int]
+    open_s: float
+
+
+class UavRun(msgspec.Struct, frozen=True):
+    """A worker's "result" reply: one UAV's timed steps.
+
+    Per step the milliseconds of (inbox, agent, publish, mavlink) and the lag behind its scheduled
+    start; the peers' bundles not yet held at a step's start; CPU and wall seconds; mesh counters."""
+
+    uav: int
+    phases_ms: list[list[float]]
+    lag_ms: list[float]
+    missing: int
+    cpu_s: float
+    wall_s: float
+    stats: MeshStats
 
 
 class UavCompanion:
@@ -122,7 +145,9 @@ def warm_up(mission: Mission, uav: int) -> None:
 
 
 
-def run_steps(uav: UavCompanion, mesh: Any, peers: set[int], steps: int, period: float, start: float) -> dict:
+def run_steps(
+    uav: UavCompanion, mesh: Any, peers: set[int], steps: int, period: float, start: float
+) -> UavRun:
     """The timed loop: lockstep when period == 0, else one step every `period` s from `start`."""
     phases = np.zeros((steps, 4))
     lag = np.zeros(steps)
@@ -141,15 +166,15 @@ def run_steps(uav: UavCompanion, mesh: Any, peers: set[int], steps: int, period:
         phases[k] = uav.step(mesh, k)
         lag[k] = time.time() - due
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
-    return {
-        "uav": uav.uav,
-        "phases_ms": (phases * 1e3).round(4).tolist(),
-        "lag_ms": (lag * 1e3).round(4).tolist(),
-        "missing": missing,
-        "cpu_s": cpu,
-        "wall_s": wall,
-        "stats": asdict(mesh.stats),
-    }
+    return UavRun(
+        uav=uav.uav,
+        phases_ms=(phases * 1e3).round(4).tolist(),
+        lag_ms=(lag * 1e3).round(4).tolist(),
+        missing=missing,
+        cpu_s=cpu,
+        wall_s=wall,
+        stats=replace(mesh.stats),  # a snapshot: the mesh keeps counting
+    )
 
 
 def reply(**fields: object) -> None:
@@ -182,11 +207,12 @@ def worker_main(argv: Sequence[str] | None = None) -> int:
                 mesh = Mesh(mission, cmd["uav"], uav.world.grid.n_cells, n_tasks, keys=keys)
                 peers = set(range(mission.n_uavs)) - {cmd["uav"]}
                 absent = mesh.wait_alive(peers, ALIVE_S)
-                reply(op="ready", missing=sorted(absent), open_s=time.perf_counter() - started)
+                ready = WorkerReady(missing=sorted(absent), open_s=time.perf_counter() - started)
+                reply(op="ready", **msgspec.to_builtins(ready))
             elif op == "go":
                 assert mesh is not None and uav is not None
                 result = run_steps(uav, mesh, peers, spec["steps"], spec["period"], cmd["start"])
-                reply(op="result", **result)
+                reply(op="result", **msgspec.to_builtins(result))
             elif op == "close":
                 if mesh is not None:
                     mesh.close()

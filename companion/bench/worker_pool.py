@@ -17,6 +17,9 @@ import time
 import urllib.request
 from pathlib import Path
 
+import msgspec
+
+from companion.app.view.live import ListenerStatus
 from companion.bench.cpu_usage import proc_cpu_s, tree_cpu_s
 from companion.bench.uav_worker import TAG
 
@@ -37,6 +40,12 @@ CHROMIUM_FLAGS = (
     "--disable-component-update",
     "--disable-sync",
 )
+
+
+class ViewerStatus(ListenerStatus, frozen=True):
+    """The view server's /api/status: its listener's counters and the number of pages connected."""
+
+    pages: int
 
 
 class Viewer:
@@ -72,16 +81,17 @@ class Viewer:
                 stderr=subprocess.DEVNULL,
             )
 
-    def status(self) -> dict:
+    def status(self) -> ViewerStatus:
+        """The view server's counters (/api/status)."""
         with urllib.request.urlopen(self.url + "api/status", timeout=10) as r:
-            return json.load(r)
+            return msgspec.json.decode(r.read(), type=ViewerStatus)
 
-    def wait_attached(self, n: int, timeout: float) -> dict:
+    def wait_attached(self, n: int, timeout: float) -> ViewerStatus:
         """Until the server sees all n UAVs alive and (with a browser) the page is connected."""
         deadline = time.monotonic() + timeout
         while True:
             s = self.status()
-            if len(s["alive"]) == n and (self.browser is None or s["pages"] >= 1):
+            if len(s.alive) == n and (self.browser is None or s.pages >= 1):
                 return s
             if time.monotonic() > deadline:
                 raise RuntimeError(f"viewer not attached within {timeout:.0f} s: {s}")

@@ -9,9 +9,11 @@ import json
 import os
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from companion.bench.companion_bench import bench_main
+from companion.bench.trial_figures import Spread, TrialSummary
 from companion.bench.trials import realtime_verdict
 
 
@@ -49,20 +51,37 @@ def test_quick_run_prints_and_returns_the_figures(tmp_path: Path, capsys: pytest
     assert _own_children() <= before  # every worker and router stopped
 
 
+def _summary(**figures: object) -> TrialSummary:
+    """A 4-UAV trial's summary at T = 2 s that passes, with `figures` replaced."""
+    spread = Spread(p50=1.0, p99=2.0, max=3.0)
+    ok = TrialSummary(
+        n=4,
+        mode="peer",
+        period_s=2.0,
+        steps=10,
+        per_uav=[],
+        latency_ms=spread,
+        lag_ms=Spread(p50=100.0, p99=900.0, max=1000.0),
+        overruns=0,
+        missing=1,
+        expected=100,
+        absent_at_start=0,
+        stale=0,
+        lost=0,
+        malformed=0,
+        rejected=0,
+        received=108,
+        swarm_cores=0.5,
+        router_cores=0.0,
+        machine_busy_cores=1.0,
+        viewer=None,
+    )
+    return msgspec.structs.replace(ok, **figures)
+
+
 def test_verdict_names_each_failed_condition() -> None:
-    ok = {
-        "period_s": 2.0,
-        "expected": 100,
-        "absent_at_start": 0,
-        "overruns": 0,
-        "lag_ms": {"p99": 900.0},
-        "missing": 1,
-        "stale": 0,
-        "malformed": 0,
-        "lost": 0,
-    }
-    assert realtime_verdict(ok) == (True, "ok")
-    bad = {**ok, "overruns": 2, "lag_ms": {"p99": 1100.0}, "missing": 5}
+    assert realtime_verdict(_summary()) == (True, "ok")
+    bad = _summary(overruns=2, lag_ms=Spread(p50=100.0, p99=1100.0, max=2100.0), missing=5)
     passed, why = realtime_verdict(bad)
     assert not passed
     assert "2 overruns" in why and "lag p99" in why and "5 late bundles" in why
