@@ -10,7 +10,8 @@ from pathlib import Path
 import msgspec
 
 from companion.cli.options import Subparsers, add_executor_arguments
-from companion.contracts.arguments import count, natural, step_count
+from companion.contracts.arguments import count, mission_argument, names, natural, step_count
+from companion.contracts.mission import ALGORITHMS
 from companion.core.feasibility import load_mission
 
 CLUSTER_NEEDS = (
@@ -134,6 +135,37 @@ def register(sub: Subparsers) -> None:
     cl.add_argument("--seed", type=natural, default=1, help="the first run's seed")
     cl.add_argument("--json", default=None, help="also write the rows to this JSON file (default: none)")
     cl.set_defaults(func=_cluster_bench)
+
+
+def _scaling_bench(args: argparse.Namespace) -> int:
+    """`uavsearch scaling-bench`: CPU per step against the swarm's size, printed, plotted and saved."""
+    from companion.bench.swarm_scaling import format_scaling, measure, plot_scaling
+
+    sizes = [int(n) for n in args.sizes.split(",") if n.strip()]
+    if not sizes or min(sizes) < 1:
+        raise ValueError(f"--sizes {args.sizes!r}: give swarm sizes of at least 1, e.g. 4,8,16,32")
+    result = measure(load_mission(args.mission), sizes, args.algorithms, args.steps)
+    print(format_scaling(result))
+    if args.out is not None:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "scaling.json").write_bytes(msgspec.json.format(msgspec.json.encode(result), indent=2) + b"\n")
+        plot_scaling(result, out / "scaling.png")
+        print(f"wrote {out / 'scaling.json'} and {out / 'scaling.png'}")
+    return 0
+
+
+def register_scaling(sub: Subparsers) -> None:
+    """Add `scaling-bench` to the subcommands."""
+    sc = sub.add_parser("scaling-bench", help="CPU per step of the batch engine against the swarm's size")
+    mission_argument(sc, required=False, default="mission_files/scenario1.toml")
+    sc.add_argument("--sizes", default="4,8,16,32", help="swarm sizes, e.g. 4,8,16,32")
+    sc.add_argument("--algorithms", type=names(ALGORITHMS), default="proposed", help="e.g. proposed,no-ta")
+    sc.add_argument("--steps", type=step_count, default=300, help="sampling moments per run")
+    sc.add_argument(
+        "--out", default=None, help="also write scaling.json and scaling.png here (default: none)"
+    )
+    sc.set_defaults(func=_scaling_bench)
 
 
 def register_passthrough(sub: Subparsers) -> None:

@@ -22,6 +22,7 @@ GROUPS = (
     heldout.register,
     reliability.register,
     fly.register,
+    bench.register_scaling,
     bench.register_passthrough,
     area.register,
     export.register,
