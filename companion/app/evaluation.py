@@ -19,7 +19,7 @@ import numpy as np
 
 from companion.batch.engine import RunResult, Scorer
 from companion.contracts.mission import Mission
-from companion.core.geometry import ConvexPolygon
+from companion.core.search_area import region_hull
 from companion.core.world import World
 from companion.node.fence import fence_margin, fence_polygon
 from companion.node.tracking import Percentiles, percentiles
@@ -265,7 +265,7 @@ def flight_report(
         position += p
         heading += h
         per_uav[i] = UavTracking(len(rows), percentiles(p), percentiles(h))
-    region = ConvexPolygon.from_vertices(mission.region.polygon)
+    region = region_hull(mission)
     fence = fence_polygon(mission)
     poses = np.array([(r["x"], r["y"]) for rows in logs.values() for r in rows.values()]).reshape(-1, 2)
     beyond = (poses @ region.normals.T - region.offsets).max(axis=1) if len(poses) else np.zeros(0)

@@ -20,6 +20,7 @@ from companion.core.agent import Agent, Observation
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance, pairwise_distances
 from companion.core.messages import Message, decode, encode
 from companion.core.prior import draw_targets
+from companion.core.search_area import keepout_entries, keepout_pieces
 from companion.core.trajectory import segment_clearance, step_pose
 from companion.core.uncertainty import global_average_uncertainty, mark_seen
 from companion.core.world import Stream, World, build_world, instance_rng
@@ -49,6 +50,10 @@ class RunResult:
     trajectory: np.ndarray | None = None  # (steps, N, 3): x, y, heading
     tasks: np.ndarray | None = None  # (steps, N) task held after each step (-1 none)
     rejected_messages: int = 0
+    # chords between consecutive sampling points, per UAV, entering a no-fly zone inflated by
+    # safety.margin or leaving a non-convex region's margin (`search_area.keepout_pieces`); None
+    # for a convex region without zones
+    keepout_entries: int | None = None
     extras: dict = field(default_factory=dict)
 
     def target_times(self) -> np.ndarray:
@@ -138,6 +143,10 @@ class Scorer:
         self.n_covered = 0
         self.unc, self.found, self.cov, self.lam, self.mind = (np.zeros(steps) for _ in range(5))
         self.approach = np.full(steps, np.inf)
+        m = world.mission
+        self.keepout = keepout_pieces(m, world.grid.region, m.safety.margin, 0.0)
+        self.entries = 0
+        self._before: np.ndarray | None = None
 
     def record(self, k: int, positions: np.ndarray, uncertainty: float = math.nan) -> np.ndarray:
         """Score the UAVs at `positions` at step k; returns which UAV sees which target (eq. 3).
@@ -156,6 +165,9 @@ class Scorer:
             m.comms.range,
         )
         self.n_covered += new
+        if self._before is not None and self.keepout.shape[0]:
+            self.entries += keepout_entries(self._before, positions, self.keepout)
+        self._before = np.array(positions[:, :2], dtype=float)
         self.found[k], self.lam[k], self.mind[k] = found, lam, mind
         self.cov[k] = self.n_covered / grid.n_cells
         self.unc[k] = uncertainty
@@ -193,6 +205,7 @@ class Scorer:
             approach=self.approach,
             separation_losses=int(np.count_nonzero(self.approach <= m.comms.safety)),
             link_losses=int(np.count_nonzero(self.lam <= 0)) if m.n_uavs > 1 else 0,
+            keepout_entries=self.entries if self.keepout.shape[0] else None,
             target_cells=self.targets,
             target_steps=self.first,
             seconds=seconds,

@@ -99,6 +99,9 @@ class Summary(msgspec.Struct, frozen=True, omit_defaults=True):
     seconds_per_1000_steps: float
     # the share of the RHC's first choices the safety layer refused (docs/algorithm.md); absent: none
     first_choice_refused_share: float | None = None
+    # chords that entered a no-fly zone inflated by the margin (`RunResult.keepout_entries`), summed
+    # over the runs; absent when the region is convex and has no zones
+    keepout_entries: int | None = None
 
 
 SUMMARY_KEYS = frozenset(
@@ -122,6 +125,7 @@ def summarize(results: list[RunResult]) -> Summary:
     mean_unc = np.array([r.uncertainty.mean() for r in results])
     asked = sum(r.extras.get("first_choices", 0) for r in results)
     refused = sum(r.extras.get("first_choices_refused", 0) for r in results)
+    entries = sum(r.keepout_entries or 0 for r in results)
     return Summary(
         runs=len(results),
         steps=int(results[0].steps),
@@ -139,4 +143,5 @@ def summarize(results: list[RunResult]) -> Summary:
         runs_with_event=sum(r.separation_losses > 0 or r.link_losses > 0 for r in results),
         seconds_per_1000_steps=float(np.mean([1000.0 * r.seconds / r.steps for r in results])),
         first_choice_refused_share=float(refused / asked) if asked else None,
+        keepout_entries=None if all(r.keepout_entries is None for r in results) else entries,
     )

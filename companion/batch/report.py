@@ -59,8 +59,9 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
     Columns: mean_uncertainty: eq. 30 averaged over the run;
     closest_approach: of any pair that can meet between sampling moments (`RunResult.approach`);
     separation_losses, link_losses: steps with such a pair within R_s, sampling moments with
-    lambda_2 = 0; first_choice_refused: the share of the RHC's first choices the safety layer
-    refused."""
+    lambda_2 = 0; keepout_entries: chords between sampling points that entered a no-fly zone
+    inflated by the margin (`search_area.keepout_pieces`; empty for a convex region without zones);
+    first_choice_refused: the share of the RHC's first choices the safety layer refused."""
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -80,6 +81,7 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                 "closest_approach",
                 "separation_losses",
                 "link_losses",
+                "keepout_entries",
                 "first_choice_refused",
                 "seconds",
             ]
@@ -104,6 +106,7 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                         f"{r.approach.min():.3f}",
                         r.separation_losses,
                         r.link_losses,
+                        "" if r.keepout_entries is None else r.keepout_entries,
                         f"{refused_share(r):.4f}",
                         f"{r.seconds:.4f}",
                     ]

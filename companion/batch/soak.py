@@ -30,6 +30,7 @@ class SoakRow:
     killed: tuple[tuple[int, int], ...]
     separation_losses: int
     link_losses: int
+    keepout_entries: int
     closest_approach: float
     targets_found: int
     targets: int
@@ -42,7 +43,8 @@ class SoakRow:
         A dead UAV's radio is silent, and the live swarm may be split by its loss: connectivity is
         guaranteed without faults, separation always.
         """
-        return self.separation_losses == 0 and (self.link_losses == 0 or bool(self.killed))
+        clean = self.separation_losses == 0 and self.keepout_entries == 0
+        return clean and (self.link_losses == 0 or bool(self.killed))
 
 
 def soak_specs(
@@ -94,6 +96,7 @@ def row_of(spec: RunSpec, r: RunResult) -> SoakRow:
         spec.kills,
         r.separation_losses,
         r.link_losses,
+        r.keepout_entries or 0,
         float(r.approach.min()),
         int(np.count_nonzero(r.target_steps >= 0)),
         len(r.target_steps),

@@ -15,6 +15,7 @@ import numpy as np
 from companion.contracts.mission import Mission, MissionError, Vehicle
 from companion.core.feasibility import validate
 from companion.core.geometry import ConvexPolygon
+from companion.core.search_area import region_hull
 
 LAYOUTS = ("edge", "clustered")
 ATTEMPTS = 200  # draws per run before giving up (a region too small for the swarm)
@@ -101,7 +102,7 @@ def random_start(
     like a mission file.
     """
     rng = np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(run, START_STREAM)))
-    poly = ConvexPolygon.from_vertices(np.array(mission.region.polygon, dtype=float))
+    poly = region_hull(mission)
     n, grid = mission.n_uavs, mission.kinematics.mode == "grid"
     link = mission.comms.range - mission.safety.buffer
     last = "no draw placed every UAV"

@@ -20,12 +20,19 @@ from shapely.validation import explain_validity
 
 from companion.contracts.area_readers import Found, LatLon, read_found
 from companion.contracts.frames import LocalFrame
-from companion.contracts.mission import MAX_FILE_BYTES, MAX_GRID_CELLS, MAX_VERTICES, MissionError, Origin
+from companion.contracts.mission import (
+    MAX_FILE_BYTES,
+    MAX_GRID_CELLS,
+    MAX_VERTICES,
+    MAX_ZONES,
+    MissionError,
+    Origin,
+)
 
 XY = tuple[float, float]  # (x east, y north), metres
 AREA_CELL_M = 40.0  # the paper's cell: the area limit is MAX_GRID_CELLS of them
 MAX_AREA_M2 = MAX_GRID_CELLS * AREA_CELL_M**2  # 400 km^2: the inclusion polygon's bounding box
-MAX_ZONES = 64
+
 MIN_AREA_M2 = 1.0  # a ring enclosing less is degenerate
 ORIGIN_DECIMALS = 7  # the area's own origin, rounded to MAVLink's 1e-7 degree
 CIRCLE_SEGMENTS = 64  # a circle's polygon (quarter-circle segments) in the coverage checks

@@ -24,6 +24,7 @@ MAX_FOV_TABLE = 20_000_000  # grid cells x FOV stencil: the per-cell FOV table's
 MAX_CVT_WORK = 50_000_000  # grid cells x n_g: one Lloyd iteration's distances
 MAX_VEHICLES = 64
 MAX_VERTICES = 256
+MAX_ZONES = 64
 MAX_CENTRES = 1_000
 MAX_STEPS = 1_000_000
 # What the kinematics imply (checked before any trajectory is expanded): a loiter circle closes in at
@@ -72,12 +73,37 @@ class Origin(_Base, frozen=True, kw_only=True):
     alt: float = 0.0
 
 
-class Region(_Base, frozen=True, kw_only=True):
-    """Convex search polygon in local metres and the cell size of the search grid."""
+class NoFlyPolygon(_Base, frozen=True, kw_only=True, tag="polygon"):
+    """A no-fly polygon in local metres: a ring of (x, y), open or closed, either orientation."""
 
-    polygon: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_VERTICES)]
+    ring: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_VERTICES)]
+
+
+class NoFlyCircle(_Base, frozen=True, kw_only=True, tag="circle"):
+    """A no-fly circle in local metres: its centre and radius."""
+
+    x: float
+    y: float
+    radius: Positive
+
+
+NoFly = NoFlyPolygon | NoFlyCircle
+
+
+class Region(_Base, frozen=True, kw_only=True):
+    """The search polygon and no-fly zones in local metres, and the cell size of the search grid.
+
+    `area`: an operator's file (.plan, GeoJSON or KML, relative to the mission file) that gives the
+    polygon, the zones and, unless set here, the origin (`mission_file.resolve_area`). The polygon
+    may be non-convex; cells inside a no-fly zone are not searched, and no trajectory comes within
+    `safety.margin` of one (docs/algorithm.md, "No-fly zones").
+    """
+
+    polygon: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_VERTICES)] = []
     cell_size: Positive
     origin: Origin
+    area: str = ""
+    nofly: Annotated[list[NoFly], msgspec.Meta(max_length=MAX_ZONES)] = []
 
 
 class Centre(_Base, frozen=True, kw_only=True):

@@ -15,7 +15,10 @@ from pathlib import Path
 
 import msgspec
 import msgspec.inspect
+from shapely.geometry import Polygon
+from shapely.validation import explain_validity
 
+from companion.contracts.areas import LocalPolygon, local_area, read_area
 from companion.contracts.mission import (
     ALTITUDE_KEEPING,
     MAX_FILE_BYTES,
@@ -29,6 +32,8 @@ from companion.contracts.mission import (
     MIN_STEP_M,
     Mission,
     MissionError,
+    NoFlyPolygon,
+    Origin,
 )
 
 _PATH_RE = re.compile(r" - at `\$(?P<path>[^`]*)`$")
@@ -100,22 +105,7 @@ def _validate(m: Mission, source: str) -> None:
     if bad:
         fail(bad, "must be a finite number")
 
-    poly = m.region.polygon
-    if len(poly) < 3:
-        fail("region.polygon", f"needs at least 3 vertices, got {len(poly)}")
-    signs = set()
-    for i in range(len(poly)):
-        (x0, y0), (x1, y1), (x2, y2) = poly[i], poly[(i + 1) % len(poly)], poly[(i + 2) % len(poly)]
-        cross = (x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1)
-        if abs(cross) < 1e-9:
-            fail("region.polygon", f"vertices {i}..{(i + 2) % len(poly)} are collinear or repeated")
-        signs.add(cross > 0)
-    n = len(poly)
-    edges = [(poly[(i + 1) % n][0] - poly[i][0], poly[(i + 1) % n][1] - poly[i][1]) for i in range(n)]
-    directions = [math.atan2(dy, dx) for dx, dy in edges]
-    turning = sum(math.remainder(directions[(i + 1) % n] - directions[i], 2 * math.pi) for i in range(n))
-    if len(signs) != 1 or not math.isclose(abs(turning), 2 * math.pi, abs_tol=1e-6):
-        fail("region.polygon", "the polygon is not convex (or crosses itself)")
+    _validate_region(m, fail)
     c = m.comms
     if not c.safety < c.repulsion < c.attraction < c.range:
         fail(
@@ -149,6 +139,33 @@ def _validate(m: Mission, source: str) -> None:
             fail(f"{where}.groups", f"UAVs 0..{m.n_uavs - 1}, each in at most one group")
 
 
+def _validate_region(m: Mission, fail: Callable[[str, str], None]) -> None:
+    """The region is one simple polygon (convex or not) and every no-fly zone a simple shape."""
+    poly = m.region.polygon
+    if len(poly) < 3:
+        fail("region.polygon", f"needs at least 3 vertices (or give region.area), got {len(poly)}")
+    reason = ring_problem(poly)
+    if reason:
+        fail("region.polygon", reason)
+    for i, zone in enumerate(m.region.nofly):
+        if isinstance(zone, NoFlyPolygon):
+            reason = ring_problem(zone.ring) if len(zone.ring) >= 3 else "a polygon needs at least 3 vertices"
+            if reason:
+                fail(f"region.nofly[{i}].ring", reason)
+
+
+def ring_problem(ring: list[tuple[float, float]]) -> str | None:
+    """Why a ring of (x, y) is no simple polygon (it crosses itself, it encloses no area), or None."""
+    shape = Polygon(ring)
+    if not shape.is_valid:
+        where = re.search(r"\[(\S+) (\S+)\]", explain_validity(shape))
+        near = f" near ({float(where[1]):.2f}, {float(where[2]):.2f})" if where else ""
+        return f"the polygon crosses itself{near}"
+    if shape.area < 1e-6:
+        return "the polygon encloses no area (its vertices are collinear or repeated)"
+    return None
+
+
 def _validate_layers(m: Mission, fail: Callable[[str, str], None]) -> None:
     """The altitude band holds the layers asked for, and every pinned layer lies inside it."""
     lay = m.layers
@@ -159,7 +176,7 @@ def _validate_layers(m: Mission, fail: Callable[[str, str], None]) -> None:
         fail(
             "layers.separation",
             f"{lay.separation:g} m: two aircraft each up to {ALTITUDE_KEEPING:g} m off their layers could "
-            f"meet; it must exceed {2 * ALTITUDE_KEEPING:g} m (docs/companion.md, \"Altitude keeping\")",
+            f'meet; it must exceed {2 * ALTITUDE_KEEPING:g} m (docs/companion.md, "Altitude keeping")',
         )
     fit = int(lay.band / lay.separation + 1e-9) + 1
     if lay.count != 1 and fit < 2 and m.n_uavs > 1:
@@ -226,8 +243,10 @@ def _validate_bounds(m: Mission, fail: Callable[[str, str], None]) -> None:
         fail("steps", f"{m.steps:,} steps x {m.n_uavs} vehicles = {poses:,} poses, over {MAX_PATH_POINTS:,}")
 
 
-def parse_schema(text: str, source: str = "<mission>") -> Mission:
+def parse_schema(text: str, source: str = "<mission>", base: Path | None = None) -> Mission:
     """Mission TOML text checked against the format and for consistency; `source` names it in errors.
+
+    `base` is the directory a relative `region.area` is read from (default: the working directory).
 
     What needs the core's geometry (the grid's size, a safe start) is checked by
     `companion.core.feasibility.parse_mission`.
@@ -241,6 +260,7 @@ def parse_schema(text: str, source: str = "<mission>") -> Mission:
     except RecursionError:
         raise MissionError(source, "(syntax)", "arrays or tables nested too deeply") from None
     _refuse_replaced(raw, source)
+    resolve_area(raw, source, base)
     try:
         mission = msgspec.convert(raw, Mission)
     except msgspec.ValidationError as exc:
@@ -248,6 +268,42 @@ def parse_schema(text: str, source: str = "<mission>") -> Mission:
         raise MissionError(source, field, reason) from None
     _validate(mission, source)
     return mission
+
+
+def resolve_area(raw: dict, source: str, base: Path | None) -> None:
+    """Fill `region` from the operator's file named by `region.area`: polygon, zones, origin.
+
+    The file's inclusion polygon becomes `region.polygon`, its no-fly zones go before any typed in
+    `region.nofly`, and its own origin (`Area.origin`) is used unless the mission sets one. An
+    error in the area file names that file.
+    """
+    region = raw.get("region")
+    if not isinstance(region, dict) or not region.get("area"):
+        return
+    name = region["area"]
+    if not isinstance(name, str):
+        raise MissionError(source, "region.area", f"a file name, got {name!r}")
+    if region.get("polygon"):
+        raise MissionError(source, "region.area", "give region.polygon or region.area, not both")
+    path = Path(name) if Path(name).is_absolute() else (base or Path.cwd()) / name
+    area = read_area(path)
+    origin = None
+    if "origin" in region:
+        try:
+            origin = msgspec.convert(region["origin"], Origin)
+        except msgspec.ValidationError as exc:
+            field, reason = _field_from_msgspec(str(exc))
+            raise MissionError(source, f"region.origin.{field}".rstrip("."), reason) from None
+    local = local_area(area, origin)
+    zones = [
+        {"type": "polygon", "ring": [list(p) for p in z.ring]}
+        if isinstance(z, LocalPolygon)
+        else {"type": "circle", "x": z.x, "y": z.y, "radius": z.radius}
+        for z in local.nofly
+    ]
+    region["polygon"] = [list(p) for p in local.inclusion]
+    region["nofly"] = zones + list(region.get("nofly", []))
+    region["origin"] = msgspec.to_builtins(local.origin)
 
 
 def _refuse_replaced(raw: dict, source: str) -> None:
@@ -289,7 +345,7 @@ def read_schema(path: str | Path) -> Mission:
     except UnicodeDecodeError as exc:
         reason = f"not UTF-8 text: byte 0x{exc.object[exc.start]:02x} at offset {exc.start}"
         raise MissionError(str(p), "(file)", reason) from None
-    mission = parse_schema(text, str(p))
+    mission = parse_schema(text, str(p), p.parent)
     keys = mission.security.keys
     if keys and not Path(keys).is_absolute():  # relative to the mission file, wherever it is read from
         security = msgspec.structs.replace(mission.security, keys=str((p.parent / keys).absolute()))

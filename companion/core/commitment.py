@@ -104,6 +104,7 @@ class Commitments:
             lim.kinematics_args,
             lim.fence_normals,
             lim.fence_offsets,
+            lim.keepout,
             lim.separation,
             lim.disk_separation,
             lim.link,

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from companion.core.geometry import FloatArray, IntArray
+from companion.core.geometry import BoolArray, FloatArray, IntArray
 
 
 @dataclass(frozen=True)
@@ -93,3 +93,25 @@ def describe(
     np.maximum.at(radii, labels, dist)
     radii[radii == 0] = np.sqrt(cell_area / 2.0)
     return Tessellation(generators, labels, counts, counts * np.float64(cell_area), radii, iterations)
+
+
+def onto_flyable(tess: Tessellation, centres: FloatArray, flyable: BoolArray) -> Tessellation:
+    """Constrained CVT: each generator not on a `flyable` cell centre moved to the nearest one in its region.
+
+    A region with no flyable cell takes the nearest flyable cell anywhere. A non-convex region's
+    centroids may fall in a notch or a no-fly zone, where no UAV may fly to take the task (eq. 17).
+    """
+    generators = tess.generators.copy()
+    ok = np.flatnonzero(flyable)
+    tree = cKDTree(centres[ok])
+    for j in range(tess.n_tasks):
+        own = np.flatnonzero((tess.labels == j) & flyable)
+        pool = own if own.size else ok
+        if own.size:
+            nearest = own[np.argmin(np.linalg.norm(centres[own] - generators[j], axis=1))]
+        else:
+            nearest = ok[int(tree.query(generators[j])[1])]
+        if pool.size and not np.array_equal(centres[nearest], generators[j]):
+            generators[j] = centres[nearest]
+    cell_area = float(tess.areas[0] / tess.cell_counts[0]) if tess.cell_counts[0] else 0.0
+    return describe(centres, generators, tess.labels, cell_area, tess.iterations)

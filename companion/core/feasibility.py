@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from shapely.geometry import Point
 
 from companion.contracts.mission import (
     MAX_CVT_WORK,
@@ -21,8 +22,9 @@ from companion.contracts.mission import (
     MissionError,
 )
 from companion.contracts.mission_file import convert_schema, parse_schema, read_schema
-from companion.core.geometry import ConvexPolygon, Grid
+from companion.core.geometry import ConvexPolygon
 from companion.core.safety.start import minimum_margin, tether_tree
+from companion.core.search_area import plain, region_hull, searchable, zone_containing
 from companion.core.world import build_grid, build_kinematics, build_safety
 
 
@@ -54,10 +56,13 @@ def check_feasible(m: Mission, source: str) -> Mission:
     def fail(field: str, reason: str) -> None:
         raise MissionError(source, field, reason)
 
-    region = ConvexPolygon.from_vertices(m.region.polygon)
+    region = region_hull(m)
+    inside = searchable(m) if not plain(m) else None
     for i, v in enumerate(m.vehicles):
-        if not region.contains(v.x, v.y):
-            fail(f"vehicles[{i}]", f"start position ({v.x}, {v.y}) is outside region.polygon")
+        if not region.contains(v.x, v.y) or (inside is not None and not inside.intersects(Point(v.x, v.y))):
+            zone = zone_containing(m, v.x, v.y)
+            where = f"inside region.nofly[{zone}]" if zone is not None else "outside region.polygon"
+            fail(f"vehicles[{i}]", f"start position ({v.x}, {v.y}) is {where}")
     _validate_sizes(m, region, fail)
     _validate_start(m, fail)
     return m
@@ -89,7 +94,7 @@ def _validate_sizes(m: Mission, region: ConvexPolygon, fail: Callable[[str, str]
         )
     if lattice * stencil > MAX_FOV_TABLE:
         fail("sensor.radius", f"grid cells x FOV cells = {lattice * stencil:,}, over {MAX_FOV_TABLE:,}")
-    n_cells = Grid.build(region, cell, m.sensor.radius).n_cells
+    n_cells = build_grid(m).n_cells
     if n_cells == 0:
         fail("region.cell_size", f"no cell of {cell:g} m has its centre inside region.polygon")
     if m.prior.targets > n_cells:

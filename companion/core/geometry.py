@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -134,13 +135,23 @@ class Grid:
     fov_offsets: IntArray
 
     @classmethod
-    def build(cls, region: ConvexPolygon, cell_size: float, fov_radius: float) -> Grid:
+    def build(
+        cls,
+        region: ConvexPolygon,
+        cell_size: float,
+        fov_radius: float,
+        mask: Callable[[FloatArray, FloatArray], BoolArray | None] | None = None,
+    ) -> Grid:
+        """The cells of `region` (a mission's hull) that `mask(x, y)` keeps (None: all of them)."""
         bx0, by0, bx1, by1 = region.bounds
         nx = max(1, math.ceil((bx1 - bx0) / cell_size - 1e-9))
         ny = max(1, math.ceil((by1 - by0) / cell_size - 1e-9))
         x0, y0 = bx0 + cell_size / 2, by0 + cell_size / 2
         cx, cy = np.meshgrid(x0 + cell_size * np.arange(nx), y0 + cell_size * np.arange(ny))
         inside = np.asarray(region.contains(cx, cy))
+        kept = mask(cx, cy) if mask is not None else None
+        if kept is not None:
+            inside &= kept
         lattice = np.full((ny, nx), -1, dtype=np.int64)
         lattice[inside] = np.arange(int(inside.sum()))
         centres = np.column_stack([cx[inside], cy[inside]])

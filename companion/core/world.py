@@ -13,12 +13,13 @@ from enum import IntEnum
 import numpy as np
 
 from companion.contracts.mission import Mission
-from companion.core.cvt import Tessellation, lloyd_cvt
+from companion.core.cvt import Tessellation, lloyd_cvt, onto_flyable
 from companion.core.geometry import BoolArray, ConvexPolygon, FloatArray, Grid
 from companion.core.kinematics import Kinematics, PathTree
 from companion.core.prior import prior_map
 from companion.core.safety.limits import Limits
 from companion.core.safety.start import initial_trajectories, tether_tree
+from companion.core.search_area import cell_mask, flyable_cells, keepout_pieces, plain, region_hull
 from companion.core.tasks import CostWeights
 from companion.core.trajectory import Trajectory
 
@@ -54,8 +55,13 @@ class World:
 
 
 def build_grid(mission: Mission) -> Grid:
-    region = ConvexPolygon.from_vertices(mission.region.polygon)
-    return Grid.build(region, mission.region.cell_size, mission.sensor.radius)
+    """The grid's cells over the region's hull: those in the region and outside every no-fly zone."""
+    return Grid.build(
+        region_hull(mission),
+        mission.region.cell_size,
+        mission.sensor.radius,
+        lambda x, y: cell_mask(mission, x, y),
+    )
 
 
 def build_prior(mission: Mission, grid: Grid) -> FloatArray:
@@ -133,7 +139,16 @@ def build_safety(
     mission: Mission, kin: Kinematics, region: ConvexPolygon, sequences: FloatArray
 ) -> SafetyPlan:
     c, s = mission.comms, mission.safety
-    limits = Limits.build(kin, mission.algorithm.horizon, region, c.safety, c.range, s.margin, s.buffer)
+    limits = Limits.build(
+        kin,
+        mission.algorithm.horizon,
+        region,
+        c.safety,
+        c.range,
+        s.margin,
+        s.buffer,
+        lambda sag: keepout_pieces(mission, region, s.margin, sag),
+    )
     poses = np.array([(v.x, v.y, math.radians(v.heading_deg)) for v in mission.vehicles], dtype=float)
     ranks, parents = tether_tree(poses[:, :2], limits.link)
     start = tuple(initial_trajectories(poses, parents, ranks, limits))  # ValueError: no contingency
@@ -164,6 +179,8 @@ def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> Worl
             a.lloyd_tolerance,
             a.lloyd_max_iterations,
         )
+        if not plain(mission):
+            tess = onto_flyable(tess, grid.centres, flyable_cells(mission, grid))
     c = mission.comms
     costs = CostWeights(
         beta1=a.beta[0],

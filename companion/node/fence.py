@@ -23,6 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.contracts.frames import LocalFrame
 from companion.contracts.mission import Mission
 from companion.core.geometry import ConvexPolygon, FloatArray
+from companion.core.search_area import region_hull
 from companion.node.mission_upload import Item
 from companion.node.vehicle_link import VehicleLink
 
@@ -56,7 +57,7 @@ def offset_polygon(polygon: ConvexPolygon, distance: float) -> FloatArray:
 
 def fence_polygon(mission: Mission, margin: float | None = None) -> ConvexPolygon:
     """The region plus the margin (default `fence_margin(mission)`)."""
-    region = ConvexPolygon.from_vertices(mission.region.polygon)
+    region = region_hull(mission)
     return ConvexPolygon.from_vertices(
         offset_polygon(region, fence_margin(mission) if margin is None else margin)
     )

@@ -12,8 +12,8 @@ import numpy as np
 from companion.contracts.frames import LocalFrame
 from companion.contracts.mission import Mission
 from companion.core.agent import Agent, Command, Observation
-from companion.core.geometry import ConvexPolygon
 from companion.core.kinematics import arc_advance
+from companion.core.search_area import region_hull
 from companion.core.world import Stream, build_world, instance_rng
 from companion.node.camera_feed import CameraFeed
 from companion.node.departures import Departures
@@ -84,7 +84,7 @@ class Pilot:
         margin = fence_margin(m)
         self.fence = fence_polygon(m, margin)
         self.guidance.fence = self.fence
-        region = ConvexPolygon.from_vertices(m.region.polygon)
+        region = region_hull(m)
         # the guard acts half a step beyond the planning fence (plans may reach it; flights stray a
         # little), the autopilot's fence a whole step beyond (`preflight.upload_fence`)
         guard_fence = fence_polygon(m, margin + 0.5 * k.speed * k.step)

@@ -15,7 +15,9 @@ KinematicsArgs = tuple[float, bool, float, float, float]  # loiter turn, grid, s
 # Python hands the compiled entry points (`gathered`) the fields of `Rules`, `Regions` and
 # `Candidates` as plain tuples, which numba types in C (a NamedTuple costs about a microsecond a
 # call); the entry points name them, `Rules(*rules)`.
-RulesArgs = tuple[int, int, KinematicsArgs, FloatArray, FloatArray, float, float, float, float, float]
+RulesArgs = tuple[
+    int, int, KinematicsArgs, FloatArray, FloatArray, FloatArray, float, float, float, float, float
+]
 RegionsArgs = tuple[FloatArray, FloatArray, IntArray]
 CandidatesArgs = tuple[IntArray, FloatArray, FloatArray, float, float, float, float, FloatArray]
 
@@ -24,7 +26,8 @@ class Rules(NamedTuple):
     """The constants of one UAV's safety checks.
 
     The constants of one UAV's checks: the `window` compared and the plan's `horizon` (M), the
-    kinematics of eq. 2 (`Limits.kinematics_args`), the fence's half-planes, the clearances of
+    kinematics of eq. 2 (`Limits.kinematics_args`), the fence's half-planes and keep-out
+    triangles (`search_area.keepout_pieces`), the clearances of
     `Limits` (separation, disk separation, link), the contingency clause's fan `reach` (-inf: the
     clause is off) and the `progress` per planned step of a UAV leaving a failsafe region."""
 
@@ -33,6 +36,7 @@ class Rules(NamedTuple):
     kinematics: KinematicsArgs
     normals: FloatArray
     offsets: FloatArray
+    keepout: FloatArray
     separation: float
     disk_separation: float
     link: float

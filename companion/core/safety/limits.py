@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -10,6 +11,7 @@ import numpy as np
 from companion.core.geometry import ConvexPolygon, FloatArray
 from companion.core.kinematics import Kinematics
 from companion.core.safety.expansion import expand_rows, loiter_centre
+from companion.core.search_area import NO_KEEPOUT
 from companion.core.trajectory import HEAD, Reach, Trajectory, expand, step_pose
 
 TURN_SIDES = (1, -1)
@@ -22,7 +24,8 @@ class Limits:
     `separation`: the clearance two trajectories' chords must keep (R_s + buffer + both sagittas);
     `disk_separation`: the clearance a chord keeps from a disk (R_s + buffer + one sagitta);
     `link`: the largest tether length at a sampling moment (R_c - buffer);
-    `fence_normals`, `fence_offsets`: the fence's half-planes, pulled in by the sagitta.
+    `fence_normals`, `fence_offsets`: the fence's half-planes, pulled in by the sagitta;
+    `keepout`: the triangles inside the fence no trajectory enters (`search_area.keepout_pieces`).
     """
 
     reach: Reach
@@ -36,6 +39,7 @@ class Limits:
     link: float
     fence_normals: FloatArray
     fence_offsets: FloatArray
+    keepout: FloatArray
 
     @classmethod
     def build(
@@ -47,8 +51,11 @@ class Limits:
         r_c: float,
         margin: float,
         buffer: float,
+        keepout: Callable[[float], FloatArray] | None = None,
     ) -> Limits:
-        """The limits of a mission's kinematics, horizon, region, R_s, R_c, margin and buffer."""
+        """The limits of a mission's kinematics, horizon, region, R_s, R_c, margin and buffer.
+
+        `keepout(sagitta)` gives the keep-out triangles for the fence pulled in by the sagitta."""
         reach = Reach.of(kin, horizon)
         sag = reach.sagitta
         return cls(
@@ -63,6 +70,7 @@ class Limits:
             r_c - buffer,
             np.ascontiguousarray(region.normals),
             region.offsets + margin - sag,
+            keepout(sag) if keepout is not None else NO_KEEPOUT,
         )
 
     def expand(self, rows: FloatArray, first: int) -> FloatArray:

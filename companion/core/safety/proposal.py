@@ -41,7 +41,7 @@ def first_allowed(
         for side in (first, 1 - first):
             _place(candidates, i, side, pts)
             if not (
-                inside_fence(pts, rules.normals, rules.offsets)
+                inside_fence(pts, rules.normals, rules.offsets, rules.keepout)
                 and compatible(
                     pts,
                     others,

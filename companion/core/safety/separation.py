@@ -9,17 +9,21 @@ from numba import njit
 
 from companion.core.geometry import BoolArray, FloatArray
 from companion.core.safety.inputs import Rules
+from companion.core.search_area import clear_of
 from companion.core.trajectory import expand, point_clearance, segment_clearance
 
 
 @njit(cache=True)
-def inside_fence(pts: FloatArray, normals: FloatArray, offsets: FloatArray) -> bool:
-    """Every point within the fence's half-planes (chords then stay inside: the fence is convex)."""
+def inside_fence(pts: FloatArray, normals: FloatArray, offsets: FloatArray, keepout: FloatArray) -> bool:
+    """Every point within the fence's half-planes, and no point or chord in the keep-out.
+
+    Chords between points inside stay inside (the fence is convex); the keep-out (the region's
+    notches and the inflated no-fly zones, `search_area.keepout_pieces`) is checked chord by chord."""
     for t in range(pts.shape[0]):
         for e in range(normals.shape[0]):
             if pts[t, 0] * normals[e, 0] + pts[t, 1] * normals[e, 1] > offsets[e]:
                 return False
-    return True
+    return clear_of(pts, keepout)
 
 
 @njit(cache=True)
@@ -107,7 +111,7 @@ def flyable(row: FloatArray, first: int, rules: Rules, others: FloatArray, tethe
     Whether the trajectory `row`, expanded from step `first` over `rules.window`, stays in the
     fence and is compatible with the trajectories `others` and `tethers` (`Commitments._flyable`)."""
     pts = expand(row, first, rules.window, *rules.kinematics)
-    if not inside_fence(pts, rules.normals, rules.offsets):
+    if not inside_fence(pts, rules.normals, rules.offsets, rules.keepout):
         return False
     no_disks = np.zeros((0, 3))
     return compatible(

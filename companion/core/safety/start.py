@@ -66,7 +66,7 @@ def initial_trajectories(
                     0, float(x), float(y), float(h), (0.0,) * s + (side * turn,) * (m - s), side
                 )
                 pts = limits.expand(limits.rows([traj]), 0)[0]
-                if inside_fence(pts, limits.fence_normals, limits.fence_offsets):
+                if inside_fence(pts, limits.fence_normals, limits.fence_offsets, limits.keepout):
                     opts.append((traj, pts))
         options.append(opts)
     order = sorted(range(n), key=lambda u: ranks[u])
