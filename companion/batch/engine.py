@@ -144,7 +144,7 @@ class Scorer:
         self.unc, self.found, self.cov, self.lam, self.mind = (np.zeros(steps) for _ in range(5))
         self.approach = np.full(steps, np.inf)
         m = world.mission
-        self.keepout = keepout_pieces(m, world.grid.region, m.safety.margin, 0.0)
+        self.keepout = keepout_pieces(m, world.grid.region, m.safety.margin, m.safety.margin)
         self.entries = 0
         self._before: np.ndarray | None = None
 

@@ -5,8 +5,8 @@ the last lines (docs/performance.md gives the commands). It flies the checkout's
 (and scenario 1 in continuous mode) with each algorithm, runs 0-2 (run 2 kills UAV 1's companion
 at step 100 and takes UAV 2's vehicle from its companion at step 150), and with `--missions DIR`
 also every mission file in DIR (run 0, UAV 1's companion killed at step 120). Every field of each
-`RunResult` but its wall time is hashed: trajectories, tasks, the metric curves, target steps and
-the protocol's counters.
+`RunResult` but its wall time and the figures it lacks (None) is hashed: trajectories, tasks, the
+metric curves, target steps and the protocol's counters.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def main() -> None:
             result = simulate(flown, args.seed, run, args.steps, record=True, **faults)
             one = hashlib.sha256()
             for name, value in sorted(vars(result).items()):
-                if name != "seconds":
+                if name != "seconds" and value is not None:  # a figure a run lacks adds nothing
                     one.update(name.encode())
                     one.update(value.tobytes() if isinstance(value, np.ndarray) else repr(value).encode())
             total.update(one.digest())

@@ -105,6 +105,7 @@ class Commitments:
             lim.fence_normals,
             lim.fence_offsets,
             lim.keepout,
+            lim.centre_keepout,
             lim.separation,
             lim.disk_separation,
             lim.link,

@@ -83,22 +83,25 @@ def fence_shape(hull: ConvexPolygon, distance: float) -> Polygon:
     return Polygon(corners)
 
 
-def keepout_pieces(mission: Mission, hull: ConvexPolygon, margin: float, sag: float) -> FloatArray:
+def keepout_pieces(
+    mission: Mission, hull: ConvexPolygon, reach: float, zone_reach: float, notches: bool = True
+) -> FloatArray:
     """The keep-out inside the fence as triangles, each three half-planes (nx, ny, offset): (k, 3, 3).
 
-    The fence is the hull pushed out by `margin - sag`; what may be flown is the region pushed out
-    as far (mitred, as the fence) less every zone inflated by `margin + sag`, so that a chord
-    between two allowed sampling points, and the arc between them, stays clear. Empty when the
-    region is convex and has no zones.
+    The fence is the hull pushed out by `reach`; what may be flown is the region pushed out as far
+    (mitred, as the fence; with `notches` False, the whole fence) less every zone inflated by
+    `zone_reach`. Empty when nothing inside the fence is kept out.
     """
-    if plain(mission):
+    if plain(mission) or (not notches and not mission.region.nofly):
         return NO_KEEPOUT
-    reach = margin - sag
-    allowed = Polygon(mission.region.polygon).buffer(reach, join_style="mitre", mitre_limit=1e6)
-    zones = [inflate(zone_shape(z), margin + sag) for z in mission.region.nofly]
+    fence = fence_shape(hull, reach)
+    allowed = fence
+    if notches:
+        allowed = Polygon(mission.region.polygon).buffer(reach, join_style="mitre", mitre_limit=1e6)
+    zones = [inflate(zone_shape(z), zone_reach) for z in mission.region.nofly]
     if zones:
         allowed = allowed.difference(shapely.union_all(zones))
-    pieces = fence_shape(hull, reach).difference(allowed)
+    pieces = fence.difference(allowed)
     if pieces.is_empty:
         return NO_KEEPOUT
     triangles = shapely.get_parts(shapely.constrained_delaunay_triangles(pieces))
@@ -118,7 +121,8 @@ def _half_planes(v: FloatArray) -> FloatArray:
 
 def flyable_cells(mission: Mission, grid: Grid) -> BoolArray:
     """Which cell centres lie outside the keep-out with no margin to spare (a task's point may be there)."""
-    pieces = keepout_pieces(mission, grid.region, mission.safety.margin, 0.0)
+    margin = mission.safety.margin
+    pieces = keepout_pieces(mission, grid.region, margin, margin)
     return np.array([clear_of(c[None, :], pieces) for c in grid.centres], dtype=bool)
 
 

@@ -135,6 +135,22 @@ def failsafe_stray(mission: Mission, limits: Limits) -> float:
     return min(speed * rate * tau**2, speed * tau)
 
 
+def with_keepout(
+    mission: Mission, limits: Limits, region: ConvexPolygon, reach: float, stray: float
+) -> Limits:
+    """`limits` with the mission's keep-out (docs/algorithm.md, "No-fly zones").
+
+    Paths keep out of the region's notches beyond the margin and of every zone inflated by the
+    margin, the sagitta and the failsafe's stray (a silent UAV's aircraft holding its last command
+    stays out of the zone inflated by the margin); loiter centres keep out of every zone inflated by
+    the margin and the failsafe reach, so that the failsafe disk does too.
+    """
+    margin, sag = mission.safety.margin, limits.reach.sagitta
+    paths = keepout_pieces(mission, region, margin - sag, margin + sag + stray)
+    centres = keepout_pieces(mission, region, margin - sag, margin + reach, notches=False)
+    return limits.with_keepout(paths, centres)
+
+
 def build_safety(
     mission: Mission, kin: Kinematics, region: ConvexPolygon, sequences: FloatArray
 ) -> SafetyPlan:
@@ -147,14 +163,14 @@ def build_safety(
         c.range,
         s.margin,
         s.buffer,
-        lambda sag: keepout_pieces(mission, region, s.margin, sag),
     )
+    reach = s.failsafe_reach if s.failsafe_reach is not None else failsafe_reach(mission, limits)
+    stray = failsafe_stray(mission, limits)
+    limits = with_keepout(mission, limits, region, reach, stray)
     poses = np.array([(v.x, v.y, math.radians(v.heading_deg)) for v in mission.vehicles], dtype=float)
     ranks, parents = tether_tree(poses[:, :2], limits.link)
     start = tuple(initial_trajectories(poses, parents, ranks, limits))  # ValueError: no contingency
-    reach = s.failsafe_reach if s.failsafe_reach is not None else failsafe_reach(mission, limits)
     shapes = limits.shapes(sequences)
-    stray = failsafe_stray(mission, limits)
     near = np.array(mission.near_layers(), dtype=bool).reshape(len(poses), len(poses))
     return SafetyPlan(
         limits, start, ranks, parents, reach, stray, shapes, limits.shape_centres(shapes), near

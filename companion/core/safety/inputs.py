@@ -15,9 +15,8 @@ KinematicsArgs = tuple[float, bool, float, float, float]  # loiter turn, grid, s
 # Python hands the compiled entry points (`gathered`) the fields of `Rules`, `Regions` and
 # `Candidates` as plain tuples, which numba types in C (a NamedTuple costs about a microsecond a
 # call); the entry points name them, `Rules(*rules)`.
-RulesArgs = tuple[
-    int, int, KinematicsArgs, FloatArray, FloatArray, FloatArray, float, float, float, float, float
-]
+FenceArgs = tuple[FloatArray, FloatArray, FloatArray, FloatArray]  # half-planes, keep-outs
+RulesArgs = tuple[int, int, KinematicsArgs, *FenceArgs, float, float, float, float, float]
 RegionsArgs = tuple[FloatArray, FloatArray, IntArray]
 CandidatesArgs = tuple[IntArray, FloatArray, FloatArray, float, float, float, float, FloatArray]
 
@@ -27,7 +26,7 @@ class Rules(NamedTuple):
 
     The constants of one UAV's checks: the `window` compared and the plan's `horizon` (M), the
     kinematics of eq. 2 (`Limits.kinematics_args`), the fence's half-planes and keep-out
-    triangles (`search_area.keepout_pieces`), the clearances of
+    triangles of paths and of loiter centres (`search_area.keepout_pieces`), the clearances of
     `Limits` (separation, disk separation, link), the contingency clause's fan `reach` (-inf: the
     clause is off) and the `progress` per planned step of a UAV leaving a failsafe region."""
 
@@ -37,6 +36,7 @@ class Rules(NamedTuple):
     normals: FloatArray
     offsets: FloatArray
     keepout: FloatArray
+    centre_keepout: FloatArray
     separation: float
     disk_separation: float
     link: float

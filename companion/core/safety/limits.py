@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -25,7 +24,8 @@ class Limits:
     `disk_separation`: the clearance a chord keeps from a disk (R_s + buffer + one sagitta);
     `link`: the largest tether length at a sampling moment (R_c - buffer);
     `fence_normals`, `fence_offsets`: the fence's half-planes, pulled in by the sagitta;
-    `keepout`: the triangles inside the fence no trajectory enters (`search_area.keepout_pieces`).
+    `keepout`: the triangles inside the fence no trajectory enters (`search_area.keepout_pieces`);
+    `centre_keepout`: those no loiter centre enters (its failsafe disk stays clear of the zones).
     """
 
     reach: Reach
@@ -40,6 +40,7 @@ class Limits:
     fence_normals: FloatArray
     fence_offsets: FloatArray
     keepout: FloatArray
+    centre_keepout: FloatArray
 
     @classmethod
     def build(
@@ -51,11 +52,10 @@ class Limits:
         r_c: float,
         margin: float,
         buffer: float,
-        keepout: Callable[[float], FloatArray] | None = None,
     ) -> Limits:
         """The limits of a mission's kinematics, horizon, region, R_s, R_c, margin and buffer.
 
-        `keepout(sagitta)` gives the keep-out triangles for the fence pulled in by the sagitta."""
+        With no keep-out: `build_safety` adds the mission's (`with_keepout`)."""
         reach = Reach.of(kin, horizon)
         sag = reach.sagitta
         return cls(
@@ -70,8 +70,13 @@ class Limits:
             r_c - buffer,
             np.ascontiguousarray(region.normals),
             region.offsets + margin - sag,
-            keepout(sag) if keepout is not None else NO_KEEPOUT,
+            NO_KEEPOUT,
+            NO_KEEPOUT,
         )
+
+    def with_keepout(self, keepout: FloatArray, centre_keepout: FloatArray) -> Limits:
+        """A copy with the keep-out of paths and of loiter centres (`search_area.keepout_pieces`)."""
+        return replace(self, keepout=keepout, centre_keepout=centre_keepout)
 
     def expand(self, rows: FloatArray, first: int) -> FloatArray:
         """Positions of every trajectory row at steps first..first + window: (n, window + 1, 2)."""

@@ -11,6 +11,7 @@ from companion.core.geometry import FloatArray
 from companion.core.kinematics import Kinematics
 from companion.core.safety.limits import TURN_SIDES, Limits
 from companion.core.safety.separation import compatible, inside_fence
+from companion.core.search_area import clear_of
 from companion.core.trajectory import HEAD, Reach, Trajectory, expand
 
 
@@ -66,7 +67,10 @@ def initial_trajectories(
                     0, float(x), float(y), float(h), (0.0,) * s + (side * turn,) * (m - s), side
                 )
                 pts = limits.expand(limits.rows([traj]), 0)[0]
-                if inside_fence(pts, limits.fence_normals, limits.fence_offsets, limits.keepout):
+                if inside_fence(pts, limits.fence_normals, limits.fence_offsets, limits.keepout) and (
+                    not limits.centre_keepout.shape[0]
+                    or clear_of(np.array([limits.loiter_circle(traj)[:2]]), limits.centre_keepout)
+                ):
                     opts.append((traj, pts))
         options.append(opts)
     order = sorted(range(n), key=lambda u: ranks[u])

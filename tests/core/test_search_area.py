@@ -1,0 +1,128 @@
+"""No-fly zones and non-convex regions (docs/algorithm.md, "No-fly zones"): the keep-out's geometry
+against shapely, the grid's cells, the constrained CVT, and runs of every algorithm that never put a
+sampling point or a chord into a zone inflated by the margin."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from shapely.geometry import LineString, Point, Polygon
+
+from companion.batch.engine import simulate
+from companion.contracts.mission import ALGORITHMS, Mission, NoFlyCircle, NoFlyPolygon
+from companion.core.feasibility import load_mission, validate
+from companion.core.search_area import (
+    clear_of,
+    flyable_cells,
+    inflate,
+    keepout_pieces,
+    region_hull,
+    zone_shape,
+)
+from companion.core.world import build_grid, build_world
+
+ROOT = Path(__file__).resolve().parents[2]
+NOFLY = ROOT / "mission_files" / "scenario1_nofly.toml"
+L_SHAPE = [(-1000.0, -1000.0), (1000.0, -1000.0), (1000.0, 0.0), (0.0, 0.0), (0.0, 1000.0), (-1000.0, 1000.0)]
+coordinate = st.floats(-1500, 1500, allow_nan=False)
+
+
+def l_shaped(mode: str = "grid") -> Mission:
+    """Scenario 1 cut to an L (its north-east quarter gone), with a circle zone in the west."""
+    m = load_mission(ROOT / "mission_files" / "scenario1.toml")
+    region = msgspec.structs.replace(
+        m.region, polygon=L_SHAPE, nofly=[NoFlyCircle(x=-500.0, y=500.0, radius=150.0)]
+    )
+    prior = msgspec.structs.replace(m.prior, targets=5)
+    kin = msgspec.structs.replace(m.kinematics, mode=mode)
+    if mode == "continuous":
+        kin = msgspec.structs.replace(kin, turn_limit_deg=30.0)
+    return validate(msgspec.structs.replace(m, region=region, prior=prior, kinematics=kin), "l-shaped")
+
+
+@settings(max_examples=300, deadline=None)
+@given(coordinate, coordinate, coordinate, coordinate)
+def test_a_chord_is_clear_exactly_when_it_misses_every_piece(
+    x0: float, y0: float, x1: float, y1: float
+) -> None:
+    m = l_shaped()
+    pieces = keepout_pieces(m, region_hull(m), m.safety.margin, m.safety.margin)
+    shapes = [Polygon(_corners(p)) for p in pieces]
+    chord = LineString([(x0, y0), (x1, y1)]) if (x0, y0) != (x1, y1) else Point(x0, y0)
+    if any(0 < s.boundary.distance(chord) < 1e-6 or s.touches(chord) for s in shapes):
+        return  # on an edge: either answer is right
+    hits = any(s.intersects(chord) for s in shapes)
+    assert clear_of(np.array([[x0, y0], [x1, y1]]), pieces) == (not hits)
+
+
+@settings(max_examples=300, deadline=None)
+@given(coordinate, coordinate, st.sampled_from([0.0, 7.5]))
+def test_the_keepout_is_the_fence_less_what_may_be_flown(x: float, y: float, sag: float) -> None:
+    """A point inside the fence is clear of the keep-out exactly when it lies in the region pushed
+    out by the margin less the sagitta, and outside every zone inflated by the margin plus it."""
+    m = l_shaped()
+    reach = m.safety.margin - sag
+    pieces = keepout_pieces(m, region_hull(m), reach, m.safety.margin + sag)
+    grown = Polygon(m.region.polygon).buffer(reach, join_style="mitre", mitre_limit=1e6)
+    inflated = shapely.union_all([inflate(zone_shape(z), m.safety.margin + sag) for z in m.region.nofly])
+    fence = Polygon(L_SHAPE).convex_hull.buffer(reach, join_style="mitre", mitre_limit=1e6)
+    point = Point(x, y)
+    edges = (fence.exterior, grown.exterior, inflated.exterior)
+    if not fence.contains(point) or min(e.distance(point) for e in edges) < 1e-6:
+        return  # outside the fence (its half-planes' job) or on an edge
+    expected = grown.contains(point) and not inflated.contains(point)
+    assert clear_of(np.array([[x, y]]), pieces) == expected
+    assert inflated.contains(zone_shape(m.region.nofly[0]).buffer(m.safety.margin + sag - 1e-6))
+
+
+def _corners(piece: np.ndarray) -> list[tuple[float, float]]:
+    """A triangle's corners from its three half-planes."""
+    out = []
+    for i in range(3):
+        a, b = piece[i - 1], piece[i]
+        out.append(tuple(np.linalg.solve(np.array([a[:2], b[:2]]), np.array([a[2], b[2]]))))
+    return out
+
+
+def test_cells_lie_in_the_region_and_outside_every_zone() -> None:
+    for m in (load_mission(NOFLY), l_shaped()):
+        grid = build_grid(m)
+        region = Polygon(m.region.polygon)
+        zones = shapely.union_all([zone_shape(z) for z in m.region.nofly])
+        points = shapely.points(grid.centres)
+        assert np.all(shapely.intersects(region, points))
+        assert not np.any(shapely.contains(zones, points))
+        lattice = grid.x0 + grid.cell_size * np.arange(grid.nx)
+        assert grid.n_cells < len(lattice) * grid.ny  # some of the hull's cells were dropped
+
+
+def test_the_constrained_cvt_puts_every_task_where_a_uav_may_fly() -> None:
+    for m in (load_mission(NOFLY), l_shaped()):
+        world = build_world(m, 1, 0)
+        assert world.tessellation is not None
+        flyable = world.grid.centres[flyable_cells(m, world.grid)]
+        for g in world.tessellation.generators:
+            assert np.min(np.hypot(*(flyable - g).T)) < 1e-9, g
+
+
+def test_a_start_inside_a_zone_is_a_mission_error() -> None:
+    m = load_mission(NOFLY)
+    zone = NoFlyPolygon(ring=[(-900.0, -995.0), (900.0, -995.0), (900.0, -900.0), (-900.0, -900.0)])
+    bad = msgspec.structs.replace(m, region=msgspec.structs.replace(m.region, nofly=[zone]))
+    with pytest.raises(ValueError, match=r"vehicles\[0\].*inside region.nofly\[0\]"):
+        validate(bad, "covered")
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+@pytest.mark.parametrize("case", ["nofly-band", "l-shaped-continuous"])
+def test_no_run_enters_a_zone_or_loses_separation(algorithm: str, case: str) -> None:
+    m = load_mission(NOFLY) if case == "nofly-band" else l_shaped("continuous")
+    r = simulate(m.with_algorithm(algorithm), 3, 1, 400, kills={1: 150})
+    assert r.keepout_entries == 0
+    assert r.separation_losses == 0
