@@ -216,7 +216,8 @@ def failed_criteria(world: World, result: RunResult, record: Path | None = None)
 
     Separation is judged in three dimensions over everything the separation record at `record`
     holds, start-up and hand-over included (`losses_3d`: a pair within R_s horizontally and closer
-    vertically than `Mission.vertical_floor`); without a record, on the logged poses in 2D."""
+    vertically than `Mission.vertical_floor`); without a record, on the logged poses in 2D. A chord
+    into the keep-out (`RunResult.keepout_entries`) always fails."""
     m, c = world.mission, world.mission.pass_criteria
     failures = []
     found = int(np.count_nonzero(result.target_steps >= 0))
@@ -232,6 +233,11 @@ def failed_criteria(world: World, result: RunResult, record: Path | None = None)
             )
     elif c.require_safe_distance and result.steps and (closest := result.approach.min()) <= m.comms.safety:
         failures.append(f"closest approach {closest:.1f} m <= R_s = {m.comms.safety} m")
+    if result.keepout_entries:
+        failures.append(
+            f"{result.keepout_entries} chords between sampling points entered a no-fly zone inflated by "
+            f"safety.margin = {m.safety.margin:g} m or left the region's margin"
+        )
     if result.steps == 0:
         failures.append("no step was flown")
     return failures

@@ -44,6 +44,7 @@ from companion.core.rhc import (
     rank_candidates,
     rank_grid_candidates,
 )
+from companion.core.routes import STRAIGHT
 from companion.core.swarm_view import swarm_view
 from companion.core.tasks import TaskSet, bid_rewards, keep_task, task_completion, task_costs
 from companion.core.trajectory import Trajectory
@@ -164,7 +165,7 @@ class Agent:
             grid.cell_size,
         )
         self._tasks: TaskSet | None = (
-            (tess.labels, tess.cell_counts, tess.generators, tess.areas) if tess else None
+            (tess.labels, tess.cell_counts, tess.generators, tess.areas, tess.routes) if tess else None
         )
         self.commitments = Commitments(world, uav)
         self.last: StepDelta | None = None  # what the latest step changed (journals keep it)
@@ -302,7 +303,7 @@ class Agent:
             j = self.task
             completion = task_completion(int(self.covered[j]), int(tess.cell_counts[j]))
             _, holding = task_costs(
-                position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs
+                position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs, tess.routes, j
             )
             cost = float(holding[0])
             if lost or not keep_task(completion, cost, a.v_max, a.c_max):
@@ -397,9 +398,10 @@ class Agent:
             )
         tess = w.tessellation
         if self.task >= 0 and tess is not None:
-            region: TaskRegion = (self.task, tess.generators[self.task], float(tess.circumradii[self.task]))
+            j = self.task
+            region: TaskRegion = (j, tess.generators[j], float(tess.circumradii[j]), tess.routes)
         else:
-            region = (-1, nxt, 1.0)
+            region = (-1, nxt, 1.0, STRAIGHT)
         if w.kinematics.mode == "grid":
             return rank_grid_candidates(
                 x1, y1, w.paths.offsets_from(h1), self._grid_cells, self._values, self._labels, region,

@@ -105,7 +105,7 @@ class Commitments:
             lim.fence_normals,
             lim.fence_offsets,
             lim.keepout,
-            lim.centre_keepout,
+            lim.fan_keepout,
             lim.separation,
             lim.disk_separation,
             lim.link,

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from companion.core.geometry import BoolArray, FloatArray, IntArray
+from companion.core.routes import STRAIGHT, RouteTable
 
 
 @dataclass(frozen=True)
@@ -20,6 +21,7 @@ class Tessellation:
     areas: FloatArray
     circumradii: FloatArray
     iterations: int
+    routes: RouteTable = STRAIGHT  # d_ij of eq. 16 around the keep-out (`routes.route_table`)
 
     @property
     def n_tasks(self) -> int:
@@ -95,23 +97,28 @@ def describe(
     return Tessellation(generators, labels, counts, counts * np.float64(cell_area), radii, iterations)
 
 
-def onto_flyable(tess: Tessellation, centres: FloatArray, flyable: BoolArray) -> Tessellation:
-    """Constrained CVT: each generator not on a `flyable` cell centre moved to the nearest one in its region.
+def onto_flyable(
+    tess: Tessellation, centres: FloatArray, flyable: BoolArray, fov_radius: float
+) -> Tessellation:
+    """Constrained CVT: generators moved onto `flyable` cells, each task sized by the cells one can see.
 
-    A region with no flyable cell takes the nearest flyable cell anywhere. A non-convex region's
-    centroids may fall in a notch or a no-fly zone, where no UAV may fly to take the task (eq. 17).
+    A generator not on a flyable cell centre moves to the nearest one in its region (or anywhere,
+    if its region has none): a non-convex region's centroids may fall in a notch or a no-fly zone,
+    where no UAV may fly to take the task (eq. 17). A task's cell count and area S_j (eqs. 16, 20)
+    count only the cells within R_A of a flyable cell: the others cannot be seen, so a task that
+    counted them could never be completed; a task with none is complete from the start.
     """
     generators = tess.generators.copy()
     ok = np.flatnonzero(flyable)
     tree = cKDTree(centres[ok])
     for j in range(tess.n_tasks):
         own = np.flatnonzero((tess.labels == j) & flyable)
-        pool = own if own.size else ok
         if own.size:
-            nearest = own[np.argmin(np.linalg.norm(centres[own] - generators[j], axis=1))]
+            generators[j] = centres[own[np.argmin(np.linalg.norm(centres[own] - generators[j], axis=1))]]
         else:
-            nearest = ok[int(tree.query(generators[j])[1])]
-        if pool.size and not np.array_equal(centres[nearest], generators[j]):
-            generators[j] = centres[nearest]
-    cell_area = float(tess.areas[0] / tess.cell_counts[0]) if tess.cell_counts[0] else 0.0
-    return describe(centres, generators, tess.labels, cell_area, tess.iterations)
+            generators[j] = centres[ok[int(tree.query(generators[j])[1])]]
+    cell_area = float(tess.areas[0] / tess.cell_counts[0])
+    moved = describe(centres, generators, tess.labels, cell_area, tess.iterations)
+    seeable = np.isfinite(tree.query(centres, distance_upper_bound=fov_radius + 1e-9)[0])
+    counts = np.bincount(tess.labels[seeable], minlength=tess.n_tasks)
+    return replace(moved, cell_counts=counts, areas=counts * np.float64(cell_area))

@@ -13,14 +13,15 @@ from numba import njit
 from companion.core.geometry import FloatArray, Grid, IntArray
 from companion.core.kinematics import Kinematics
 from companion.core.potential import link_cost, safety_cost
+from companion.core.routes import RouteTable, route_distance
 
 PENALTY_KNEE = 10.0
 
 
 # Plain tuples (numba types them in C, a NamedTuple costs about a microsecond a call):
 # the UAV's assigned region V* of eq. 25: its task (-1: none, hence no penalty), generator q* and
-# circumradius R*
-TaskRegion = tuple[int, FloatArray, float]
+# circumradius R*, and the routes to the generators (`routes.RouteTable`)
+TaskRegion = tuple[int, FloatArray, float, RouteTable]
 # eq. 22's constants: (delta_1, delta_2) of eq. 25, (chi_1, chi_2) of eq. 22, (R_c, R'_c, R_s,
 # R'_s) of eq. 28, the region's half-planes (normals, offsets) and the cell size (`region_key`)
 ScoreWeights = tuple[
@@ -54,6 +55,7 @@ def search_benefit(
     generator: FloatArray,
     circumradius: float,
     delta2: float,
+    routes: RouteTable,
 ) -> FloatArray:
     """Eq. 25: J^A = delta_1 sum_m sum_{p in C(w_m)} v_p - sum_m delta2bar exp(||w_m - q*|| / R*).
 
@@ -73,9 +75,9 @@ def search_benefit(
         if task >= 0:
             for m in range(horizon):
                 if point_labels[i, m] != task:
-                    dx = points[i, m, 0] - generator[0]
-                    dy = points[i, m, 1] - generator[1]
-                    total -= delta2 * soft_exp(math.sqrt(dx * dx + dy * dy) / circumradius)
+                    x, y = points[i, m, 0], points[i, m, 1]
+                    d = route_distance(routes, task, x, y, generator[0], generator[1])
+                    total -= delta2 * soft_exp(d / circumradius)
         out[i] = total
     return out
 
@@ -203,9 +205,9 @@ def rank_candidates(
     Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
     (`region_key`, `rank_paths`)."""
     delta, chi, comms, normals, offsets, cell_size = weights
-    task, generator, circumradius = region
+    task, generator, circumradius, routes = region
     benefit = search_benefit(
-        points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1]
+        points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1], routes
     )
     expense = path_expense(points, neighbour_tracks, comms[0], comms[1], comms[2], comms[3])
     region_keys = region_key(prefix, points, normals, offsets, cell_size)

@@ -119,11 +119,12 @@ def _half_planes(v: FloatArray) -> FloatArray:
     return np.column_stack([n, np.einsum("ij,ij->i", n, v)])
 
 
-def flyable_cells(mission: Mission, grid: Grid) -> BoolArray:
-    """Which cell centres lie outside the keep-out with no margin to spare (a task's point may be there)."""
-    margin = mission.safety.margin
-    pieces = keepout_pieces(mission, grid.region, margin, margin)
-    return np.array([clear_of(c[None, :], pieces) for c in grid.centres], dtype=bool)
+def flyable_cells(grid: Grid, keepouts: tuple[FloatArray, FloatArray]) -> BoolArray:
+    """Which cell centres a path's point may lie on: clear of the paths' and the fans' keep-out.
+
+    `keepouts` is (`Limits.keepout`, `Limits.fan_keepout`); a task's point must be one (eq. 17).
+    """
+    return np.array([all(clear_of(c[None, :], k) for k in keepouts) for c in grid.centres], dtype=bool)
 
 
 def cell_mask(mission: Mission, x: FloatArray, y: FloatArray) -> BoolArray | None:
@@ -170,3 +171,21 @@ def keepout_entries(before: FloatArray, after: FloatArray, pieces: FloatArray) -
         if not clear_of(chord, pieces):
             count += 1
     return count
+
+
+@njit(cache=True)
+def spokes_clear(pts: FloatArray, entry: int, cx: float, cy: float, pieces: FloatArray) -> bool:
+    """Whether the spokes from a path's points up to its loiter's entry to the centre miss every piece.
+
+    A failsafe region (docs/algorithm.md, "The contingency clause") is the fan of these spokes
+    inflated by the failsafe's reach and stray; checked against the zones inflated by as much more,
+    its edges and centre keep the region out of them (no piece fits inside a fan: each is part of a
+    zone inflated by more than a fan is wide).
+    """
+    spoke = np.empty((2, 2))
+    spoke[1, 0], spoke[1, 1] = cx, cy
+    for i in range(min(entry, pts.shape[0] - 1) + 1):
+        spoke[0] = pts[i]
+        if not clear_of(spoke, pieces):
+            return False
+    return True

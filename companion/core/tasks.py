@@ -10,6 +10,7 @@ from numba import njit
 
 from companion.core.geometry import FloatArray, IntArray
 from companion.core.potential import link_cost
+from companion.core.routes import RouteTable, route_distance
 
 
 class CostWeights(NamedTuple):
@@ -30,15 +31,26 @@ class CostWeights(NamedTuple):
 
 # The tasks V_j a bidder bids for (eq. 15): each cell's task label, and each task's cell count,
 # generator q_j and area S_j (`cvt.Tessellation`); a plain tuple, which numba types in C
-TaskSet = tuple[IntArray, IntArray, FloatArray, FloatArray]
+# and the routes to each generator (`routes.RouteTable`)
+TaskSet = tuple[IntArray, IntArray, FloatArray, FloatArray, RouteTable]
 
 
 @njit(cache=True)
-def time_cost(position: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights) -> FloatArray:
-    """Eq. 16: C^t_ij = d_ij / sqrt(Dx^2 + Dy^2) + kappa * S_j / S_A (arrival + search)."""
+def time_cost(
+    position: FloatArray,
+    generators: FloatArray,
+    areas: FloatArray,
+    w: CostWeights,
+    routes: RouteTable,
+    first: int,
+) -> FloatArray:
+    """Eq. 16: C^t_ij = d_ij / sqrt(Dx^2 + Dy^2) + kappa * S_j / S_A (arrival + search).
+
+    d_ij is the route distance (`route_distance`; straight without a keep-out); `generators` are
+    the tasks first, first + 1, ..."""
     out = np.empty(generators.shape[0])
     for j in range(generators.shape[0]):
-        d = math.hypot(generators[j, 0] - position[0], generators[j, 1] - position[1])
+        d = route_distance(routes, first + j, position[0], position[1], generators[j, 0], generators[j, 1])
         out[j] = d / w.diagonal + w.kappa * areas[j] / w.fov_area
     return out
 
@@ -67,7 +79,13 @@ def communication_costs(
 
 @njit(cache=True)
 def task_costs(
-    position: FloatArray, neighbours: FloatArray, generators: FloatArray, areas: FloatArray, w: CostWeights
+    position: FloatArray,
+    neighbours: FloatArray,
+    generators: FloatArray,
+    areas: FloatArray,
+    w: CostWeights,
+    routes: RouteTable,
+    first: int,
 ) -> tuple[FloatArray, FloatArray]:
     """Eq. 18: C_ij = beta_1 C^t_ij + beta_2 C^c_ij, for the auction and for eq. 21.
 
@@ -75,7 +93,7 @@ def task_costs(
     the auction's cost (eq. 15; eq. 17 capped) and C*_{i,k} of eq. 21 (eq. 17 uncapped, so a task
     whose generator is near or beyond R_c of an MST neighbour, keeping it threatens that link,
     costs more than any C_max)."""
-    time = w.beta1 * time_cost(position, generators, areas, w)
+    time = w.beta1 * time_cost(position, generators, areas, w, routes, first)
     capped, uncapped = communication_costs(neighbours, generators, w)
     return time + w.beta2 * capped, time + w.beta2 * uncapped
 
@@ -99,14 +117,14 @@ def bid_rewards(
     order), zero for tasks it could not keep (eq. 21: complete, its `covered` cells beyond v_max,
     or costing more than C_max) and, when it holds task `held` (>= 0), for tasks not worth more than
     that one; empty when every task is complete."""
-    labels, cell_counts, generators, areas = tasks
+    labels, cell_counts, generators, areas, routes = tasks
     n = generators.shape[0]
     done = np.empty(n, dtype=np.bool_)
     for j in range(n):
-        done[j] = covered[j] > v_max * cell_counts[j]
+        done[j] = covered[j] > v_max * cell_counts[j] or cell_counts[j] == 0  # none to see (`onto_flyable`)
     if done.all():
         return np.empty(0)
-    auction, holding = task_costs(position, neighbours, generators, areas, w)
+    auction, holding = task_costs(position, neighbours, generators, areas, w, routes, 0)
     income = np.zeros(n)
     for c in range(labels.shape[0]):
         income[labels[c]] += eta[c] * prior[c]

@@ -7,7 +7,7 @@ mission computes the same one, and the batch engine builds it once per run.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 
 import numpy as np
@@ -17,6 +17,7 @@ from companion.core.cvt import Tessellation, lloyd_cvt, onto_flyable
 from companion.core.geometry import BoolArray, ConvexPolygon, FloatArray, Grid
 from companion.core.kinematics import Kinematics, PathTree
 from companion.core.prior import prior_map
+from companion.core.routes import open_nodes, route_table
 from companion.core.safety.limits import Limits
 from companion.core.safety.start import initial_trajectories, tether_tree
 from companion.core.search_area import cell_mask, flyable_cells, keepout_pieces, plain, region_hull
@@ -141,14 +142,14 @@ def with_keepout(
     """`limits` with the mission's keep-out (docs/algorithm.md, "No-fly zones").
 
     Paths keep out of the region's notches beyond the margin and of every zone inflated by the
-    margin, the sagitta and the failsafe's stray (a silent UAV's aircraft holding its last command
-    stays out of the zone inflated by the margin); loiter centres keep out of every zone inflated by
-    the margin and the failsafe reach, so that the failsafe disk does too.
+    margin, the sagitta and the failsafe's stray; the spokes of their fans (`spokes_clear`) keep out
+    of every zone inflated by the margin, the stray and the failsafe's reach, so that a silent UAV's
+    aircraft, anywhere in its failsafe region, stays out of the zone inflated by the margin.
     """
     margin, sag = mission.safety.margin, limits.reach.sagitta
     paths = keepout_pieces(mission, region, margin - sag, margin + sag + stray)
-    centres = keepout_pieces(mission, region, margin - sag, margin + reach, notches=False)
-    return limits.with_keepout(paths, centres)
+    fans = keepout_pieces(mission, region, margin - sag, margin + stray + reach, notches=False)
+    return limits.with_keepout(paths, fans)
 
 
 def build_safety(
@@ -184,19 +185,6 @@ def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> Worl
     prior = build_prior(mission, grid)
     kin = build_kinematics(mission)
     a = mission.algorithm
-    tess = None
-    if a.name == "proposed":
-        tess = lloyd_cvt(
-            grid.centres,
-            prior,
-            a.n_g,
-            instance_rng(seed, run, Stream.CVT),
-            grid.cell_area,
-            a.lloyd_tolerance,
-            a.lloyd_max_iterations,
-        )
-        if not plain(mission):
-            tess = onto_flyable(tess, grid.centres, flyable_cells(mission, grid))
     c = mission.comms
     costs = CostWeights(
         beta1=a.beta[0],
@@ -210,4 +198,21 @@ def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> Worl
     )
     paths = PathTree.build(kin, a.horizon)
     safety = build_safety(mission, kin, grid.region, paths.sequences)
+    tess = None
+    if a.name == "proposed":
+        tess = lloyd_cvt(
+            grid.centres,
+            prior,
+            a.n_g,
+            instance_rng(seed, run, Stream.CVT),
+            grid.cell_area,
+            a.lloyd_tolerance,
+            a.lloyd_max_iterations,
+        )
+        if not plain(mission):
+            lim = safety.limits
+            flyable = flyable_cells(grid, (lim.keepout, lim.fan_keepout))
+            tess = onto_flyable(tess, grid.centres, flyable, mission.sensor.radius)
+            open_ = open_nodes(grid, lim.fence_normals, lim.fence_offsets, lim.keepout)
+            tess = replace(tess, routes=route_table(grid, tess.generators, open_))
     return World(mission, grid, prior, kin, paths, tess, costs, safety)

@@ -21,6 +21,7 @@ from companion.core.rhc import (
     search_benefit,
     soft_exp,
 )
+from companion.core.routes import STRAIGHT
 
 # cells 0, 1, 2 with values 0.5, 1.0, 0.2; index 3 is the padding (value 0)
 VALUES = np.array([0.5, 1.0, 0.2, 0.0])
@@ -33,7 +34,7 @@ def benefit(
     labels: list[list[int]], task: int, points: np.ndarray = POINTS, radius: float = 100.0
 ) -> np.ndarray:
     lab = np.array(labels, dtype=np.int64)
-    return search_benefit(points, FOV, VALUES, 2.0, lab, task, GEN, radius, 0.5)
+    return search_benefit(points, FOV, VALUES, 2.0, lab, task, GEN, radius, 0.5, STRAIGHT)
 
 
 def test_search_benefit_sums_fov_values_without_penalty_inside_the_task() -> None:
@@ -61,7 +62,7 @@ def test_soft_exp_is_exp_then_linear() -> None:
     # past the knee: e^10 * (1 + x - 10); x = 12 -> 22026.465795 * 3 = 66079.397385
     assert soft_exp(12.0) == pytest.approx(66079.397385)
     far = np.array([[[1200.0, 0.0], [0.0, 0.0]]])
-    got = search_benefit(far, FOV[:1], VALUES, 2.0, np.array([[0, 1]]), 1, GEN, 100.0, 0.5)
+    got = search_benefit(far, FOV[:1], VALUES, 2.0, np.array([[0, 1]]), 1, GEN, 100.0, 0.5, STRAIGHT)
     assert got[0] == pytest.approx(3.4 - 0.5 * 66079.397385)
 
 
@@ -207,7 +208,7 @@ def test_grid_path_ranking_in_one_call_matches_its_parts(
     cell_labels = np.append(rng.integers(0, 10, g.n_cells), -1)
     n_nbrs = int(rng.integers(0, 3))
     tracks = np.array([x, y]) + rng.normal(0, 150, (n_nbrs, 4, 2))
-    region = (task, np.array([x + 100.0, y - 50.0]), 200.0)
+    region = (task, np.array([x + 100.0, y - 50.0]), 200.0, STRAIGHT)
     comms = (500.0, 400.0, 60.0, 100.0)
     weights = ((1.0, 0.5), (1.0, 0.01), comms, g.region.normals, g.region.offsets, g.cell_size)
     cells_of = (g.x0, g.y0, g.lattice, g.fov_table)

@@ -106,7 +106,8 @@ def test_the_constrained_cvt_puts_every_task_where_a_uav_may_fly() -> None:
     for m in (load_mission(NOFLY), l_shaped()):
         world = build_world(m, 1, 0)
         assert world.tessellation is not None
-        flyable = world.grid.centres[flyable_cells(m, world.grid)]
+        lim = world.safety.limits
+        flyable = world.grid.centres[flyable_cells(world.grid, (lim.keepout, lim.fan_keepout))]
         for g in world.tessellation.generators:
             assert np.min(np.hypot(*(flyable - g).T)) < 1e-9, g
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from companion.core.cvt import describe
+from companion.core.routes import STRAIGHT
 from companion.core.tasks import (
     CostWeights,
     bid_rewards,
@@ -30,7 +31,7 @@ NBRS = np.array([[0.0, 1000.0], [0.0, -850.0]])
 def test_time_cost() -> None:
     # task 0: d = 500 -> 500 / 50 + 3 * 2000 / 1000 = 10 + 6 = 16
     # task 1: d = 0   -> 0 + 3 * 500 / 1000 = 1.5
-    assert time_cost(HERE, GENS, AREAS, W) == pytest.approx([16.0, 1.5])
+    assert time_cost(HERE, GENS, AREAS, W, STRAIGHT, 0) == pytest.approx([16.0, 1.5])
 
 
 def test_communication_cost_with_cap() -> None:
@@ -60,28 +61,29 @@ def test_comm_cap_saturates_each_neighbour_term() -> None:
 def test_task_costs() -> None:
     # C = beta_1 C^t + beta_2 C^c: task 0: 16 + 2 * 19.085537 = 54.171074
     #                              task 1: 1.5 + 2 * (19.085537 + 1.718282) = 43.107638
-    assert task_costs(HERE, NBRS, GENS, AREAS, W)[0] == pytest.approx([54.171074, 43.107638], rel=1e-6)
+    costs = task_costs(HERE, NBRS, GENS, AREAS, W, STRAIGHT, 0)[0]
+    assert costs == pytest.approx([54.171074, 43.107638], rel=1e-6)
 
 
 def test_eq_21_cost_is_eq_18_without_the_cap() -> None:
     # below the cap both costs agree: one neighbour at 900 m of task 1 -> 1.5 + 2 (e^2 - 1)
     near = np.array([[900.0, 0.0]])
-    assert task_costs(HERE, near, GENS[1:], AREAS[1:], W)[1] == pytest.approx(
-        task_costs(HERE, near, GENS[1:], AREAS[1:], W)[0]
+    assert task_costs(HERE, near, GENS[1:], AREAS[1:], W, STRAIGHT, 1)[1] == pytest.approx(
+        task_costs(HERE, near, GENS[1:], AREAS[1:], W, STRAIGHT, 1)[0]
     )
     # d = 960 m: (960 - 700) / 40 = 6.5 -> e^6.5 - 1 = 664.1 > C_max 300, capped at e^3 - 1 in the auction
     edge = np.array([[960.0, 0.0]])
-    strict = task_costs(HERE, edge, GENS[1:], AREAS[1:], W)[1][0]
+    strict = task_costs(HERE, edge, GENS[1:], AREAS[1:], W, STRAIGHT, 1)[1][0]
     assert strict == pytest.approx(1.5 + 2 * math.expm1(6.5), rel=1e-6)
-    assert task_costs(HERE, edge, GENS[1:], AREAS[1:], W)[0][0] == pytest.approx(
+    assert task_costs(HERE, edge, GENS[1:], AREAS[1:], W, STRAIGHT, 1)[0][0] == pytest.approx(
         1.5 + 2 * math.expm1(3.0), rel=1e-6
     )
-    assert keep_task(0.1, task_costs(HERE, edge, GENS[1:], AREAS[1:], W)[0][0], 0.85, 300.0)
+    assert keep_task(0.1, task_costs(HERE, edge, GENS[1:], AREAS[1:], W, STRAIGHT, 1)[0][0], 0.85, 300.0)
     assert not keep_task(0.1, strict, 0.85, 300.0)
     # at or beyond R_c the link is lost: no C_max keeps the task
     for d in (1000.0, 1500.0, 5000.0):
         assert not keep_task(
-            0.1, task_costs(HERE, np.array([[d, 0.0]]), GENS[1:], AREAS[1:], W)[1][0], 0.85, 1e9
+            0.1, task_costs(HERE, np.array([[d, 0.0]]), GENS[1:], AREAS[1:], W, STRAIGHT, 1)[1][0], 0.85, 1e9
         )
 
 
@@ -94,7 +96,7 @@ def test_income_and_reward_on_a_tiny_tessellation() -> None:
 
     def bids(covered: tuple[int, int] = (0, 0), c_max: float = 1e9, held: int = -1) -> np.ndarray:
         counts = np.array(covered, dtype=np.int64)
-        tasks = (tess.labels, tess.cell_counts, tess.generators, tess.areas)
+        tasks = (tess.labels, tess.cell_counts, tess.generators, tess.areas, tess.routes)
         return bid_rewards(eta, prior, counts, tasks, 0.85, c_max, here, none, W, held)
 
     # r_j = sum of eta Pr over V_j: 0.3 and 0.7; from (40, 20), no neighbours:

@@ -26,7 +26,7 @@ class Rules(NamedTuple):
 
     The constants of one UAV's checks: the `window` compared and the plan's `horizon` (M), the
     kinematics of eq. 2 (`Limits.kinematics_args`), the fence's half-planes and keep-out
-    triangles of paths and of loiter centres (`search_area.keepout_pieces`), the clearances of
+    triangles of paths and of fans' spokes (`search_area.keepout_pieces`), the clearances of
     `Limits` (separation, disk separation, link), the contingency clause's fan `reach` (-inf: the
     clause is off) and the `progress` per planned step of a UAV leaving a failsafe region."""
 
@@ -36,7 +36,7 @@ class Rules(NamedTuple):
     normals: FloatArray
     offsets: FloatArray
     keepout: FloatArray
-    centre_keepout: FloatArray
+    fan_keepout: FloatArray
     separation: float
     disk_separation: float
     link: float

@@ -25,7 +25,7 @@ class Limits:
     `link`: the largest tether length at a sampling moment (R_c - buffer);
     `fence_normals`, `fence_offsets`: the fence's half-planes, pulled in by the sagitta;
     `keepout`: the triangles inside the fence no trajectory enters (`search_area.keepout_pieces`);
-    `centre_keepout`: those no loiter centre enters (its failsafe disk stays clear of the zones).
+    `fan_keepout`: those no spoke of a failsafe region's fan enters (`search_area.spokes_clear`).
     """
 
     reach: Reach
@@ -40,7 +40,7 @@ class Limits:
     fence_normals: FloatArray
     fence_offsets: FloatArray
     keepout: FloatArray
-    centre_keepout: FloatArray
+    fan_keepout: FloatArray
 
     @classmethod
     def build(
@@ -74,9 +74,9 @@ class Limits:
             NO_KEEPOUT,
         )
 
-    def with_keepout(self, keepout: FloatArray, centre_keepout: FloatArray) -> Limits:
-        """A copy with the keep-out of paths and of loiter centres (`search_area.keepout_pieces`)."""
-        return replace(self, keepout=keepout, centre_keepout=centre_keepout)
+    def with_keepout(self, keepout: FloatArray, fan_keepout: FloatArray) -> Limits:
+        """A copy with the keep-out of paths and of fans' spokes (`search_area.keepout_pieces`)."""
+        return replace(self, keepout=keepout, fan_keepout=fan_keepout)
 
     def expand(self, rows: FloatArray, first: int) -> FloatArray:
         """Positions of every trajectory row at steps first..first + window: (n, window + 1, 2)."""

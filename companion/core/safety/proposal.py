@@ -12,7 +12,7 @@ from companion.core.safety.contingency import keeps_contingencies
 from companion.core.safety.failsafe_regions import clears_loiters, leaves_loiters, loiter_clearance
 from companion.core.safety.inputs import Candidates, Checked, Expanded, Regions, Rules
 from companion.core.safety.separation import compatible, inside_fence, keeps_apart, split_crowded
-from companion.core.search_area import clear_of
+from companion.core.search_area import spokes_clear
 
 
 @njit(cache=True)
@@ -34,7 +34,6 @@ def first_allowed(
     others, crowded, need = split_crowded(reference.pts, checked.others, checked.in_force, separation)
     loiters, paths, counts = regions
     pts = np.empty((candidates.shapes.shape[2], 2))
-    centre = np.empty((1, 2))
     known = np.full(checked.others.shape[0] + checked.lone.shape[0], np.nan)  # the reference's clearances
     hint = np.full(1, -1)  # the contingency region that failed the latest candidate
     best, best_side, farthest = -1, 0, -math.inf
@@ -57,8 +56,7 @@ def first_allowed(
             ):
                 continue
             cx, cy = _turned(candidates, candidates.centres[i, side, 0], candidates.centres[i, side, 1])
-            centre[0, 0], centre[0, 1] = cx, cy
-            if not clear_of(centre, rules.centre_keepout):
+            if not spokes_clear(pts, horizon, cx, cy, rules.fan_keepout):
                 continue
             code, worst = keeps_contingencies(
                 Expanded(pts, horizon, cx, cy), reference, checked, rules, known, hint

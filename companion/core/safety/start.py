@@ -11,7 +11,7 @@ from companion.core.geometry import FloatArray
 from companion.core.kinematics import Kinematics
 from companion.core.safety.limits import TURN_SIDES, Limits
 from companion.core.safety.separation import compatible, inside_fence
-from companion.core.search_area import clear_of
+from companion.core.search_area import spokes_clear
 from companion.core.trajectory import HEAD, Reach, Trajectory, expand
 
 
@@ -68,8 +68,8 @@ def initial_trajectories(
                 )
                 pts = limits.expand(limits.rows([traj]), 0)[0]
                 if inside_fence(pts, limits.fence_normals, limits.fence_offsets, limits.keepout) and (
-                    not limits.centre_keepout.shape[0]
-                    or clear_of(np.array([limits.loiter_circle(traj)[:2]]), limits.centre_keepout)
+                    not limits.fan_keepout.shape[0]
+                    or spokes_clear(pts, s, *limits.loiter_circle(traj)[:2], limits.fan_keepout)
                 ):
                     opts.append((traj, pts))
         options.append(opts)
