@@ -15,7 +15,7 @@ from companion.core.feasibility import load_mission
 from companion.core.geometry import ConvexPolygon
 from companion.core.search_area import zone_shape
 from companion.core.world import build_world
-from tests.view.conftest import nofly_mission
+from tests.view.conftest import SCENARIO1, nofly_mission
 
 
 @pytest.mark.parametrize("sides", [3, 4, 6, 8])
@@ -50,3 +50,16 @@ def test_the_scene_holds_every_no_fly_zone_and_its_keep_out(tmp_path: Path) -> N
         assert grown.exterior.hausdorff_distance(shape.exterior) == pytest.approx(margin, abs=0.5)
     assert "circle r 120 m" in scene.nofly[1].label
     assert b'"nofly":[{"label":"no-fly 0 (polygon)"' in msgspec.json.encode(scene)
+
+
+def test_a_non_convex_region_is_drawn_as_itself_inside_its_hull_s_fence(tmp_path: Path) -> None:
+    ell = [[-1000.0, -1000.0], [1000.0, -1000.0], [1000.0, 0.0], [0.0, 0.0], [0.0, 1000.0], [-1000.0, 1000.0]]
+    square = "[[-1000.0, -1000.0], [1000.0, -1000.0], [1000.0, 1000.0], [-1000.0, 1000.0]]"
+    path = tmp_path / "ell.toml"
+    path.write_text(SCENARIO1.read_text().replace(square, str(ell), 1))
+    mission = load_mission(path)
+    scene = build_scene(build_world(mission, 1, 0), "live", 1)
+    assert scene.region == ell and scene.nofly == []
+    fence = Polygon(scene.fence)  # the hull's five edges, each pushed out by the margin
+    assert len(scene.fence) == 5 and fence.contains(Polygon(ell).convex_hull.buffer(99.0))
+    assert not fence.contains(Polygon(ell).convex_hull.buffer(101.0))

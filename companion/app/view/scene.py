@@ -28,8 +28,8 @@ class SceneZone(msgspec.Struct, frozen=True):
     """A no-fly zone as drawn: its polygon, its label and where it goes, and the zone inflated.
 
     `ring` is `search_area.zone_shape` (a circle as the polygon around it); `inflated` holds the
-    rings (exterior first, then any holes) of that shape grown by the operating margin, the
-    keep-out's edge that no trajectory crosses."""
+    rings (exterior first, then any holes) of that shape grown by the operating margin: the
+    keep-out no trajectory enters (the safety layer's own polygon of it lies just outside)."""
 
     label: str
     at: list[float]
