@@ -7,7 +7,7 @@ STUDY_RUNS ?= 1000
 STUDY_OUT ?= out/study
 SWEEP_RUNS ?= 50
 
-.PHONY: install browser run run-sitl run-px4 mc study test bench clean
+.PHONY: install browser run run-nofly run-sitl run-px4 mc study test bench clean
 
 $(BIN)/uavsearch: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,11 @@ install: $(BIN)/uavsearch
 # The main job: a full simulated mission (simulator + one companion per UAV), sped up 10x.
 run: install
 	$(BIN)/uavsearch run mission_files/scenario1.toml --speedup 10 --steps 300 --out $(OUT)
+
+# The same with a no-fly band across the region, the area from a QGroundControl plan
+# (docs/mission-files.md, "The example mission").
+run-nofly: install
+	$(BIN)/uavsearch run mission_files/scenario1_nofly.toml --speedup 10 --steps 300 --out out/scenario1_nofly
 
 # The same on real autopilots: one ArduPlane SITL per UAV (binary from $ARDUPLANE_SITL or
 # ../shared/sitl/arduplane), sped up 4x (docs/companion.md, "Flying ArduPlane SITL").

@@ -5,7 +5,9 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import shutil
+import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -239,7 +241,19 @@ def write_starts(out: Path, drawn: Sequence[tuple[Mission, str]]) -> None:
 
 
 def copy_mission(mission: Path, out: Path) -> None:
-    """out/mission.toml: the mission file the output came from (`uavsearch view --replay` reads it)."""
+    """out/mission.toml: the mission file the output came from (`uavsearch view --replay` reads it).
+
+    Its area file (`region.area`), when named relative to the mission and inside its directory,
+    is copied to the same place under `out`, so that the copy reads as the original does."""
     target = out / "mission.toml"
     if not (target.exists() and target.samefile(mission)):
         shutil.copyfile(mission, target)
+    region = tomllib.loads(mission.read_text()).get("region", {})
+    area = region.get("area", "") if isinstance(region, dict) else ""
+    rel = Path(os.path.normpath(area)) if isinstance(area, str) and area else None
+    if rel is None or rel.is_absolute() or rel.parts[0] == "..":
+        return
+    copy = out / rel
+    if not (copy.exists() and copy.samefile(mission.parent / rel)):
+        copy.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(mission.parent / rel, copy)

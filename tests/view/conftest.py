@@ -16,6 +16,7 @@ from tests.e2e.conftest import make_mission, procs  # noqa: F401  (fixtures)
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO1 = ROOT / "mission_files" / "scenario1.toml"
+NOFLY = ROOT / "mission_files" / "scenario1_nofly.toml"
 CHROMIUM = Path("/usr/bin/chromium")
 # Chromium as root in a closed network: no sandbox, no GPU, no background connections.
 CHROMIUM_FLAGS = [
@@ -52,3 +53,12 @@ def browser() -> Iterator[BrowserContext]:
         finally:
             context.close()
             shutil.rmtree(profile, ignore_errors=True)
+
+
+def nofly_mission(tmp_path: Path) -> Path:
+    """Scenario 1 with its .plan's no-fly band and a no-fly circle typed in the file, in `tmp_path`."""
+    text = NOFLY.read_text().replace('"areas/', f'"{NOFLY.parent}/areas/')
+    circle = '[[region.nofly]]\ntype = "circle"\nx = 500.0\ny = -400.0\nradius = 120.0\n\n[prior]'
+    path = tmp_path / "nofly.toml"
+    path.write_text(text.replace("[prior]", circle, 1))
+    return path

@@ -8,7 +8,8 @@ four UAVs; between two screenshots their drawn positions move and match the comp
 within a cell (and the UAV's colour is on the canvas where the page says it drew it); a page
 that leaves and a client that drops its connection mid-flight break nothing; the found-target
 counter and eq. 30 end where the run's own files do; and the replay's slider shows the state of
-a chosen step. Set UAVSEARCH_VIEW_SHOTS=DIR to keep the screenshots (docs/view.md's come so).
+a chosen step. A short replay of the no-fly example shows each zone filled and labelled and its
+keep-out dashed. Set UAVSEARCH_VIEW_SHOTS=DIR to keep the screenshots (docs/view.md's come so).
 """
 
 from __future__ import annotations
@@ -29,10 +30,16 @@ import numpy as np
 import zenoh
 from PIL import Image
 from playwright.sync_api import BrowserContext, Page
+from shapely.geometry import LineString, Point, Polygon
 
+from companion.app.view.scene import build_scene
+from companion.batch.experiments import compare
 from companion.contracts.zenoh_config import peer_config
+from companion.core.feasibility import load_mission
+from companion.core.world import build_world
 from companion.node.mesh import Bundle, encode_bundle, key_base
 from tests.e2e.conftest import PY, STARTUP_S, MissionFile, Proc, Procs
+from tests.view.conftest import nofly_mission
 
 STEPS = 300
 REPLAY_STEP = 150
@@ -249,3 +256,65 @@ def test_live_map_of_a_flying_swarm_and_its_replay(
     assert replay.stop() == 0
     _keep([shot_b, shot])
     print(f"screenshots in {tmp_path}", file=sys.stderr)
+
+
+NOFLY_STEPS = 3
+ZONE = "#3f3f46"  # app.js's no-fly colour
+
+
+def _near(
+    shot: Image.Image, screen: dict, x: float, y: float, colour: tuple[int, int, int], tol: int
+) -> bool:
+    """Whether a pixel within one of where the map draws (x, y) has `colour` (each channel within `tol`)."""
+    cx, cy = round(screen["left"] + screen["s"] * x), round(screen["top"] - screen["s"] * y)
+    pixels = (shot.getpixel((cx + dx, cy + dy)) for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+    return any(all(abs(a - b) <= tol for a, b in zip(p, colour, strict=True)) for p in pixels)
+
+
+def test_the_map_draws_each_no_fly_zone_and_its_keep_out(
+    procs: Procs, browser: BrowserContext, tmp_path: Path
+) -> None:
+    """A short replay of the no-fly example: each zone filled and labelled, its keep-out dashed."""
+    path = nofly_mission(tmp_path)
+    mission = load_mission(path)
+    out = tmp_path / "mc"
+    compare(mission, ["proposed"], 1, NOFLY_STEPS, 1, out, workers=1, save_trajectories=True, progress=False)
+    replay, url = _view(procs, "replay", "--replay", str(out), "--mission", str(path))
+    page = browser.new_page()
+    page.goto(url)
+    page.wait_for_function(f"() => Number(document.body.dataset.frames) === {NOFLY_STEPS}", timeout=WAIT_MS)
+    page.evaluate("() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+    shot = tmp_path / "view-nofly.png"
+    page.screenshot(path=str(shot))
+    box = page.locator("#map").bounding_box()
+    ds = page.evaluate("() => ({...document.getElementById('map').dataset})")
+    screen = {"left": box["x"] + float(ds["ox"]), "top": box["y"] + float(ds["oy"]), "s": float(ds["scale"])}
+    scene = build_scene(build_world(mission, 1, 0), "replay", 1)
+    assert len(scene.nofly) == 2
+    with Image.open(shot) as img:
+        rgb = img.convert("RGB")
+        for zone in scene.nofly:
+            # filled: the zone's inside (away from its edge and its label) in the zone's colour
+            inner, label = Polygon(zone.ring).buffer(-30.0), Point(zone.at).buffer(80.0)
+            x0, y0, x1, y1 = inner.bounds
+            inside = [
+                (x, y)
+                for x in np.linspace(x0, x1, 25)
+                for y in np.linspace(y0, y1, 25)
+                if inner.contains(Point(x, y)) and not label.contains(Point(x, y))
+            ]
+            filled = sum(_near(rgb, screen, x, y, _hex(ZONE), 12) for x, y in inside)
+            assert inside and filled >= 0.8 * len(inside), f"{zone.label}: {filled}/{len(inside)} filled"
+            # labelled: white text on the fill where the label goes
+            lx, ly = screen["left"] + screen["s"] * zone.at[0], screen["top"] - screen["s"] * zone.at[1]
+            text = np.asarray(rgb.crop((round(lx) - 40, round(ly) - 7, round(lx) + 40, round(ly) + 7)))
+            assert np.count_nonzero(text.min(axis=2) >= 245) >= 10, f"{zone.label}: no label drawn"
+            # the keep-out: the zone grown by the margin, a dashed outline (six on, four off)
+            ring = LineString([*zone.inflated[0], zone.inflated[0][0]])
+            along = [ring.interpolate(d) for d in np.arange(0.0, ring.length, 4.0 / screen["s"])]
+            dashed = sum(_near(rgb, screen, p.x, p.y, _hex(ZONE), 30) for p in along)
+            assert 0.4 * len(along) <= dashed < len(along), (
+                f"{zone.label}: {dashed}/{len(along)} on its keep-out"
+            )
+    assert replay.stop() == 0
+    _keep([shot])

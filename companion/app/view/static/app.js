@@ -6,6 +6,7 @@
   const COLOURS = ["#2563eb", "#dc2626", "#059669", "#d97706", "#7c3aed",
     "#db2777", "#0891b2", "#65a30d", "#9333ea", "#ea580c"];
   const SILENT = "#9aa1ad";
+  const ZONE = "#3f3f46";  // no-fly zones and their keep-out
   const TRACK_POINTS = 3000;
   const $ = (id) => document.getElementById(id);
   const colour = (i) => COLOURS[i % COLOURS.length];
@@ -49,7 +50,8 @@
     st.cells = { n, x, y, heat, byLabel, edges };
     st.looks = new Int32Array(n);
     st.looksAt = -1;
-    const outline = scene.fence || scene.region;  // the map shows the fence: UAVs may turn out there
+    // the map shows the fence (UAVs may turn out there) and every zone's keep-out, even one outside it
+    const outline = [...(scene.fence || scene.region), ...(scene.nofly || []).flatMap((z) => z.inflated[0])];
     const xs = outline.map((v) => v[0]), ys = outline.map((v) => v[1]);
     st.bounds = [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)];
     $("title").textContent = `${scene.mission} · ${scene.algorithm} · ${scene.n_uavs} UAVs`;
@@ -178,6 +180,7 @@
         ctx.fillRect(X(cells.x[p] - half), Y(cells.y[p] + half), side, side);
       }
     }
+    drawZones(ctx, sc.nofly || [], X, Y);
     ctx.beginPath();  // region
     sc.region.forEach(([x, y], i) => (i ? ctx.lineTo(X(x), Y(y)) : ctx.moveTo(X(x), Y(y))));
     ctx.closePath();
@@ -314,6 +317,37 @@
     }
     scaleBar(ctx, s, m, h);
     northArrow(ctx, w, m);
+  }
+
+  // no-fly zones: filled and labelled, and the keep-out (each zone grown by the operating margin) dashed
+  function drawZones(ctx, zones, X, Y) {
+    const path = (ring) => ring.forEach(([x, y], i) => (i ? ctx.lineTo(X(x), Y(y)) : ctx.moveTo(X(x), Y(y))));
+    for (const z of zones) {
+      ctx.beginPath();
+      path(z.ring);
+      ctx.closePath();
+      ctx.fillStyle = ZONE;
+      ctx.fill();
+      ctx.beginPath();
+      for (const ring of z.inflated) { path(ring); ctx.closePath(); }
+      ctx.setLineDash([6, 4]);
+      ctx.strokeStyle = ZONE;
+      ctx.lineWidth = 2;
+      ctx.stroke();
+      ctx.setLineDash([]);
+    }
+    ctx.font = "bold 11px system-ui, sans-serif";
+    ctx.textAlign = "center";
+    ctx.textBaseline = "middle";
+    ctx.lineWidth = 3;  // a halo in the zone's colour: readable where the label overhangs the zone
+    ctx.strokeStyle = ZONE;
+    ctx.fillStyle = "#fff";
+    for (const z of zones) {
+      ctx.strokeText(z.label, X(z.at[0]), Y(z.at[1]));
+      ctx.fillText(z.label, X(z.at[0]), Y(z.at[1]));
+    }
+    ctx.textAlign = "start";
+    ctx.textBaseline = "alphabetic";
   }
 
   // not steered: its companion says the vehicle does not fly the plan (a pilot, a failsafe, Hold)
