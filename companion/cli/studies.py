@@ -53,6 +53,7 @@ def _print_summary(summary: StudySummary) -> None:
     from rich.table import Table
 
     table = Table(title="Monte Carlo summary")
+    zones = any(s.keepout_entries is not None for s in summary.algorithms.values())
     for col in (
         "algorithm",
         "runs",
@@ -61,6 +62,8 @@ def _print_summary(summary: StudySummary) -> None:
         "final uncertainty",
         "min lambda_2",
         "min distance (m)",
+        "runs with an event",
+        *(["keep-out entries"] if zones else []),
         "s / 1,000 steps",
     ):
         table.add_column(col, justify="right")
@@ -73,6 +76,8 @@ def _print_summary(summary: StudySummary) -> None:
             f"{s.final_mean_uncertainty:.4f} ± {s.final_mean_uncertainty_ci95:.4f}",
             f"{s.min_lambda2:.4f}",
             f"{s.min_distance:.1f}",
+            str(s.runs_with_event),
+            *([str(s.keepout_entries or 0)] if zones else []),
             f"{s.seconds_per_1000_steps:.3f}",
         )
     Console().print(table)

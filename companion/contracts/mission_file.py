@@ -286,7 +286,10 @@ def resolve_area(raw: dict, source: str, base: Path | None) -> None:
     if region.get("polygon"):
         raise MissionError(source, "region.area", "give region.polygon or region.area, not both")
     path = Path(name) if Path(name).is_absolute() else (base or Path.cwd()) / name
-    area = read_area(path)
+    try:
+        area = read_area(path)
+    except MissionError as exc:  # named by both files: the mission's field, then the area file's
+        raise MissionError(source, "region.area", str(exc)) from None
     origin = None
     if "origin" in region:
         try:

@@ -6,10 +6,13 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from companion.contracts.mission import MissionError
 from companion.core.feasibility import load_mission, parse_mission
+from companion.core.search_area import region_hull
+from companion.core.world import build_grid
 
 from .conftest import MISSIONS
 
@@ -94,20 +97,20 @@ def test_value_out_of_range() -> None:
     assert err.field == "uncertainty.gamma"
 
 
-def test_non_convex_polygon() -> None:
-    err = bad(
-        sub(r"\[1000\.0, 1000\.0\], \[-1000\.0, 1000\.0\]", "[0.0, 0.0], [1000.0, 1000.0], [-1000.0, 1000.0]")
-    )
-    assert err.field == "region.polygon" and "convex" in err.reason
+def test_a_non_convex_polygon_is_searched() -> None:
+    """A region with a notch loads; its cells are those inside it, its fence is its hull's."""
+    notch = "[0.0, 0.0], [1000.0, 1000.0], [-1000.0, 1000.0]"
+    notched = sub(r"\[1000\.0, 1000\.0\], \[-1000\.0, 1000\.0\]", notch)
+    m = parse_mission(notched, "notched.toml")
+    hull = region_hull(m)
+    assert len(m.region.polygon) == 5 and len(hull.vertices) == 4 and hull.area == pytest.approx(4e6)
+    x, y = build_grid(m).centres.T
+    assert not np.any(x > np.abs(y) + 1.0)  # the notch: the triangle (1000, -1000), (0, 0), (1000, 1000)
+    assert np.any(x > 0)
 
 
-def test_self_intersecting_star_is_not_convex() -> None:
-    """BUG (companion/contracts/mission_file.py, _validate): the convexity check only compares the signs of
-    consecutive cross products. A pentagram turns the same way at every vertex (its turns add
-    up to 720 degrees, not 360), so it passes as "convex" and ConvexPolygon then silently uses the
-    inner pentagon's half-planes. Fix: also require the exterior angles to sum to 2 pi, or check
-    that every vertex lies inside every edge's half-plane.
-    """
+def test_a_self_crossing_star_is_refused() -> None:
+    """A pentagram turns the same way at every vertex, but its ring crosses itself."""
     star = [
         (900 * math.cos(math.radians(90 + 144 * k)), 900 * math.sin(math.radians(90 + 144 * k)))
         for k in range(5)

@@ -116,8 +116,8 @@ def test_each_bad_input_is_one_line_naming_the_file(tmp_path: Path) -> None:
 
     missing = _mission(tmp_path, "areas/nowhere.plan")
     err = _error(missing)
-    assert err.source == str(tmp_path / "areas" / "nowhere.plan") and err.field == "(file)"
-    assert "No such file" in err.reason
+    assert (err.source, err.field) == (str(missing), "region.area")
+    assert err.reason.startswith(f"{tmp_path / 'areas' / 'nowhere.plan'}: (file): No such file")
 
     covering = _mission(tmp_path, "areas/covers_starts.geojson")
     _covering_starts(load_mission(NOFLY), tmp_path / "areas" / "covers_starts.geojson")
