@@ -4,7 +4,8 @@ A mission of the family has a random convex region (3-8 vertices, 0.8-4 km acros
 orientation), 2-12 UAVs starting on one of its edges or clustered inside it (`starts.start_layout`:
 separated, connected, and with a start contingency for every UAV: `mission._validate_start`), 1-6
 distribution centres of eq. 1 with their own sigma, 5-20 targets, either kinematics mode, and
-one altitude layer for everyone, two, or one a UAV (as many as the default band holds).
+one altitude layer for everyone, two, or one a UAV (as many as the default band holds), and as
+many no-fly zones as `Family.zones` asks (none by default).
 Everything else takes the paper's values (R_A, R_c, R'_c, R_s, R'_s, eta_0, gamma, M) and the
 scenario files' choices (speed, step, weights). `generate` is a pure function of (count, seed,
 family): the same seed gives the same missions, file for file.
@@ -45,6 +46,7 @@ class Family:
     layer_counts: tuple[int, ...] = (1, 2, 0)
     cell_size: float = 40.0
     steps: int = 1000
+    zones: tuple[int, int] = (0, 0)  # no-fly zones per mission: circles and bars (`_zone`)
 
 
 def _polygon(rng: np.random.Generator, fam: Family) -> np.ndarray:
@@ -123,6 +125,8 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict |
     peaks = _peaks(rng, grid, np.array(centres), sigmas, targets)
     n_g = int(np.clip(round(len(grid) / 50), 8, 120))
     layers = int(rng.choice(fam.layer_counts))  # drawn last: the rest is as without layers
+    count = int(rng.integers(fam.zones[0], fam.zones[1] + 1)) if fam.zones[1] else 0  # then zones
+    zones = [_zone(rng, lo, hi, across) for _ in range(count)]
     return {
         "name": name,
         "seed": seed,
@@ -131,6 +135,7 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict |
             "polygon": verts.tolist(),
             "cell_size": cell,
             "origin": {"lat": -35.363261, "lon": 149.16523, "alt": 584.0},
+            **({"nofly": zones} if zones else {}),
         },
         "prior": {
             "sigma": float(np.round(sigmas.mean(), 1)),
@@ -153,6 +158,19 @@ def _draw(rng: np.random.Generator, fam: Family, name: str, seed: int) -> dict |
         "vehicles": [{"x": x, "y": y, "heading_deg": h} for x, y, h in poses],
         **({"layers": {"count": layers}} if layers else {}),
     }
+
+
+def _zone(rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray, across: float) -> dict:
+    """A no-fly zone in the region's bounding box: a circle, or a bar at any angle (a band)."""
+    x, y = (round(float(v), 1) for v in rng.uniform(lo, hi))
+    if rng.random() < 0.5:
+        return {"type": "circle", "x": x, "y": y, "radius": round(float(rng.uniform(0.03, 0.1) * across), 1)}
+    half, width = rng.uniform(0.1, 0.25) * across, rng.uniform(0.02, 0.06) * across
+    angle = rng.uniform(0, np.pi)
+    u, v = np.array([np.cos(angle), np.sin(angle)]), np.array([-np.sin(angle), np.cos(angle)])
+    signs = ((-1, -1), (1, -1), (1, 1), (-1, 1))
+    corners = [np.array([x, y]) + a * half * u + b * width / 2 * v for a, b in signs]
+    return {"type": "polygon", "ring": [[round(float(c[0]), 1), round(float(c[1]), 1)] for c in corners]}
 
 
 def generate(count: int, seed: int, family: Family | None = None) -> list[tuple[Mission, str]]:

@@ -34,16 +34,18 @@ def _soak(args: argparse.Namespace) -> int:
         for row in soak(specs, executor=executor):
             runs += 1
             events += not row.clean
-            if args.verbose or row.separation_losses or row.link_losses:
+            if args.verbose or row.separation_losses or row.link_losses or row.keepout_entries:
                 killed = f" killed {row.killed[0][0]}@{row.killed[0][1]}" if row.killed else ""
                 console.print(
                     f"{row.mission} {row.mode} {row.uavs} UAVs {row.algorithm}{killed}: "
                     f"{row.separation_losses} separation, {row.link_losses} link events, "
+                    f"{row.keepout_entries} keep-out entries, "
                     f"closest approach {row.closest_approach:.1f} m, "
                     f"found {row.targets_found}/{row.targets}",
                     style=None if row.clean else "bold red",
                 )
     what = "a separation event" if args.kill else "a separation or link event"
+    what += " or a keep-out entry" if args.zones[1] else ""
     print(f"{runs} runs of {args.missions} generated missions: {events} with {what}")
     return 1 if events else 0
 

@@ -7,7 +7,14 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 from companion.batch.starts import LAYOUTS
 from companion.contracts.arguments import HelpFormatter, count, names, real_span, step_count, whole_span
-from companion.contracts.mission import ALGORITHMS, MAX_CENTRES, MAX_GRID_CELLS, MAX_VEHICLES, MODES
+from companion.contracts.mission import (
+    ALGORITHMS,
+    MAX_CENTRES,
+    MAX_GRID_CELLS,
+    MAX_VEHICLES,
+    MAX_ZONES,
+    MODES,
+)
 
 if TYPE_CHECKING:
     from companion.batch.generate import Family
@@ -67,6 +74,9 @@ def family_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layouts", type=names(LAYOUTS), default="edge,clustered", help="start layouts")
     p.add_argument("--modes", type=names(MODES), default="grid,continuous", help="kinematics modes")
     p.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")
+    p.add_argument(
+        "--zones", type=whole_span(0, MAX_ZONES), default="0-0", help="no-fly zones per mission (range)"
+    )
 
 
 def family(args: argparse.Namespace) -> Family:
@@ -81,4 +91,5 @@ def family(args: argparse.Namespace) -> Family:
         layouts=args.layouts,
         modes=args.modes,
         steps=args.steps,
+        zones=args.zones,
     )
