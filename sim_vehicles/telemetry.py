@@ -165,7 +165,7 @@ class TelemetryBuilder:
     def sys_status(self, t: float, pose: Pose) -> mavlink.MAVLink_message:
         bad, unhandled, rejected = (min(e, 65535) for e in self.errors)
         v, fence = self.vehicle, M.MAV_SYS_STATUS_GEOFENCE
-        present = SENSORS | (fence if v.fence else 0)
+        present = SENSORS | (fence if v.fence.zones else 0)
         enabled = SENSORS | (fence if v.fence_enabled else 0)
         healthy = SENSORS | (0 if v.fence_breached else fence)
         return M.MAVLink_sys_status_message(

@@ -15,8 +15,8 @@ from collections import deque
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.core.geometry import ConvexPolygon
 from sim_vehicles.dynamics import navigation as nav
+from sim_vehicles.fence import Fence
 from sim_vehicles.modes import Behaviour, Flavour, Mode
 from sim_vehicles.nav_targets import HeadingHold, Leg, Loiter, Nav, RateHold, Turn, Waypoint
 from sim_vehicles.protocols.params import ParamStore
@@ -60,7 +60,7 @@ class Vehicle:
         self.alt_target = alt
         self.mission: list[Waypoint] = []
         self.mission_index = 0
-        self.fence: list[ConvexPolygon] = []  # inclusion polygons, local frame
+        self.fence = Fence()  # its inclusion and exclusion zones, local frame
         self.fence_breached = False
         self.setpoints: deque[float] = deque(maxlen=3)
         self.offboard_nav: Nav = None
@@ -91,8 +91,8 @@ class Vehicle:
     def fence_enabled(self) -> bool:
         p = self.params
         if self.px4:
-            return bool(self.fence) and p.value("geofence_action") != 0
-        return bool(self.fence) and p.value("fence_enable", 0.0) == 1 and (
+            return bool(self.fence.zones) and p.value("geofence_action") != 0
+        return bool(self.fence.zones) and p.value("fence_enable", 0.0) == 1 and (
             int(p.value("fence_type", 0.0)) & FENCE_POLYGON_BIT > 0
         )
 
@@ -188,15 +188,19 @@ class Vehicle:
             self.speed = value
         return ok
 
-    def set_fence(self, polygons: list[ConvexPolygon]) -> None:
-        """The inclusion polygons uploaded (PX4 ignores a fence without home or the vehicle in it)."""
-        if self.px4 and polygons:
-            for where, point in (("Home position", self.home), ("current vehicle position", self.last_xy)):
-                if not all(p.contains(*point) for p in polygons):
-                    self.say(f"Geofence invalid, doesn't contain {where}", mavlink.MAV_SEVERITY_WARNING)
-                    polygons = []
-                    break
-        self.fence, self.fence_breached = polygons, False
+    def set_fence(self, fence: Fence) -> None:
+        """The fence uploaded (PX4 drops each zone that keeps out home or the vehicle, and says so)."""
+        if self.px4:
+            kept, points = [], (("Home position", self.home), ("current vehicle position", self.last_xy))
+            for zone in fence.zones:
+                for where, point in points:
+                    if zone.keeps_out(*point):
+                        self.say(f"Geofence invalid, doesn't contain {where}", mavlink.MAV_SEVERITY_WARNING)
+                        break
+                else:
+                    kept.append(zone)
+            fence = Fence(tuple(kept))
+        self.fence, self.fence_breached = fence, False
 
     def turn_rate(self, t: float, rate: float) -> bool:
         """The bundled simulator's direct turn-rate command (rad/s CCW); False if not in control."""
@@ -286,7 +290,7 @@ class Vehicle:
         if not self.fence_enabled:
             self.fence_breached = False
             return
-        outside = not all(p.contains(x, y) for p in self.fence)
+        outside = self.fence.breached(x, y)
         if outside and not self.fence_breached and self.armed:
             self.say("Geofence violation" if self.px4 else "Fence breached", mavlink.MAV_SEVERITY_CRITICAL)
             self._fence_action(x, y)

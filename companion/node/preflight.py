@@ -7,7 +7,7 @@ import threading
 
 from companion.node.airframe import SIMULATOR_PARAM, Airframe, check_mission, refusal
 from companion.node.failsafe import FailsafeLoiter, arm_failsafe
-from companion.node.fence import fence_margin, fence_polygon, upload_fence
+from companion.node.fence import FenceMismatch, fence_items, fence_margin, upload_fence
 from companion.node.pilot import Pilot
 from companion.node.return_altitude import set_return_altitude
 from companion.node.takeover import take_over
@@ -82,23 +82,31 @@ class Preflight:
         )
 
     def _upload_fence(self) -> None:
-        """Upload the autopilot's fence: the planning fence plus one step of slack.
+        """Upload the autopilot's fence: the planning fence plus one step of slack, and the no-fly zones.
 
         The planning fence is the region plus margin; the step of slack is for the vehicle's
-        tracking error. The companion's own guard acts at the planning fence.
+        tracking error. The companion's own guard acts at the planning fence. The no-fly zones go
+        as the operator gave them (the plans keep the margin from them). The fence is read back
+        and compared with what was sent (`fence.upload_fence`): Refused if it differs, a warning
+        if the autopilot refused the upload.
         """
         m = self.opts.mission
         margin = fence_margin(m) + m.kinematics.speed * m.kinematics.step
-        error = upload_fence(self.link, self.pilot.frame, fence_polygon(m, margin))
+        items = fence_items(m, self.pilot.frame, margin)
+        try:
+            error = upload_fence(self.link, items)
+        except FenceMismatch as exc:
+            raise Refused(f"uav {self.uav}: {exc}") from exc
         if error:
             log.warning("uav %d: fence not set: %s", self.uav, error)
         else:
             self.fence_uploaded = True
             log.info(
-                "uav %d: fence enabled: the region plus %.0f m (%d vertices)",
+                "uav %d: fence enabled and read back: the region plus %.0f m (%d vertices), %d no-fly zones",
                 self.uav,
                 margin,
-                len(self.pilot.fence.vertices),
+                int(items[0].params[0]),
+                len(m.region.nofly),
             )
 
     def _set_return_altitude(self) -> None:

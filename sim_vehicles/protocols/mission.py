@@ -2,10 +2,11 @@
 
 ArduPilot flavour keeps home as item 0 (an "empty" mission downloads as one item, home, and an
 uploaded item 0 is replaced by home); PX4 flavour has no such item. Both store a fence (mission
-type FENCE): its inclusion polygons (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION items, param1 = the
-polygon's vertex count) are what the vehicle enforces; other fence items are stored and downloaded
-but not enforced. Rally lists are always empty: downloads report 0 items, uploads of items are
-refused with MAV_MISSION_UNSUPPORTED. The vehicle drives
+type FENCE): its inclusion and exclusion polygons (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION or
+_EXCLUSION items, param1 = the polygon's vertex count) and circles (param1 = the radius) are what the
+vehicle enforces (`sim_vehicles.fence`); a return point is stored and downloaded only. Rally
+lists are always empty: downloads report 0 items, uploads of items are refused with
+MAV_MISSION_UNSUPPORTED. The vehicle drives
 uploads (MISSION_REQUEST_INT per item); the client retries lost messages.
 """
 
@@ -17,7 +18,7 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.core.geometry import ConvexPolygon
+from sim_vehicles.fence import Fence, FencePoint, parse_fence
 from sim_vehicles.nav_targets import Waypoint
 
 if TYPE_CHECKING:
@@ -178,7 +179,7 @@ class MissionProtocol:
             self._request(hv, msg, addr, len(up.items))
             return
         self.upload = None
-        if up.mission_type == M.MAV_MISSION_TYPE_FENCE and _polygons(hv, up.items) is None:
+        if up.mission_type == M.MAV_MISSION_TYPE_FENCE and _fence(hv, up.items) is None:
             hv.stats.rejected += 1
             self._ack(hv, msg, addr, M.MAV_MISSION_INVALID)
             return
@@ -201,7 +202,7 @@ class MissionProtocol:
     def _commit(self, hv: HostedVehicle, items: list[Item], mission_type: int) -> None:
         if mission_type == M.MAV_MISSION_TYPE_FENCE:
             self.fence = list(items)
-            hv.vehicle.set_fence(_polygons(hv, items) or [])
+            hv.vehicle.set_fence(_fence(hv, items) or Fence())
             return
         self.items = list(items)
         first = 1 if hv.vehicle.flavour.home_is_item0 else 0
@@ -255,27 +256,7 @@ def _validate(msg: mavlink.MAVLink_message) -> tuple[Item | None, int]:
     return Item(msg.frame, msg.command, msg.autocontinue, params, x, y, msg.z), M.MAV_MISSION_ACCEPTED
 
 
-def _polygons(hv: HostedVehicle, items: list[Item]) -> list[ConvexPolygon] | None:
-    """The inclusion polygons of a fence (local frame); None if a polygon is malformed.
-
-    A polygon is malformed when its vertex counts disagree, it has fewer than 3 vertices, or it is
-    not convex.
-    """
-    out, i = [], 0
-    while i < len(items):
-        it = items[i]
-        if it.command != M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION:
-            i += 1
-            continue
-        n = int(it.params[0])
-        group = items[i:i + n]
-        if n < 3 or len(group) < n or any(
-            g.command != it.command or int(g.params[0]) != n for g in group
-        ):
-            return None
-        polygon = ConvexPolygon.from_vertices([hv.frame.to_local(g.x * 1e-7, g.y * 1e-7) for g in group])
-        if not all(polygon.contains(*v) for v in polygon.vertices):
-            return None
-        out.append(polygon)
-        i += n
-    return out
+def _fence(hv: HostedVehicle, items: list[Item]) -> Fence | None:
+    """The zones of a fence's items (local frame); None if malformed (`sim_vehicles.fence.parse_fence`)."""
+    points = [FencePoint(it.command, it.params[0], it.x, it.y) for it in items]
+    return parse_fence(points, hv.frame.to_local)

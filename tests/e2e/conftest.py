@@ -39,6 +39,7 @@ from tests.thread_signal import signal_another_thread
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO1 = ROOT / "mission_files" / "scenario1.toml"
+SCENARIO1_NOFLY = ROOT / "mission_files" / "scenario1_nofly.toml"  # its area from areas/*.plan
 PY = sys.executable
 STARTUP_S = 90.0  # generous: a busy 2-core machine imports numpy, numba, pymavlink and zenoh slowly
 STOP_S = 30.0  # how long a process gets after SIGINT before SIGKILL
@@ -73,13 +74,15 @@ def write_mission(
     kinematics: str = "continuous",
     sim: str = SLACK_GUIDED_TIMEOUT,
     safety: str = SLACK_FAILSAFE_TIMEOUT,
+    base: Path = SCENARIO1,
 ) -> MissionFile:
-    """scenario1 with its first n vehicles (same starts), on free ports and its own key space.
+    """`base` (scenario1) with its first n vehicles (same starts), on free ports and its own key space.
 
     `kinematics` "continuous" makes the vehicles respond to guidance during the step it is sent
     in (grid mode applies guidance at the next step boundary only, one step late in real time).
+    A `[region] area` file is found where `base` is.
     """
-    text = SCENARIO1.read_text(encoding="utf-8")
+    text = base.read_text(encoding="utf-8").replace('area = "', f'area = "{base.parent}/')
     head, *vehicles = text.split("[[vehicles]]")
     vehicles[-1] = vehicles[-1].split("[pass_criteria]")[0]
     assert 1 <= n <= len(vehicles)

@@ -1,10 +1,12 @@
 """The search as a ground station connected to the autopilot (not to the companion) sees it.
 
-MAVProxy, headless, on vehicle 0's endpoint of the bundled simulator, while two companions search:
-the simulator routes the companion's reports to it as ArduPlane routes its links, and its .tlog
-must hold a STATUSTEXT and a CAMERA_TRACKING_GEO_STATUS at each target's cell for every target
-companion 0 knows, the progress and the companion's CPU load as NAMED_VALUE_FLOATs, its HEARTBEAT
-saying ACTIVE while it steers, and UAV 1 as ADSB_VEHICLE traffic at the positions it logged.
+MAVProxy, headless, on vehicle 0's endpoint of the bundled simulator, while two companions search
+scenario1_nofly (a no-fly band across the area, from the operator's .plan): the simulator routes
+the companion's reports to it as ArduPlane routes its links, and its .tlog must hold a STATUSTEXT
+and a CAMERA_TRACKING_GEO_STATUS at each target's cell for every target companion 0 knows, the
+progress and the companion's CPU load as NAMED_VALUE_FLOATs, its HEARTBEAT saying ACTIVE while it
+steers, and UAV 1 as ADSB_VEHICLE traffic at the positions it logged. The fence, read back from
+each vehicle by pymavlink, is the mission's: the inclusion polygon and the band as the .plan draws it.
 """
 
 from __future__ import annotations
@@ -20,28 +22,33 @@ from pymavlink import mavutil
 from companion.contracts.frames import LocalFrame
 from companion.core.world import build_world
 from companion.node.vehicle_link import COMPANION_COMPONENT, COMPANION_SYSTEM
-from tests.e2e.conftest import Procs, read_csv, wait_rows
+from tests.e2e.conftest import SCENARIO1_NOFLY, Ground, Procs, read_csv, wait_rows
+from tests.fence_readback import assert_exclusions_as_drawn, companion_fence, read_fence
 
 MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")  # installed with the test extras
 WAIT_S = 600.0  # generous: two companions, a simulator and MAVProxy on a busy 2-core machine
+AUTOPILOT = mavutil.mavlink.MAV_COMP_ID_AUTOPILOT1
 TARGETS = 2  # targets companion 0 must know before the run is stopped
 TEXT = re.compile(r"UAV(\d+) target at (-?\d+\.\d+) (-?\d+\.\d+)")
 
 
 def _received(tlog: Path) -> dict[str, list]:
-    """The companion's messages in MAVProxy's .tlog, by type."""
+    """The companion's messages in MAVProxy's .tlog, by type; the autopilot's STATUSTEXTs as "autopilot"."""
     log = mavutil.mavlink_connection(str(tlog))
     kinds = ["STATUSTEXT", "CAMERA_TRACKING_GEO_STATUS", "NAMED_VALUE_FLOAT", "HEARTBEAT"]
-    out: dict[str, list] = {k: [] for k in [*kinds, "ADSB_VEHICLE"]}
-    while (msg := log.recv_match(type=list(out))) is not None:
+    out: dict[str, list] = {k: [] for k in [*kinds, "ADSB_VEHICLE", "autopilot"]}
+    while (msg := log.recv_match(type=[*kinds, "ADSB_VEHICLE"])) is not None:
         if (msg.get_srcSystem(), msg.get_srcComponent()) == (COMPANION_SYSTEM, COMPANION_COMPONENT):
             out[msg.get_type()].append(msg)
+        elif msg.get_type() == "STATUSTEXT" and msg.get_srcComponent() == AUTOPILOT:
+            out["autopilot"].append(msg.text)
     return out
 
 
 def test_mavproxy_on_the_autopilot_sees_the_search(make_mission, procs: Procs, tmp_path: Path) -> None:
-    mission = make_mission(n=2)
+    mission = make_mission(n=2, base=SCENARIO1_NOFLY)
     m = mission.mission
+    assert len(m.region.nofly) == 1
     out = tmp_path / "out"
     procs.sim(mission, "--speedup", "10")
     gcs_dir = tmp_path / "mavproxy"
@@ -58,16 +65,27 @@ def test_mavproxy_on_the_autopilot_sees_the_search(make_mission, procs: Procs, t
     wait_rows(out / "uav0.csv", 1, comps[0], timeout=WAIT_S, cond=lambda r: r["found"] >= TARGETS)
     for comp in comps:
         assert comp.stop() == 0, comp.text()
+        assert "fence enabled and read back" in comp.text(), comp.text()
+    for i, port in enumerate(mission.ports):  # the fence each vehicle holds, read by pymavlink alone
+        ground = Ground(port, i + 1)
+        try:
+            fence = read_fence(ground.conn, i + 1)
+        finally:
+            ground.close()
+        assert fence == companion_fence(m), fence
+        assert_exclusions_as_drawn(fence, SCENARIO1_NOFLY.parent / m.region.area)
     assert proxy.alive(), proxy.text()
     proxy.stop(timeout=15)
     assert "Traceback" not in proxy.text(), proxy.text()
     got = _received(tlog)
+    assert not [t for t in got["autopilot"] if "Fence" in t], got["autopilot"]  # the band kept clear
 
     # every target companion 0 knows: a STATUSTEXT and a CAMERA_TRACKING_GEO_STATUS at its cell
     report = json.loads((out / "uav0.json").read_text())
     # MAVProxy's HEARTBEATs (one a second), routed to the companion, are not refused; its first
     # REQUEST_DATA_STREAM to every system is, as on ArduPlane SITL
     assert report["mavlink_wrong_system"] <= 3, report["refused"]
+    assert report["fence_uploaded"], report
     found = report["found_cells"]
     assert len(found) >= TARGETS
     world, frame = build_world(m, m.seed, 0), LocalFrame(m.region.origin)

@@ -1,6 +1,6 @@
 """The companion's pure pieces for real flight: the fence polygon, the way back inside, plan versus
-flight, the region guard, the airframe check (what ArduPlane and PX4 can fly), and the waypoint
-modes' lead point inside the fence."""
+flight, the region guard, the airframe check (what ArduPlane and PX4 can fly), the waypoint
+modes' lead point inside the fence, and the autopilot's fence items and their read-back check."""
 
 from __future__ import annotations
 
@@ -12,7 +12,10 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from pymavlink.dialects.v20 import ardupilotmega as M
 
+from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import NoFlyCircle, NoFlyPolygon
 from companion.core.feasibility import load_mission
 from companion.core.geometry import ConvexPolygon
 from companion.node.airframe import (
@@ -25,8 +28,20 @@ from companion.node.airframe import (
     turn_accel,
     turn_rate_limit,
 )
-from companion.node.fence import DEFAULT_MARGIN_M, fence_margin, fence_polygon, nearest_inside, offset_polygon
+from companion.node.fence import (
+    CIRCLE_EXCLUSION,
+    DEFAULT_MARGIN_M,
+    EXCLUSION,
+    fence_items,
+    fence_margin,
+    fence_mismatch,
+    fence_polygon,
+    fence_ring,
+    nearest_inside,
+    offset_polygon,
+)
 from companion.node.guidance import FENCE_CLEARANCE_M, lead_point
+from companion.node.mission_upload import Item
 from companion.node.tracking import Guard, PlanTracker, RegionGuard
 from sim_vehicles.dynamics.navigation import heading_hold
 
@@ -154,3 +169,49 @@ def test_heading_lead_makes_arduplane_turn_at_the_planned_rate(fraction: float, 
     led, unled = _fly_heading_commands(rate, True), _fly_heading_commands(rate, False)
     assert led < 0.25 * unled
     assert led < math.radians(3.0)
+
+
+NOFLY = load_mission(ROOT / "mission_files" / "scenario1_nofly.toml")
+
+
+def test_fence_items_are_the_inclusion_polygon_and_the_zones_as_given() -> None:
+    frame = LocalFrame(NOFLY.region.origin)
+    items = fence_items(NOFLY, frame, 140.0)
+    square = [it for it in items if it.command == M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION]
+    assert [(it.x, it.y) for it in square] == [
+        tuple(round(v * 1e7) for v in frame.to_geodetic(float(x), float(y))[:2])
+        for x, y in fence_polygon(NOFLY, 140.0).vertices
+    ]  # a convex region's fence is the planning fence's polygon, pushed out
+    assert all(it.params[0] == 4 for it in square)
+    band = items[len(square) :]
+    assert [it.command for it in band] == [M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION] * 4
+    zone = NOFLY.region.nofly[0]
+    assert isinstance(zone, NoFlyPolygon)
+    for it, (x, y) in zip(band, zone.ring, strict=True):  # not inflated
+        assert np.allclose(frame.to_local(it.x * 1e-7, it.y * 1e-7), (x, y), atol=0.02)
+    assert fence_mismatch(items, list(items)) is None
+
+
+def test_a_non_convex_region_is_fenced_mitred_and_a_circle_by_its_radius() -> None:
+    ell = [(0.0, 0.0), (1000.0, 0.0), (1000.0, 400.0), (400.0, 400.0), (400.0, 1000.0), (0.0, 1000.0)]
+    circle = NoFlyCircle(x=200.0, y=200.0, radius=50.0)
+    closed = NoFlyPolygon(ring=[(700.0, 100.0), (800.0, 100.0), (800.0, 200.0), (700.0, 100.0)])
+    region = msgspec.structs.replace(NOFLY.region, polygon=ell, nofly=[circle, closed])
+    mission = msgspec.structs.replace(NOFLY, region=region)
+    ring = fence_ring(mission, 100.0)
+    mitred = [(-100, -100), (1100, -100), (1100, 500), (500, 500), (500, 1100), (-100, 1100)]
+    assert np.allclose(sorted(ring), sorted(mitred))  # the corners mitred, the inner one too
+    frame = LocalFrame(NOFLY.region.origin)
+    items = fence_items(mission, frame, 100.0)
+    assert [it.command for it in items[6:]] == [CIRCLE_EXCLUSION] + [EXCLUSION] * 3  # the closing vertex once
+    assert items[6].params[0] == 50.0 and items[7].params[0] == 3
+    assert "holds 7 fence items, 10 were sent" in (fence_mismatch(items, items[:7]) or "")
+    c, v = items[6], items[7]
+    moved = [*items[:6], Item(c.frame, CIRCLE_EXCLUSION, (49.0, 0, 0, 0), c.x, c.y), *items[7:]]
+    assert "radius 49.00 m" in (fence_mismatch(items, moved) or "")
+    shifted = [*items[:7], Item(v.frame, EXCLUSION, (3, 0, 0, 0), v.x + 2, v.y), *items[8:]]
+    assert "fence item 7 is at" in (fence_mismatch(items, shifted) or "")
+    nudged = [*items[:7], Item(v.frame, EXCLUSION, (3, 0, 0, 0), v.x - 1, v.y), *items[8:]]
+    assert fence_mismatch(items, nudged) is None  # PX4 truncates lat * 1e7 when it sends it back
+    swapped = [*items[:6], *items[7:], items[6]]
+    assert "command" in (fence_mismatch(items, swapped) or "")

@@ -7,6 +7,9 @@
 - What PX4 cannot fly is refused with a clear message: the heading command mode by the companion
   on connecting (PX4 says who it is), grid kinematics by `uavsearch run --autopilot px4-sitl`
   before it starts anything (every refusal's message: tests/node).
+- The fence: the companion's upload of an inclusion polygon, an exclusion polygon and an
+  exclusion circle is taken by PX4 (no "Geofence invalid") and reads back as sent, through the
+  companion's own check and through plain pymavlink on another of PX4's links.
 - Conformance: one scripted command sequence (OFFBOARD refused without a setpoint stream, entered
   with one, a position setpoint flown to and orbited, the stream stopped, the failsafe's Hold, a
   DO_REPOSITION flown to and circled) on PX4 and on the bundled simulator's PX4 flavour, both at
@@ -25,11 +28,16 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
+from pymavlink import mavutil
 
+from companion.contracts.mission import NoFlyCircle, NoFlyPolygon
+from companion.node.fence import fence_items, fence_margin, upload_fence
 from companion.node.vehicle_link import PX4_HOLD, PX4_OFFBOARD, VehicleLink
 from tests.e2e.conftest import PY, ROOT, Proc, assert_flown_out, assert_follows, read_csv, searched
+from tests.fence_readback import read_fence
 from tests.px4.conftest import Px4Airborne
 from tests.sim.conftest import M
 from tests.sitl.conftest import free_bases
@@ -99,6 +107,33 @@ def test_what_px4_cannot_fly_is_refused(px4_airborne: Px4Airborne, tmp_path: Pat
     argv += ["--out", str(tmp_path / "run")]
     run = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert run.returncode == 2 and 'use kinematics.mode = "continuous"' in run.stderr, run.stderr
+
+
+def _fence_with_zones(airborne: Px4Airborne) -> None:
+    """The companion's fence with a no-fly polygon and circle (north of the aircraft and home): PX4
+    takes it (`upload_fence` waits for a "Geofence invalid") and it reads back as sent, both by the
+    companion's check and by plain pymavlink on the camera's link (PX4 truncates lat * 1e7)."""
+    m = airborne.mission.mission
+    zones = [NoFlyPolygon(ring=[(300.0, 0.0), (600.0, 0.0), (600.0, 300.0), (300.0, 300.0)])]
+    zones.append(NoFlyCircle(x=-500.0, y=300.0, radius=120.0))
+    mission = msgspec.structs.replace(m, region=msgspec.structs.replace(m.region, nofly=zones))
+    margin = fence_margin(m) + m.kinematics.speed * m.kinematics.step
+    items = fence_items(mission, airborne.frame, margin)
+    assert [it.command for it in items[-5:]] == [M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION] * 4 + [
+        M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION
+    ]
+    assert upload_fence(airborne.link, items) is None
+    ports = airborne.mission.ports(0)
+    conn = mavutil.mavlink_connection(ports.url(ports.camera), source_system=250, dialect="ardupilotmega")
+    try:
+        assert conn.wait_heartbeat(timeout=60) is not None
+        rows = read_fence(conn, airborne.link.state.system)
+    finally:
+        conn.close()
+    assert len(rows) == len(items), rows
+    for it, (command, param1, x, y) in zip(items, rows, strict=True):
+        assert (command, param1) == (it.command, it.params[0]), (it, rows)
+        assert abs(x - it.x) <= 1 and abs(y - it.y) <= 1, (it, rows)
 
 
 # -- conformance -----------------------------------------------------------------------------------
@@ -195,6 +230,7 @@ def test_simulator_flies_a_command_script_like_px4(px4_airborne: Px4Airborne, tm
     px4_airborne.fly_to(0.0, -700.0, within=300.0)
     altitude = px4_airborne.mission.mission.altitude_of(0)
     _prepare(px4_airborne.link)
+    _fence_with_zones(px4_airborne)
     # the fence the module's companions uploaded is not part of the script (the simulator has none):
     # a breach would end the script in PX4's geofence failsafe ("Reposition is outside geofence")
     assert px4_airborne.link.mission.upload(M.MAV_MISSION_TYPE_FENCE, [], "fence") is None

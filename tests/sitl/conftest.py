@@ -89,13 +89,17 @@ def write_mission(
     grid: bool = False,
     safety: str = SLACK_FAILSAFE_TIMEOUT,
     extra: str = "",
+    base: Path = CONTINUOUS,
 ) -> SitlMission:
-    """scenario1_continuous with its first n vehicles (or vehicles at `starts`, heading north), the
-    `[safety]` section's lines `safety`, and the TOML text `extra` at the end."""
-    text = CONTINUOUS.read_text(encoding="utf-8")
+    """`base` (scenario1_continuous) with its first n vehicles (or vehicles at `starts`, heading
+    north), the `[safety]` section's lines `safety`, and the TOML text `extra` at the end.
+
+    Continuous kinematics unless `grid`; a `[region] area` file is found where `base` is."""
+    text = base.read_text(encoding="utf-8").replace('area = "', f'area = "{base.parent}/')
+    text = text.replace('mode = "grid"', 'mode = "continuous"')
     if grid:
         text = text.replace('mode = "continuous"', 'mode = "grid"')
-    path = write_autopilot_mission(directory, text, "scenario1_continuous", "sitl", n, starts)
+    path = write_autopilot_mission(directory, text, base.stem, "sitl", n, starts)
     with path.open("a", encoding="utf-8") as f:
         f.write(f"\n[safety]\n{safety}\n{extra}")
     return SitlMission(path, load_mission(path))

@@ -4,6 +4,9 @@ One instance on the ground (ADS-B on: ADSB_TYPE 1, AVD_* untouched): the compani
 (system 200, as `uavsearch companion` speaks) sends what `GroundStationFeed` sends each step, for
 two known targets and one peer; MAVProxy on SERIAL2 must see every kind of message from the
 companion, and the peer in ArduPlane's own ADS-B list (ADSB_VEHICLE from the autopilot itself).
+The mission is scenario1_nofly: the companion's fence upload (`fence.upload_fence`, its own
+read-back check included) must pass, and the fence read back on SERIAL2 by plain pymavlink must be
+the mission's: the inclusion polygon and the no-fly band as the operator's .plan draws it.
 """
 
 from __future__ import annotations
@@ -20,9 +23,11 @@ from companion.contracts.frames import LocalFrame
 from companion.core.agent import Agent
 from companion.core.messages import UavState
 from companion.core.world import build_world
+from companion.node.fence import fence_items, fence_margin, upload_fence
 from companion.node.ground_station import GroundStationFeed
 from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink, open_link
-from tests.e2e.conftest import Proc
+from tests.e2e.conftest import SCENARIO1_NOFLY, Proc
+from tests.fence_readback import assert_exclusions_as_drawn, companion_fence, read_fence
 from tests.sitl.conftest import GCS_COMPONENT, STARTUP_S, write_mission
 
 MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")
@@ -35,8 +40,9 @@ def _drain(link: VehicleLink, stop: threading.Event) -> None:
 
 
 def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, tmp_path: Path) -> None:
-    mission = write_mission(tmp_path, n=2)
+    mission = write_mission(tmp_path, n=2, base=SCENARIO1_NOFLY)
     m, ports = mission.mission, mission.ports(0)
+    assert len(m.region.nofly) == 1
     frame = LocalFrame(m.region.origin)
     home = tmp_path / "sitl0"
     home.mkdir()
@@ -81,6 +87,17 @@ def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, t
             while time.monotonic() < end:
                 companion.poll(0.1)
         proxy.stop(timeout=15)
+        # the companion's fence upload after the reports (uploaded before them, even disabled again,
+        # ArduPlane passed none of the companion's ADSB_VEHICLEs on to SERIAL2: not explained yet),
+        # then a plain client reads it back
+        margin = fence_margin(m) + m.kinematics.speed * m.kinematics.step  # as the preflight's
+        assert upload_fence(companion, fence_items(m, frame, margin)) is None
+        url = ports.url(ports.serial2)  # MAVProxy gone: SERIAL2 is free
+        reader = mavutil.mavlink_connection(url, source_system=250, dialect="ardupilotmega")
+        try:
+            fence = read_fence(reader, 1)
+        finally:
+            reader.close()
     finally:
         stop.set()
         if proxy is not None:
@@ -89,6 +106,8 @@ def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, t
             link.close()
         proc.stop()
 
+    assert fence == companion_fence(m), fence
+    assert_exclusions_as_drawn(fence, SCENARIO1_NOFLY.parent / m.region.area)
     seen: dict[tuple[int, str], list] = {}
     log = mavutil.mavlink_connection(str(tlog))
     while (msg := log.recv_match()) is not None:
