@@ -2,9 +2,10 @@
 
 `export` writes a `Picture` (`companion.app.operator_run`) as `operator.geojson` (RFC 7946, lon/lat),
 `operator.kml` (Folders of Placemarks, a style per UAV) and `sectors.plan` (QGroundControl's plan:
-the region and each sector as geofence inclusion polygons). Each file opens with the mission's
-region, so the project's own area reader (`companion.contracts.areas`) reads any of them as that
-region. Layers, properties and the plan's caveats: docs/companion.md, "Files for the operator".
+the region and each sector as geofence inclusion polygons, the no-fly zones as exclusions). Each
+file opens with the mission's region and marks its zones, so the project's own area reader
+(`companion.contracts.areas`) reads any of them as that area. Layers, properties and the plan's
+caveats: docs/companion.md, "Files for the operator".
 """
 
 from __future__ import annotations
@@ -24,9 +25,12 @@ from shapely.geometry.polygon import orient
 
 from companion.app.operator_run import Detection, Picture, Sector, Track
 from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import NoFlyCircle
+from companion.core.search_area import zone_shape
 
 FORMATS = ("geojson", "kml", "plan")
 FILES = {"geojson": "operator.geojson", "kml": "operator.kml", "plan": "sectors.plan"}
+NOFLY_RGB = "#d62728"  # the no-fly zones' red
 DECIMALS = 7  # 1e-7 degree, about a centimetre: MAVLink's resolution
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22", "#17becf")
 UNHELD = "#7f7f7f"  # the sectors no UAV held
@@ -79,6 +83,11 @@ def _properties(picture: Picture) -> list[tuple[str, shapely.Geometry, dict[str,
     out: list[tuple[str, shapely.Geometry, dict[str, Any]]] = [
         (f"{m.name}: search region", picture.region, {"layer": "region", "mission": m.name})
     ]
+    for i, z in enumerate(m.region.nofly):
+        kind = "circle" if isinstance(z, NoFlyCircle) else "polygon"
+        zone: dict[str, Any] = {"layer": "nofly", "nofly": True, "zone": i, "kind": kind}
+        zone |= {"radius_m": z.radius} if isinstance(z, NoFlyCircle) else {}
+        out.append((f"no-fly zone {i}", zone_shape(z), zone))
     for s in picture.sectors:
         sector: dict[str, Any] = {"layer": "sector", "uav": s.uav, "tasks": list(s.tasks), "cells": s.cells}
         out.append((_sector_name(s), s.shape, sector | {"area_m2": round(s.shape.area, 1)}))
@@ -124,10 +133,11 @@ def geojson(picture: Picture) -> dict[str, Any]:
     features = []
     for name, shape, props in _properties(picture):
         shape = to_lonlat(shape)
-        rgb = "#000000" if props["layer"] == "region" else colour(props.get("uav"))
+        layer = props["layer"]
+        rgb = {"region": "#000000", "nofly": NOFLY_RGB}.get(layer) or colour(props.get("uav"))
         style: dict[str, Any] = {"stroke": rgb}
-        if props["layer"] in ("region", "sector"):
-            style |= {"fill": rgb, "fill-opacity": 0.0 if props["layer"] == "region" else 0.25}
+        if layer in ("region", "sector", "nofly"):
+            style |= {"fill": rgb, "fill-opacity": {"region": 0.0, "sector": 0.25}.get(layer, 0.4)}
         features.append(
             {"type": "Feature", "geometry": mapping(shape), "properties": {"name": name, **props, **style}}
         )
@@ -151,13 +161,15 @@ def _kml_styles(picture: Picture) -> list[styles.Style]:
                 styles.IconStyle(color=_kml_colour(rgb, 0xFF), icon=styles.Icon(href=ICON)),
             ],
         )
-        for style_id, rgb, fill in [*looks, ("region", "#000000", 0)]
+        for style_id, rgb, fill in [*looks, ("region", "#000000", 0), ("nofly", NOFLY_RGB, 0x66)]
     ]
 
 
 def _style_id(uav: int | None, layer: str = "") -> str:
-    """A Placemark's style: its UAV's (the region's own)."""
-    return "region" if layer == "region" else "unheld" if uav is None else f"uav{uav}"
+    """A Placemark's style: its UAV's (the region's and the no-fly zones' own)."""
+    if layer in ("region", "nofly"):
+        return layer
+    return "unheld" if uav is None else f"uav{uav}"
 
 
 def kml(picture: Picture) -> fastkml.KML:
@@ -165,7 +177,8 @@ def kml(picture: Picture) -> fastkml.KML:
 
     Every property is the Placemark's ExtendedData; its style is its UAV's."""
     to_lonlat = geodetic(LocalFrame(picture.mission.region.origin))
-    folders: dict[str, list[fastkml.Placemark]] = {"region": [], "sector": [], "track": [], "detection": []}
+    layers = ("region", "nofly", "sector", "track", "detection")
+    folders: dict[str, list[fastkml.Placemark]] = {layer: [] for layer in layers}
     for name, shape, props in _properties(picture):
         data = [fastkml.Data(name=k, value=_text(v)) for k, v in props.items()]
         folders[props["layer"]].append(
@@ -176,12 +189,15 @@ def kml(picture: Picture) -> fastkml.KML:
                 geometry=pygeoif.shape(to_lonlat(shape)),
             )
         )
-    titles = {"region": "Search region", "sector": "Sectors", "track": "Tracks", "detection": "Detections"}
+    titles = {"region": "Search region", "nofly": "No-fly zones", "sector": "Sectors", "track": "Tracks"}
+    titles["detection"] = "Detections"
     document = fastkml.Document(
         name=f"{picture.mission.name}: {picture.algorithm} run {picture.run}",
         description=json.dumps(_meta(picture)),
         styles=_kml_styles(picture),
-        features=[fastkml.Folder(name=titles[k], features=v) for k, v in folders.items()],
+        features=[
+            fastkml.Folder(name=titles[k], features=v) for k, v in folders.items() if v or k != "nofly"
+        ],
     )
     return fastkml.KML(features=[document])
 
@@ -206,6 +222,16 @@ def plan(picture: Picture) -> dict[str, Any]:
     frame, o = LocalFrame(m.region.origin), m.region.origin
     polygons = [_ring(picture.region, frame)]
     polygons += [_ring(p, frame) for s in picture.sectors for p in s.shape.geoms]
+    fence = [{"inclusion": True, "polygon": p, "version": 1} for p in polygons]
+    circles = []
+    for z in m.region.nofly:  # the operator's zones as exclusions, as drawn
+        if isinstance(z, NoFlyCircle):
+            lat, lon = frame.to_geodetic(z.x, z.y)[:2]
+            centre = [round(lat, DECIMALS), round(lon, DECIMALS)]
+            circle = {"center": centre, "radius": z.radius}
+            circles.append({"circle": circle, "inclusion": False, "version": 1})
+        else:
+            fence.append({"inclusion": False, "polygon": _ring(zone_shape(z), frame), "version": 1})
     return {
         "fileType": "Plan",
         "version": 1,
@@ -222,8 +248,8 @@ def plan(picture: Picture) -> dict[str, Any]:
         },
         "geoFence": {
             "version": 2,
-            "circles": [],
-            "polygons": [{"inclusion": True, "polygon": p, "version": 1} for p in polygons],
+            "circles": circles,
+            "polygons": fence,
         },
         "rallyPoints": {"version": 2, "points": []},
     }

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -162,3 +163,33 @@ def test_the_command_writes_the_formats_asked_for(mc_out: Path, tmp_path: Path) 
     assert missing.returncode == 2 and "summary.json: missing" in missing.stderr
     proc = uavsearch("export", str(mc_out), "--algorithm", "no-ta", "--out", str(tmp_path / "b"))
     assert proc.returncode == 0 and "note: no-ta divides no tasks" in proc.stdout
+
+
+def test_the_no_fly_zones_read_back_from_every_file(tmp_path: Path) -> None:
+    """A mission with the example's band and a typed circle: each file marks both as no-fly zones
+    (GeoJSON `"nofly": true`, KML Placemarks named "no-fly ...", the plan's exclusions), so the
+    area reader gives the mission's zones back, to the centimetre."""
+    nofly = ROOT / "mission_files" / "scenario1_nofly.toml"
+    text = nofly.read_text().replace(
+        "[prior]", '[[region.nofly]]\ntype = "circle"\nx = -500.0\ny = 600.0\nradius = 120.0\n\n[prior]', 1
+    )
+    shutil.copytree(ROOT / "mission_files" / "areas", tmp_path / "areas")
+    mission_file = tmp_path / "mission.toml"
+    mission_file.write_text(text)
+    mission = load_mission(mission_file)
+    out = tmp_path / "mc"
+    compare(mission, ["proposed"], 1, STEPS, 1, out, workers=1, save_trajectories=True, progress=False)
+    copy_mission(mission_file, out)
+    export(load_picture(out, "proposed", 0), out)
+    band, circle = mission.region.nofly
+    for name in ("sectors.plan", "operator.geojson", "operator.kml"):
+        area = local_area(read_area(out / name), mission.region.origin)
+        kinds = sorted(type(z).__name__ for z in area.nofly)
+        assert len(area.nofly) == 2, (name, area.nofly)
+        polygon = next(z for z in area.nofly if hasattr(z, "ring"))
+        assert len(polygon.ring) == len(band.ring), name
+        assert all(math.dist(p, q) < CM for p, q in zip(polygon.ring, band.ring, strict=True)), name
+        if name == "sectors.plan":  # a plan keeps a circle a circle
+            assert kinds == ["LocalCircle", "LocalPolygon"]
+            c = next(z for z in area.nofly if hasattr(z, "radius"))
+            assert math.dist((c.x, c.y), (circle.x, circle.y)) < CM and c.radius == circle.radius

@@ -62,3 +62,19 @@ def test_separation_holds_under_message_loss(seed: int) -> None:
     for spec in specs:
         row = row_of(spec, execute(spec))
         assert row.separation_losses == 0, row
+
+
+@pytest.mark.slow
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), mode=st.sampled_from(["grid", "continuous"]))
+def test_no_algorithm_enters_a_no_fly_zone_even_when_a_companion_dies(seed: int, mode: str) -> None:
+    """Generated missions with 1-3 no-fly zones (circles and bars): no chord of any UAV, the dead
+    one's failsafe flight included, enters a zone inflated by the margin (docs/algorithm.md,
+    "No-fly zones and non-convex regions"), and separation holds."""
+    family = Family(uavs=(3, 8), modes=(mode,), steps=600, zones=(1, 3))
+    specs = soak_specs(1, seed, 600, ALGORITHMS, kill=True, family=family)
+    assert specs[0].mission.region.nofly
+    for spec in specs:
+        row = row_of(spec, execute(spec))
+        assert row.keepout_entries == 0, row
+        assert row.separation_losses == 0, row

@@ -4,6 +4,7 @@ sampling point or a chord into a zone inflated by the margin."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import msgspec
@@ -17,6 +18,7 @@ from shapely.geometry import LineString, Point, Polygon
 from companion.batch.engine import simulate
 from companion.contracts.mission import ALGORITHMS, Mission, NoFlyCircle, NoFlyPolygon
 from companion.core.feasibility import load_mission, validate
+from companion.core.routes import STRAIGHT, route_distance
 from companion.core.search_area import (
     clear_of,
     flyable_cells,
@@ -127,3 +129,23 @@ def test_no_run_enters_a_zone_or_loses_separation(algorithm: str, case: str) -> 
     r = simulate(m.with_algorithm(algorithm), 3, 1, 400, kills={1: 150})
     assert r.keepout_entries == 0
     assert r.separation_losses == 0
+
+
+def test_routes_go_around_the_zone_and_never_undercut_a_straight_line() -> None:
+    """Eqs. 16 and 25 read route distances: never shorter than the straight line (8-neighbour
+    moves overestimate it by at most 1 - 1/(2 - sqrt 2) ~ 8 %, plus a cell), and around the band
+    for a point straight across it."""
+    m = load_mission(NOFLY)
+    world = build_world(m, 1, 0)
+    tess = world.tessellation
+    assert tess is not None and tess.routes[0].shape[0] == tess.n_tasks
+    south = int(np.argmin(np.hypot(*(tess.generators - np.array([0.0, -200.0])).T)))
+    gx, gy = tess.generators[south]
+    rng = np.random.default_rng(5)
+    for x, y in rng.uniform(-1000, 1000, (200, 2)):
+        d = route_distance(tess.routes, south, x, y, gx, gy)
+        assert d >= math.hypot(x - gx, y - gy) - 1e-6
+    across = route_distance(tess.routes, south, gx, 700.0, gx, gy)  # north of the band, straight up
+    around = math.hypot(450.0 + 300.0 - gx, 300.0 - gy) + math.hypot(450.0 + 300.0 - gx, 700.0 - 300.0)
+    assert across > 0.9 * around > (700.0 - gy)
+    assert route_distance(STRAIGHT, 0, 3.0, 4.0, 0.0, 0.0) == 5.0
