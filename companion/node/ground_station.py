@@ -3,7 +3,8 @@
 Found targets (STATUSTEXT and CAMERA_TRACKING_GEO_STATUS), progress (NAMED_VALUE_FLOAT), the
 companion's health (its HEARTBEAT's system status, its CPU load as NAMED_VALUE_FLOAT) and the
 peers as traffic (ADSB_VEHICLE). None names a target system, so an autopilot forwards them to its
-other links, where a ground station connected to it sees them (docs/companion.md, "What the
+other links, where a ground station connected to it sees them; ArduPlane with ADS-B on keeps the
+ADSB_VEHICLEs and sends the peers in its own ADS-B list instead (docs/companion.md, "What the
 ground station sees").
 """
 

@@ -1,12 +1,15 @@
-"""ArduPlane SITL routes the companion's reports to a ground station on another of its links.
+"""ArduPlane SITL shows the companion's reports to a ground station on another of its links.
 
-One instance on the ground (ADS-B on: ADSB_TYPE 1, AVD_* untouched): the companion's link on SERIAL1
-(system 200, as `uavsearch companion` speaks) sends what `GroundStationFeed` sends each step, for
-two known targets and one peer; MAVProxy on SERIAL2 must see every kind of message from the
-companion, and the peer in ArduPlane's own ADS-B list (ADSB_VEHICLE from the autopilot itself).
-The mission is scenario1_nofly: the companion's fence upload (`fence.upload_fence`, its own
-read-back check included) must pass, and the fence read back on SERIAL2 by plain pymavlink must be
-the mission's: the inclusion polygon and the no-fly band as the operator's .plan draws it.
+One instance on the ground (ADS-B on: ADSB_TYPE 1, AVD_* untouched), in a real run's order: the
+companion's link on SERIAL1 (system 200, as `uavsearch companion` speaks) asks for telemetry, waits
+for the pose, uploads the mission's fence (`fence.upload_fence`, as the preflight: read-back check,
+FENCE_ENABLE), and only then sends what `GroundStationFeed` sends each step, for two known targets
+and one peer. MAVProxy on SERIAL2 must see the companion's STATUSTEXT, CAMERA_TRACKING_GEO_STATUS,
+NAMED_VALUE_FLOAT and HEARTBEAT as sent, and the peer as ArduPlane's own ADSB_VEHICLE (system 1) at
+a position the companion sent: with ADS-B on, ArduPlane never routes another system's ADSB_VEHICLE,
+it takes it into its ADS-B list and sends the list (docs/companion.md, "What the ground station
+sees"). The mission is scenario1_nofly; the fence read back on SERIAL2 by plain pymavlink must be
+the mission's, the no-fly band as the operator's .plan draws it.
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ def _drain(link: VehicleLink, stop: threading.Event) -> None:
         link.poll(0.2)
 
 
-def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, tmp_path: Path) -> None:
+def test_arduplane_shows_the_reports_to_its_ground_station(sitl_binary: Path, tmp_path: Path) -> None:
     mission = write_mission(tmp_path, n=2, base=SCENARIO1_NOFLY)
     m, ports = mission.mission, mission.ports(0)
     assert len(m.region.nofly) == 1
@@ -71,11 +74,18 @@ def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, t
             tmp_path / "mavproxy.log", cwd=gcs_dir,
         )  # fmt: skip
         proxy.wait_for_text("Mode ", timeout=STARTUP_S)
-        companion = open_link(
-            ports.url(ports.serial1), frame, STARTUP_S, gone, system=COMPANION_SYSTEM, heartbeat=True
-        )
+        sent = tmp_path / "companion.tlog"  # what the companion sent (and received)
+        url = ports.url(ports.serial1)
+        companion = open_link(url, frame, STARTUP_S, gone, system=COMPANION_SYSTEM, heartbeat=True, tlog=sent)
         assert companion is not None and companion.wait_heartbeat(STARTUP_S, gone)
         links.append(companion)
+        # a real run's preflight: telemetry, the pose, then the fence, before the first report
+        companion.request_streams()
+        while not companion.state.has_pose:
+            assert proc.alive(), proc.text()
+            companion.poll(0.2)
+        margin = fence_margin(m) + m.kinematics.speed * m.kinematics.step  # as the preflight's
+        assert upload_fence(companion, fence_items(m, frame, margin)) is None
         agent = Agent(build_world(m, m.seed, 0), 0)
         agent.found = {10, 20}
         v = m.vehicles[1]
@@ -87,11 +97,6 @@ def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, t
             while time.monotonic() < end:
                 companion.poll(0.1)
         proxy.stop(timeout=15)
-        # the companion's fence upload after the reports (uploaded before them, even disabled again,
-        # ArduPlane passed none of the companion's ADSB_VEHICLEs on to SERIAL2: not explained yet),
-        # then a plain client reads it back
-        margin = fence_margin(m) + m.kinematics.speed * m.kinematics.step  # as the preflight's
-        assert upload_fence(companion, fence_items(m, frame, margin)) is None
         url = ports.url(ports.serial2)  # MAVProxy gone: SERIAL2 is free
         reader = mavutil.mavlink_connection(url, source_system=250, dialect="ardupilotmega")
         try:
@@ -112,8 +117,7 @@ def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, t
     log = mavutil.mavlink_connection(str(tlog))
     while (msg := log.recv_match()) is not None:
         seen.setdefault((msg.get_srcSystem(), msg.get_type()), []).append(msg)
-    kinds = ("STATUSTEXT", "CAMERA_TRACKING_GEO_STATUS", "NAMED_VALUE_FLOAT", "ADSB_VEHICLE", "HEARTBEAT")
-    for kind in kinds:
+    for kind in ("STATUSTEXT", "CAMERA_TRACKING_GEO_STATUS", "NAMED_VALUE_FLOAT", "HEARTBEAT"):
         assert (COMPANION_SYSTEM, kind) in seen, (kind, sorted(seen))
     targets = [t.text for t in seen[(COMPANION_SYSTEM, "STATUSTEXT")] if "target at" in t.text]
     assert len(targets) == 2, targets
@@ -121,5 +125,14 @@ def test_arduplane_routes_the_reports_to_its_ground_station(sitl_binary: Path, t
     assert names == {"coverage", "mean_eta", "found", "p_unfound", "cpu_pct"}, names
     beats = seen[(COMPANION_SYSTEM, "HEARTBEAT")]
     assert any(b.system_status == mavutil.mavlink.MAV_STATE_ACTIVE for b in beats)
+    # the peer: not the companion's ADSB_VEHICLE (ArduPlane's ADS-B takes it, MAVLink_routing.cpp)
+    # but ArduPlane's own, each at a position the companion sent
+    assert (COMPANION_SYSTEM, "ADSB_VEHICLE") not in seen, len(seen[(COMPANION_SYSTEM, "ADSB_VEHICLE")])
+    ours = mavutil.mavlink_connection(str(sent), dialect="ardupilotmega")
+    reported: set[tuple[int, int, int]] = set()
+    while (msg := ours.recv_match(type="ADSB_VEHICLE")) is not None:
+        reported.add((msg.ICAO_address, msg.lat, msg.lon))
+    assert len(reported) == STEPS, reported
     listed = [a for a in seen.get((1, "ADSB_VEHICLE"), []) if a.callsign == "UAV1"]
     assert listed, f"UAV1 not in ArduPlane's ADS-B list; it sent {len(seen.get((1, 'ADSB_VEHICLE'), []))}"
+    assert {(a.ICAO_address, a.lat, a.lon) for a in listed} <= reported, listed
