@@ -22,6 +22,7 @@ from companion.core.geometry import BoolArray, ConvexPolygon, FloatArray, Grid
 CIRCLE_SEGMENTS = 16  # a no-fly circle's polygon: segments per quarter, circumscribed
 ROUND_SEGMENTS = 4  # the inflation's round corners: segments per quarter, circumscribed
 NO_KEEPOUT = np.zeros((0, 3, 3))
+MIN_PIECE_M2 = 1e-3  # a triangle smaller is a sliver of an overlay along the fence
 
 
 def is_convex(ring: list[tuple[float, float]]) -> bool:
@@ -95,17 +96,18 @@ def keepout_pieces(
     if plain(mission) or (not notches and not mission.region.nofly):
         return NO_KEEPOUT
     fence = fence_shape(hull, reach)
-    allowed = fence
-    if notches:
-        allowed = Polygon(mission.region.polygon).buffer(reach, join_style="mitre", mitre_limit=1e6)
+    parts = []
+    if notches and not is_convex(mission.region.polygon):
+        grown = Polygon(mission.region.polygon).buffer(reach, join_style="mitre", mitre_limit=1e6)
+        parts.append(fence.difference(grown))  # the notches (edges shared with the fence: slivers)
     zones = [inflate(zone_shape(z), zone_reach) for z in mission.region.nofly]
     if zones:
-        allowed = allowed.difference(shapely.union_all(zones))
-    pieces = fence.difference(allowed)
-    if pieces.is_empty:
-        return NO_KEEPOUT
-    triangles = shapely.get_parts(shapely.constrained_delaunay_triangles(pieces))
-    out = [_half_planes(np.asarray(t.exterior.coords[:3], dtype=float)) for t in triangles if t.area > 1e-9]
+        parts.append(fence.intersection(shapely.union_all(zones)))
+    out = []
+    for part in parts:  # apart: an overlay of the zones with a region sharing the fence's edges lost all
+        for t in shapely.get_parts(shapely.constrained_delaunay_triangles(part)):
+            if t.area > MIN_PIECE_M2:
+                out.append(_half_planes(np.asarray(t.exterior.coords[:3], dtype=float)))
     return np.array(out, dtype=float).reshape(-1, 3, 3)
 
 
