@@ -149,3 +149,25 @@ def test_routes_go_around_the_zone_and_never_undercut_a_straight_line() -> None:
     around = math.hypot(450.0 + 300.0 - gx, 300.0 - gy) + math.hypot(450.0 + 300.0 - gx, 700.0 - 300.0)
     assert across > 0.9 * around > (700.0 - gy)
     assert route_distance(STRAIGHT, 0, 3.0, 4.0, 0.0, 0.0) == 5.0
+
+
+def test_a_convex_regions_keepout_is_its_zones_inside_the_fence() -> None:
+    """The keep-out's triangles cover exactly the zones inflated, clipped to the fence: on this
+    generated triangle with three zones, one overlay of the zones with the region grown by the
+    margin (whose edges are the fence's) once lost the whole difference and kept out everything."""
+    m = load_mission(ROOT / "mission_files" / "scenario1.toml")
+    zones = [
+        NoFlyPolygon(ring=[(300.5, -1327.4), (-1139.0, -338.0), (-1199.9, -426.8), (239.6, -1416.2)]),
+        NoFlyPolygon(ring=[(-305.2, -1374.5), (-764.7, 50.7), (-885.6, 11.7), (-426.1, -1413.5)]),
+        NoFlyCircle(x=-581.9, y=-260.8, radius=389.4),
+    ]
+    triangle = [(-1835.7, 243.9), (1064.8, -1665.8), (-423.2, 1943.6)]
+    region = msgspec.structs.replace(m.region, polygon=triangle, nofly=zones)
+    m = msgspec.structs.replace(m, region=region)
+    hull = region_hull(m)
+    pieces = keepout_pieces(m, hull, 100.0, 147.0)
+    covered = shapely.union_all([Polygon(_corners(p)) for p in pieces])
+    fence = Polygon(triangle).buffer(100.0, join_style="mitre", mitre_limit=1e6)
+    expected = fence.intersection(shapely.union_all([inflate(zone_shape(z), 147.0) for z in zones]))
+    assert covered.symmetric_difference(expected).area < 1.0
+    assert expected.area < 0.5 * fence.area
