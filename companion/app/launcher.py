@@ -108,14 +108,15 @@ def _start_camera(
 def _start_sitl(children: Children, opts: RunOptions, mission: Mission, seed: int) -> list[str]:
     """One ArduPlane SITL per UAV and the stand-alone camera; returns the companions' links (SERIAL1).
 
-    The camera is on their SERIAL0, which starts their clocks together.
+    Each instance gets `sitl.RUN_PARAMS` (ADS-B on) on top of its defaults. The camera is on their
+    SERIAL0, which starts their clocks together.
     """
     binary = sitl.find_binary(opts.sitl_binary)
     defaults = sitl.find_defaults(binary, opts.sitl_defaults)
     for i in range(mission.n_uavs):
         home = opts.out / f"sitl{i}"
         home.mkdir(exist_ok=True)
-        argv = sitl.sitl_argv(binary, defaults, mission, i, opts.speedup)
+        argv = sitl.sitl_argv(binary, defaults, mission, i, opts.speedup, sitl.write_run_params(home))
         children.start(f"sitl{i}", argv, opts.out / f"sitl{i}.log", cwd=home, stop_signal=sitl.STOP_SIGNAL)
     ports = [sitl.sitl_ports(mission, i) for i in range(mission.n_uavs)]
     signing = mavlink_secrets(mission) is not None

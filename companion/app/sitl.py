@@ -9,7 +9,7 @@ Instance i runs in its own working directory (it writes eeprom.bin, logs/, terra
 id i + 1, home at vehicle i's start pose (the mission's origin altitude, its heading) and its TCP
 ports from the mission's port of vehicle i, P = `mission.vehicle_port(i)`: SERIAL0 on P (simulated
 time starts when a client connects there), SERIAL1 on P + 2, SERIAL2 on P + 3, RC input UDP P + 5.
-SITL exits when its parent process exits.
+SITL exits when its parent process exits. `uavsearch run` adds RUN_PARAMS to the defaults (ADS-B on).
 """
 
 from __future__ import annotations
@@ -27,6 +27,11 @@ ENV = "ARDUPLANE_SITL"
 STOP_SIGNAL = signal.SIGTERM  # what SITL exits cleanly on (AP_HAL_SITL's exit_signal_handler)
 ROOT = Path(__file__).resolve().parents[2]
 SHARED_BINARY = ROOT.parent / "shared" / "sitl" / "arduplane"
+# What `uavsearch run` sets on top of the defaults: ADS-B on (uAvionix over MAVLink), as on an
+# aircraft with an ADS-B receiver, so ArduPlane lists the peers its companion reports and sends
+# them to every ground station as its own traffic (docs/companion.md, "Traffic"). Its avoidance
+# (AVD_ENABLE, off by default) stays off: separation is the companions' (algorithm.md).
+RUN_PARAMS = {"ADSB_TYPE": 1}
 
 
 class SitlError(RuntimeError):
@@ -78,8 +83,19 @@ def home(mission: Mission, i: int) -> str:
     return f"{lat:.8f},{lon:.8f},{alt:.2f},{yaw:.1f}"
 
 
-def sitl_argv(binary: Path, defaults: Path, mission: Mission, i: int, speedup: float) -> list[str]:
-    """The command line of vehicle i's instance (run it in a directory of its own)."""
+def write_run_params(directory: Path) -> Path:
+    """RUN_PARAMS as a parameter file in `directory` (an instance's), for `sitl_argv`'s `extra`."""
+    path = directory / "run.parm"
+    path.write_text("".join(f"{name} {value}\n" for name, value in RUN_PARAMS.items()), encoding="utf-8")
+    return path
+
+
+def sitl_argv(
+    binary: Path, defaults: Path, mission: Mission, i: int, speedup: float, extra: Path | None = None
+) -> list[str]:
+    """The command line of vehicle i's instance (run it in a directory of its own).
+
+    `extra`: a parameter file loaded after `defaults`, its values taking precedence."""
     ports = sitl_ports(mission, i)
     return [
         str(binary),
@@ -89,7 +105,7 @@ def sitl_argv(binary: Path, defaults: Path, mission: Mission, i: int, speedup: f
         "--speedup",
         f"{speedup:g}",
         "--defaults",
-        str(defaults),
+        ",".join(str(p) for p in (defaults, extra) if p is not None),
         "--home",
         home(mission, i),
         "--base-port",

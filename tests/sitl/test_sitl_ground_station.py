@@ -1,15 +1,16 @@
 """ArduPlane SITL shows the companion's reports to a ground station on another of its links.
 
-One instance on the ground (ADS-B on: ADSB_TYPE 1, AVD_* untouched), in a real run's order: the
-companion's link on SERIAL1 (system 200, as `uavsearch companion` speaks) asks for telemetry, waits
-for the pose, uploads the mission's fence (`fence.upload_fence`, as the preflight: read-back check,
-FENCE_ENABLE), and only then sends what `GroundStationFeed` sends each step, for two known targets
-and one peer. MAVProxy on SERIAL2 must see the companion's STATUSTEXT, CAMERA_TRACKING_GEO_STATUS,
-NAMED_VALUE_FLOAT and HEARTBEAT as sent, and the peer as ArduPlane's own ADSB_VEHICLE (system 1) at
-a position the companion sent: with ADS-B on, ArduPlane never routes another system's ADSB_VEHICLE,
-it takes it into its ADS-B list and sends the list (docs/companion.md, "What the ground station
-sees"). The mission is scenario1_nofly; the fence read back on SERIAL2 by plain pymavlink must be
-the mission's, the no-fly band as the operator's .plan draws it.
+One instance on the ground (ADS-B on as `uavsearch run` sets it, AVD_* untouched), in a real run's
+order: the companion's link on SERIAL1 (system 200, as `uavsearch companion` speaks) asks for
+telemetry, waits for the pose, uploads the mission's fence (`fence.upload_fence`, as the preflight:
+read-back check, FENCE_ENABLE), and only then sends what `GroundStationFeed` sends each step, for
+two known targets and one peer. MAVProxy on SERIAL2 must see the companion's STATUSTEXT,
+CAMERA_TRACKING_GEO_STATUS, NAMED_VALUE_FLOAT and HEARTBEAT as sent, and the peer as ArduPlane's own
+ADSB_VEHICLE (system 1) at a position the companion sent: with ADS-B on, ArduPlane never routes
+another system's ADSB_VEHICLE, it takes it into its ADS-B list and sends the list
+(docs/companion.md, "What the ground station sees"). The mission is scenario1_nofly; the fence read
+back on SERIAL2 by plain pymavlink must be the mission's, the no-fly band as the operator's .plan
+draws it.
 """
 
 from __future__ import annotations
@@ -49,10 +50,9 @@ def test_arduplane_shows_the_reports_to_its_ground_station(sitl_binary: Path, tm
     frame = LocalFrame(m.region.origin)
     home = tmp_path / "sitl0"
     home.mkdir()
-    extra = tmp_path / "adsb.parm"
-    extra.write_text("ADSB_TYPE 1\n")
-    argv = sitl.sitl_argv(sitl_binary, sitl.find_defaults(sitl_binary), m, 0, 1.0)
-    argv[argv.index("--defaults") + 1] += f",{extra}"
+    extra = sitl.write_run_params(home)  # ADS-B on, as `uavsearch run` sets it
+    assert sitl.RUN_PARAMS["ADSB_TYPE"] == 1
+    argv = sitl.sitl_argv(sitl_binary, sitl.find_defaults(sitl_binary), m, 0, 1.0, extra)
     proc = Proc("sitl0", argv, home / "out.log", cwd=home, stop_signal=sitl.STOP_SIGNAL)
     stop = threading.Event()
     links: list[VehicleLink] = []

@@ -1,6 +1,8 @@
 """A whole swarm on ArduPlane SITL with one command: `uavsearch run --autopilot ardupilot-sitl`.
 
-Four SITL instances (speed-up 4), the stand-alone camera, four companions taking off by themselves
+The mission is the no-fly example's area (scenario1_nofly: a no-fly band across scenario 1's
+middle, from the operator's .plan). Four SITL instances (speed-up 4, ADS-B on as the run sets it),
+the stand-alone camera, four companions taking off by themselves
 at their altitude layers (one each), each arming its autopilot's failsafe for its own silence and
 keeping it on the loiter of its trajectory in force. UAV 1 starts 140 m from UAV 2, on the layer
 next to it. A radio partition ({0, 1} against {2, 3}, the fault matrix's partition row) cuts that
@@ -12,9 +14,13 @@ stopped with Ctrl-C, is scored: targets found, every logged pose inside the fenc
 altitude layer, and separation in three dimensions (docs/algorithm.md, "Separation in three
 dimensions"): in the camera's record of every pair's closest approach (approach.csv, from the
 vehicles' position streams at 10 Hz, with their altitudes) no two aircraft are within R_s
-horizontally and closer vertically than the layers' floor, at any time.
+horizontally and closer vertically than the layers' floor, at any time; and no logged pose
+entered the band inflated by `safety.margin` (criteria.json; the survivors fly on until one works at
+the band's side). MAVProxy on survivor uav2's SERIAL2,
+while the swarm flies, sees the companion's progress values and HEARTBEAT, the peers as ArduPlane's
+own ADSB_VEHICLE traffic and, for a target found while it watches, the detection's STATUSTEXT; the
+fence read back there by plain pymavlink is the mission's, the band as the .plan draws it.
 """
-
 
 from __future__ import annotations
 
@@ -23,17 +29,26 @@ import itertools
 import json
 import math
 import os
+import re
 import signal
 import statistics
+import sys
+import time
 from pathlib import Path
+
+import shapely
+from pymavlink import mavutil
 
 from companion.app.evaluation import losses_3d
 from companion.contracts.frames import LocalFrame
+from companion.contracts.mission import Mission
+from companion.core.search_area import zone_shape
 from companion.core.world import FAILSAFE_WIDE, build_world
-from companion.node.vehicle_link import VehicleLink
-from tests.e2e.conftest import PY, Procs, companion_pid, read_csv, wait_rows
+from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink
+from tests.e2e.conftest import PY, SCENARIO1_NOFLY, Proc, Procs, companion_pid, read_csv, wait_rows
+from tests.fence_readback import assert_exclusions_as_drawn, companion_fence, read_fence
 from tests.sim.conftest import fit_circle
-from tests.sitl.conftest import GCS_COMPONENT, write_mission
+from tests.sitl.conftest import GCS_COMPONENT, STARTUP_S, write_mission
 
 VICTIM = 1
 KILL_AFTER = 8  # steps the victim logs before it is killed
@@ -45,14 +60,20 @@ FAILSAFE_TIMEOUT_S = 2.0  # FS_LONG_TIMEOUT (one step): 0.5 s of wall time at sp
 NEIGHBOUR = 2  # on the layer next to the victim's, 140 m from it at the start
 STARTS = [(-620.0, -980.0), (-20.0, -980.0), (120.0, -980.0), (580.0, -980.0)]
 PARTITION = (4, 90)  # steps [start, end): {0, 1} hear nothing of {2, 3}, across the kill
+WATCHER = 2  # MAVProxy on its SERIAL2: a survivor with a peer (uav3) throughout the partition
+AFTER_FOUND = 3  # steps the watcher logs after its first target before MAVProxy is stopped
+NEAR_ZONE_S = 300.0  # generous: wall seconds for the survivors to reach the band's side
+MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")
+TEXT = re.compile(r"UAV(\d+) target at (-?\d+\.\d+) (-?\d+\.\d+)")
 
 
 def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path) -> None:
     start, end = PARTITION
     partition = f"\n[[faults.network]]\nstart = {start}\nend = {end}\ngroups = [[0, 1], [2, 3]]\n"
     safety = f"failsafe_timeout = {FAILSAFE_TIMEOUT_S}"
-    mission = write_mission(tmp_path, 4, starts=STARTS, safety=safety, extra=partition)
+    mission = write_mission(tmp_path, 4, starts=STARTS, safety=safety, extra=partition, base=SCENARIO1_NOFLY)
     m = mission.mission
+    assert len(m.region.nofly) == 1
     assert abs(m.altitude_of(VICTIM) - m.altitude_of(NEIGHBOUR)) == m.layers.separation  # adjacent
     out = tmp_path / "out"
     procs = Procs(tmp_path)
@@ -63,6 +84,16 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
         victim_pid = companion_pid(run, VICTIM)
         wait_rows(out / f"uav{VICTIM}.csv", KILL_AFTER, run, timeout=240)
         assert "failsafe armed" in (out / f"companion{VICTIM}.log").read_text()
+        watched = mission.ports(WATCHER)
+        gcs_dir = tmp_path / "mavproxy"
+        gcs_dir.mkdir()
+        tlog = gcs_dir / "gcs.tlog"
+        proxy = procs.start(
+            "mavproxy",
+            [MAVPROXY, f"--master={watched.url(watched.serial2)}", "--daemon", "--state-basedir",
+             str(gcs_dir), "--logfile", str(tlog)],
+            cwd=gcs_dir,
+        )  # fmt: skip
         frame = LocalFrame(m.region.origin)
         ports = mission.ports(VICTIM)
         gcs = VehicleLink(ports.url(ports.serial2), frame, component=GCS_COMPONENT)
@@ -88,6 +119,7 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
                     failsafe = (s.time_s, (s.x, s.y))
         assert s.custom_mode == AUTO
         gcs.close()
+        proxy.wait_for_text("Mode ", timeout=STARTUP_S)  # it hears the watcher's autopilot
         for i in range(m.n_uavs):
             if i != VICTIM:
                 wait_rows(
@@ -97,9 +129,33 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
                     timeout=120,
                     cond=lambda r: r["step"] >= killed_at + SURVIVOR_STEPS,
                 )
-        # and on until the swarm has found a target (the survivors share what they found)
-        survivor = next(i for i in range(m.n_uavs) if i != VICTIM)
+        # and on until the swarm has found a target (the survivors share what they found), and a
+        # few steps more for MAVProxy to hear the watcher's report of it
+        survivor = WATCHER
         wait_rows(out / f"uav{survivor}.csv", 1, run, timeout=300, cond=lambda r: r["found"] >= 1)
+        found_at = next(int(r["step"]) for r in read_csv(out / f"uav{survivor}.csv") if r["found"] >= 1)
+        wait_rows(
+            out / f"uav{survivor}.csv",
+            1,
+            run,
+            timeout=120,
+            cond=lambda r: r["step"] >= found_at + AFTER_FOUND,
+        )
+        assert proxy.alive(), proxy.text()
+        proxy.stop(timeout=15)
+        assert "Traceback" not in proxy.text(), proxy.text()
+        # MAVProxy gone, SERIAL2 is free: the watcher's fence, read by plain pymavlink
+        conn = mavutil.mavlink_connection(
+            watched.url(watched.serial2), source_system=250, dialect="ardupilotmega"
+        )
+        try:
+            fence = read_fence(conn, WATCHER + 1)
+        finally:
+            conn.close()
+        # and on until a survivor works at the band's side: within the keep-out's margin, a failsafe
+        # region (its plans keep theirs clear of the keep-out) and a step (two runs: 217-234 m)
+        near = m.safety.margin + build_world(m).safety.failsafe_reach + m.kinematics.speed * m.kinematics.step
+        wait_near_zones(m, out, run, [i for i in range(m.n_uavs) if i != VICTIM], near)
         assert run.stop(timeout=60) in (0, 1), run.text()  # Ctrl-C: the run ends with its report
     finally:
         procs.stop_all()
@@ -134,6 +190,16 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
     tracking = json.loads((out / "tracking.json").read_text())
     assert tracking["outside_fence"] == 0 and tracking["steps"] > 0, tracking
     logs = {i: {int(r["step"]): r for r in read_csv(out / f"uav{i}.csv")} for i in range(m.n_uavs)}
+
+    # the no-fly band: in the autopilot's fence as drawn, and never entered by a logged pose
+    assert fence == companion_fence(m), fence
+    assert_exclusions_as_drawn(fence, SCENARIO1_NOFLY.parent / m.region.area)
+    criteria = json.loads((out / "criteria.json").read_text())
+    assert criteria["passed"] or not [f for f in criteria["failures"] if "no-fly" in f], criteria
+    nearest = closest_to_zones(m, logs)
+    print(f"closest logged pose to the no-fly band: {nearest:.0f} m (safety.margin {m.safety.margin:g} m)")
+    assert nearest > 0.0, "a logged pose inside the no-fly band"
+    assert_ground_station_saw(tlog, m, out, WATCHER)
     for i, rows in logs.items():
         flown = list(rows.values())[5:]
         assert flown, f"uav{i} flew no steps"
@@ -199,3 +265,63 @@ def pair_figures(approach: Path, i: int, j: int, steps: range) -> tuple[float, i
     closest = min(rows, key=lambda r: float(r["distance_m"]))
     verticals = [float(r["vertical_m"]) for r in rows if r.get("vertical_m")]
     return float(closest["distance_m"]), int(closest["step"]), min(verticals, default=math.inf)
+
+
+def closest_to_zones(m: Mission, logs: dict[int, dict[int, dict[str, float]]]) -> float:
+    """The least distance of any logged pose to a no-fly zone (0 inside one)."""
+    zones = shapely.union_all([zone_shape(z) for z in m.region.nofly])
+    return min(zones.distance(shapely.Point(r["x"], r["y"])) for rows in logs.values() for r in rows.values())
+
+
+def wait_near_zones(m: Mission, out: Path, run: Proc, uavs: list[int], within: float) -> None:
+    """Wait (generously) until one of `uavs` has logged a pose within `within` m of a no-fly zone."""
+    deadline = time.monotonic() + NEAR_ZONE_S
+    while True:
+        logs = {i: {int(r["step"]): r for r in read_csv(out / f"uav{i}.csv")} for i in uavs}
+        if closest_to_zones(m, logs) <= within:
+            return
+        assert run.alive(), run.text()
+        assert time.monotonic() < deadline, f"no UAV came within {within:g} m of a no-fly zone"
+        time.sleep(1.0)
+
+
+def assert_ground_station_saw(tlog: Path, m: Mission, out: Path, watched: int) -> None:
+    """MAVProxy's .tlog on uav `watched`'s SERIAL2: the companion's progress values and HEARTBEAT,
+    the peers as ArduPlane's own ADSB_VEHICLEs where they logged themselves, and a STATUSTEXT at a
+    real target's cell if the companion learnt of a target while MAVProxy listened."""
+    seen: dict[tuple[int, str], list] = {}
+    log = mavutil.mavlink_connection(str(tlog))
+    while (msg := log.recv_match()) is not None:
+        seen.setdefault((msg.get_srcSystem(), msg.get_type()), []).append(msg)
+    values: dict[str, list[float]] = {}
+    for v in seen.get((COMPANION_SYSTEM, "NAMED_VALUE_FLOAT"), []):
+        values.setdefault(v.name, []).append(v.value)
+    assert set(values) == {"coverage", "mean_eta", "found", "p_unfound", "cpu_pct"}, sorted(seen)
+    assert max(values["found"]) >= 1 and 0 < max(values["coverage"]) <= 1, values["found"]
+    beats = seen[(COMPANION_SYSTEM, "HEARTBEAT")]
+    assert any(b.system_status == mavutil.mavlink.MAV_STATE_ACTIVE for b in beats), len(beats)
+    # ADS-B on: the peers are ArduPlane's traffic (system watched + 1), none routed from system 200
+    assert (COMPANION_SYSTEM, "ADSB_VEHICLE") not in seen
+    traffic = [a for a in seen.get((watched + 1, "ADSB_VEHICLE"), []) if a.callsign.startswith("UAV")]
+    assert traffic, f"no peer in ArduPlane's traffic: {len(seen.get((watched + 1, 'ADSB_VEHICLE'), []))}"
+    frame = LocalFrame(m.region.origin)
+    rows = {j: read_csv(out / f"uav{j}.csv") for j in range(m.n_uavs)}
+    for a in traffic:
+        j = int(a.callsign[3:])
+        assert j != watched and abs(a.altitude * 1e-3 - m.region.origin.alt - m.altitude_of(j)) < 0.01, a
+        x, y = frame.to_local(a.lat * 1e-7, a.lon * 1e-7)
+        assert min(math.hypot(x - r["x"], y - r["y"]) for r in rows[j]) < 1.0, (a.callsign, x, y)
+    print(
+        f"MAVProxy on uav{watched}: traffic {sorted({a.callsign for a in traffic})}, "
+        f"found {values['found'][0]:g} to {max(values['found']):g}"
+    )
+    texts = [t for t in seen.get((COMPANION_SYSTEM, "STATUSTEXT"), []) if TEXT.fullmatch(t.text)]
+    if values["found"][0] < max(values["found"]):  # a target learnt while MAVProxy listened
+        assert texts, "no detection's STATUSTEXT"
+    world = build_world(m)
+    truth = [t["cell"] for t in json.loads((out / "truth.json").read_text())["targets"]]
+    cells = [frame.to_geodetic(*map(float, world.grid.centres[c]))[:2] for c in truth]
+    for t in texts:
+        said = TEXT.fullmatch(t.text)
+        lat, lon = float(said[2]), float(said[3])
+        assert any(abs(lat - a) < 2e-6 and abs(lon - b) < 2e-6 for a, b in cells), t.text
