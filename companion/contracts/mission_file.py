@@ -144,25 +144,34 @@ def _validate_region(m: Mission, fail: Callable[[str, str], None]) -> None:
     poly = m.region.polygon
     if len(poly) < 3:
         fail("region.polygon", f"needs at least 3 vertices (or give region.area), got {len(poly)}")
-    reason = ring_problem(poly)
+    reason = ring_problem(poly, closed=False)
     if reason:
         fail("region.polygon", reason)
     for i, zone in enumerate(m.region.nofly):
         if isinstance(zone, NoFlyPolygon):
-            reason = ring_problem(zone.ring) if len(zone.ring) >= 3 else "a polygon needs at least 3 vertices"
+            enough = len(zone.ring) >= 3
+            reason = ring_problem(zone.ring, closed=True) if enough else "needs at least 3 vertices"
             if reason:
                 fail(f"region.nofly[{i}].ring", reason)
 
 
-def ring_problem(ring: list[tuple[float, float]]) -> str | None:
-    """Why a ring of (x, y) is no simple polygon (it crosses itself, it encloses no area), or None."""
+def ring_problem(ring: list[tuple[float, float]], closed: bool) -> str | None:
+    """Why a ring of (x, y) is no simple polygon, or None.
+
+    It may cross itself, enclose no area, or repeat a vertex (its first as its last only if `closed`
+    rings are allowed)."""
+    last = len(ring) - 1
+    for i in range(len(ring)):
+        j = (i + 1) % len(ring)
+        if ring[i] == ring[j] and not (closed and i == last):
+            return f"vertices {i} and {j} are the same point {tuple(ring[i])}"
     shape = Polygon(ring)
+    if shape.convex_hull.area < 1e-6:
+        return "the polygon encloses no area (its vertices are collinear)"
     if not shape.is_valid:
         where = re.search(r"\[(\S+) (\S+)\]", explain_validity(shape))
         near = f" near ({float(where[1]):.2f}, {float(where[2]):.2f})" if where else ""
         return f"the polygon crosses itself{near}"
-    if shape.area < 1e-6:
-        return "the polygon encloses no area (its vertices are collinear or repeated)"
     return None
 
 

@@ -179,3 +179,23 @@ def test_non_finite_numbers_are_rejected(pattern: str, repl: str, field: str) ->
     """
     err = bad(sub(pattern, repl))
     assert field in str(err)
+
+
+def test_a_region_ring_repeating_a_vertex_or_without_area_is_refused() -> None:
+    closed = "[1000.0, 1000.0], [-1000.0, 1000.0], [-1000.0, -1000.0]]"
+    err = bad(sub(r"\[1000\.0, 1000\.0\], \[-1000\.0, 1000\.0\]\]", closed))
+    assert err.field == "region.polygon" and "vertices 4 and 0 are the same point" in err.reason
+    flat = "polygon = [[-1000.0, -1000.0], [0.0, -1000.0], [1000.0, -1000.0]]"
+    err = bad(sub(r"^polygon = .*$", flat))
+    assert err.field == "region.polygon" and "no area" in err.reason
+
+
+def test_a_typed_zone_may_be_closed_but_not_cross_itself() -> None:
+    ring = "[[0.0, 0.0], [200.0, 0.0], [200.0, 100.0], [0.0, 0.0]]"
+    zone = f'[[region.nofly]]\ntype = "polygon"\nring = {ring}\n\n[prior]'
+    m = parse_mission(sub(r"^\[prior\]", zone), "zone.toml")
+    assert len(m.region.nofly) == 1
+    bowtie = "[200.0, 100.0], [200.0, 0.0], [0.0, 100.0]"
+    crossing = zone.replace("[200.0, 0.0], [200.0, 100.0], [0.0, 0.0]", bowtie)
+    err = bad(sub(r"^\[prior\]", crossing))
+    assert err.field == "region.nofly[0].ring" and "crosses itself" in err.reason
