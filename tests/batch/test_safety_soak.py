@@ -65,7 +65,7 @@ def test_separation_holds_under_message_loss(seed: int) -> None:
 
 
 @pytest.mark.slow
-@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1), mode=st.sampled_from(["grid", "continuous"]))
 def test_no_algorithm_enters_a_no_fly_zone_even_when_a_companion_dies(seed: int, mode: str) -> None:
     """Generated missions with 1-3 no-fly zones (circles and bars): no chord of any UAV, the dead
