@@ -243,6 +243,17 @@ class Proc:
         return self.popen.returncode
 
 
+MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")  # installed with the test extras
+
+
+def mavproxy_argv(master: str, directory: Path) -> tuple[list[str], Path]:
+    """MAVProxy as a ground station on `master`, its state in `directory`: its argv and its tlog."""
+    directory.mkdir(parents=True, exist_ok=True)
+    tlog = directory / "gcs.tlog"
+    argv = [MAVPROXY, f"--master={master}", "--daemon", "--state-basedir", str(directory)]
+    return [*argv, "--logfile", str(tlog)], tlog
+
+
 class Procs:
     """Every process a test started; `stop_all` (the finalizer) stops them by PID, newest first."""
 

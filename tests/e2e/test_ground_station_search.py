@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import sys
 from pathlib import Path
 
 from pymavlink import mavutil
@@ -22,10 +21,9 @@ from pymavlink import mavutil
 from companion.contracts.frames import LocalFrame
 from companion.core.world import build_world
 from companion.node.vehicle_link import COMPANION_COMPONENT, COMPANION_SYSTEM
-from tests.e2e.conftest import SCENARIO1_NOFLY, Ground, Procs, read_csv, wait_rows
+from tests.e2e.conftest import SCENARIO1_NOFLY, Ground, Procs, mavproxy_argv, read_csv, wait_rows
 from tests.fence_readback import assert_exclusions_as_drawn, companion_fence, read_fence
 
-MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")  # installed with the test extras
 WAIT_S = 600.0  # generous: two companions, a simulator and MAVProxy on a busy 2-core machine
 AUTOPILOT = mavutil.mavlink.MAV_COMP_ID_AUTOPILOT1
 TARGETS = 2  # targets companion 0 must know before the run is stopped
@@ -51,15 +49,8 @@ def test_mavproxy_on_the_autopilot_sees_the_search(make_mission, procs: Procs, t
     assert len(m.region.nofly) == 1
     out = tmp_path / "out"
     procs.sim(mission, "--speedup", "10")
-    gcs_dir = tmp_path / "mavproxy"
-    gcs_dir.mkdir()
-    tlog = gcs_dir / "gcs.tlog"
-    proxy = procs.start(
-        "mavproxy",
-        [MAVPROXY, f"--master=udpout:127.0.0.1:{mission.ports[0]}", "--daemon", "--state-basedir",
-         str(gcs_dir), "--logfile", str(tlog)],
-        cwd=gcs_dir,
-    )  # fmt: skip
+    argv, tlog = mavproxy_argv(f"udpout:127.0.0.1:{mission.ports[0]}", tmp_path / "mavproxy")
+    proxy = procs.start("mavproxy", argv, cwd=tlog.parent)
     proxy.wait_for_text("Mode ", timeout=WAIT_S)  # it hears the vehicle: the simulator knows it
     comps = [procs.companion(mission, i, out, "--takeover", "--steps", "5000") for i in range(2)]
     wait_rows(out / "uav0.csv", 1, comps[0], timeout=WAIT_S, cond=lambda r: r["found"] >= TARGETS)

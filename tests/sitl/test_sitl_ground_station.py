@@ -15,7 +15,6 @@ draws it.
 
 from __future__ import annotations
 
-import sys
 import threading
 import time
 from pathlib import Path
@@ -30,11 +29,10 @@ from companion.core.world import build_world
 from companion.node.fence import fence_items, fence_margin, upload_fence
 from companion.node.ground_station import GroundStationFeed
 from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink, open_link
-from tests.e2e.conftest import SCENARIO1_NOFLY, Proc
+from tests.e2e.conftest import SCENARIO1_NOFLY, Proc, mavproxy_argv
 from tests.fence_readback import assert_exclusions_as_drawn, companion_fence, read_fence
 from tests.sitl.conftest import GCS_COMPONENT, STARTUP_S, write_mission
 
-MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")
 STEPS = 15
 
 
@@ -64,15 +62,8 @@ def test_arduplane_shows_the_reports_to_its_ground_station(sitl_binary: Path, tm
         assert serial0 is not None and serial0.wait_heartbeat(STARTUP_S, gone), proc.text()
         links.append(serial0)
         threading.Thread(target=_drain, args=(serial0, stop), daemon=True).start()
-        gcs_dir = tmp_path / "mavproxy"
-        gcs_dir.mkdir()
-        tlog = gcs_dir / "gcs.tlog"
-        proxy = Proc(
-            "mavproxy",
-            [MAVPROXY, f"--master={ports.url(ports.serial2)}", "--daemon", "--state-basedir", str(gcs_dir),
-             "--logfile", str(tlog)],
-            tmp_path / "mavproxy.log", cwd=gcs_dir,
-        )  # fmt: skip
+        argv, tlog = mavproxy_argv(ports.url(ports.serial2), tmp_path / "mavproxy")
+        proxy = Proc("mavproxy", argv, tmp_path / "mavproxy.log", cwd=tlog.parent)
         proxy.wait_for_text("Mode ", timeout=STARTUP_S)
         sent = tmp_path / "companion.tlog"  # what the companion sent (and received)
         url = ports.url(ports.serial1)

@@ -32,7 +32,6 @@ import os
 import re
 import signal
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -45,7 +44,16 @@ from companion.contracts.mission import Mission
 from companion.core.search_area import zone_shape
 from companion.core.world import FAILSAFE_WIDE, build_world
 from companion.node.vehicle_link import COMPANION_SYSTEM, VehicleLink
-from tests.e2e.conftest import PY, SCENARIO1_NOFLY, Proc, Procs, companion_pid, read_csv, wait_rows
+from tests.e2e.conftest import (
+    PY,
+    SCENARIO1_NOFLY,
+    Proc,
+    Procs,
+    companion_pid,
+    mavproxy_argv,
+    read_csv,
+    wait_rows,
+)
 from tests.fence_readback import assert_exclusions_as_drawn, companion_fence, read_fence
 from tests.sim.conftest import fit_circle
 from tests.sitl.conftest import GCS_COMPONENT, STARTUP_S, write_mission
@@ -63,7 +71,6 @@ PARTITION = (4, 90)  # steps [start, end): {0, 1} hear nothing of {2, 3}, across
 WATCHER = 2  # MAVProxy on its SERIAL2: a survivor with a peer (uav3) throughout the partition
 AFTER_FOUND = 3  # steps the watcher logs after its first target before MAVProxy is stopped
 NEAR_ZONE_S = 300.0  # generous: wall seconds for the survivors to reach the band's side
-MAVPROXY = str(Path(sys.executable).parent / "mavproxy.py")
 TEXT = re.compile(r"UAV(\d+) target at (-?\d+\.\d+) (-?\d+\.\d+)")
 
 
@@ -85,15 +92,8 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
         wait_rows(out / f"uav{VICTIM}.csv", KILL_AFTER, run, timeout=240)
         assert "failsafe armed" in (out / f"companion{VICTIM}.log").read_text()
         watched = mission.ports(WATCHER)
-        gcs_dir = tmp_path / "mavproxy"
-        gcs_dir.mkdir()
-        tlog = gcs_dir / "gcs.tlog"
-        proxy = procs.start(
-            "mavproxy",
-            [MAVPROXY, f"--master={watched.url(watched.serial2)}", "--daemon", "--state-basedir",
-             str(gcs_dir), "--logfile", str(tlog)],
-            cwd=gcs_dir,
-        )  # fmt: skip
+        argv, tlog = mavproxy_argv(watched.url(watched.serial2), tmp_path / "mavproxy")
+        proxy = procs.start("mavproxy", argv, cwd=tlog.parent)
         frame = LocalFrame(m.region.origin)
         ports = mission.ports(VICTIM)
         gcs = VehicleLink(ports.url(ports.serial2), frame, component=GCS_COMPONENT)
