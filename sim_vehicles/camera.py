@@ -19,6 +19,7 @@ from companion.contracts.keys import SwarmKeys
 from companion.contracts.mission import Mission
 from companion.core.geometry import Grid
 from companion.core.prior import draw_targets
+from companion.core.sensing import reported_positions, sensor_model
 from companion.core.world import Stream, build_grid, build_prior, instance_rng
 
 LOOPBACK_PREFIXES = (
@@ -77,38 +78,38 @@ def write_truth(path: Path, record: TruthRecord) -> None:
 
 
 class Camera:
-    """Detections of one exposure: target cells whose centre is within the sensor radius.
+    """Detections of one exposure: the cells in view the detector reports (`core.sensing`).
 
-    With `miss` > 0 each visible target is dropped with that probability; with `false_alarm` > 0
-    each other cell in view is reported with that probability. Both draw from `rng`. `frame`
-    builds the CameraFrame of an exposure (the bundled simulator's camera and the stand-alone
-    camera both publish these).
+    A perfect sensor (the paper's) reports every target cell whose centre is within the sensor
+    radius. An imperfect one draws each look at each cell in view from (seed, run 0, vehicle,
+    sampling step, cell), as the batch engine does (`sensing.reported_positions`): an exposure at
+    simulated time t is the look of step floor(t / dT). `frame` builds the CameraFrame of an
+    exposure (the bundled simulator's camera and the stand-alone camera both publish these).
     """
 
     def __init__(
-        self, mission: Mission, grid: Grid, targets: np.ndarray, rng: np.random.Generator, frame: LocalFrame
+        self, mission: Mission, grid: Grid, targets: np.ndarray, seed: int, frame: LocalFrame
     ) -> None:
         self.cell_lat, self.cell_lon = frame.cells_to_geodetic(grid.centres)
-        self.centres = grid.centres
-        self.is_target = np.zeros(grid.n_cells, dtype=bool)
-        self.is_target[targets] = True
+        self.grid, self.seed = grid, seed
+        self.holds_target = np.zeros(grid.n_cells, dtype=bool)
+        self.holds_target[targets] = True
         self.targets = targets
         self.target_xy = grid.centres[targets]
-        self.r2 = mission.sensor.radius**2 + 1e-6  # the batch engine's test
-        self.miss, self.false_alarm = mission.sensor.miss, mission.sensor.false_alarm
-        self.rng = rng
+        self.r2 = grid.fov_radius2  # the batch engine's test
+        s = mission.sensor
+        self.model = sensor_model(s.pd, s.pd_edge, s.pf, s.radius)
+        self.step_usec = round(mission.kinematics.step * 1e6)
 
-    def detect(self, x: float, y: float) -> np.ndarray:
-        """Indices of the cells reported as holding a target."""
-        d2 = np.sum((self.target_xy - (x, y)) ** 2, axis=1)
-        seen = self.targets[d2 <= self.r2]
-        if self.miss > 0 and len(seen):
-            seen = seen[self.rng.random(len(seen)) >= self.miss]
-        if self.false_alarm > 0:
-            in_view = (np.sum((self.centres - (x, y)) ** 2, axis=1) <= self.r2) & ~self.is_target
-            others = np.flatnonzero(in_view)
-            seen = np.concatenate([seen, others[self.rng.random(len(others)) < self.false_alarm]])
-        return seen
+    def detect(self, uav: int, time_usec: int, x: float, y: float) -> np.ndarray:
+        """Indices of the cells reported as holding a target at vehicle `uav`'s exposure."""
+        if self.model.perfect:
+            d2 = np.sum((self.target_xy - (x, y)) ** 2, axis=1)
+            return self.targets[d2 <= self.r2]
+        cells = self.grid.fov_cell_list((x, y))
+        look = (self.seed, 0, uav, time_usec // self.step_usec)
+        reported = reported_positions(self.grid.centres, cells, self.holds_target, self.model, look, (x, y))
+        return self.grid.cell_at(np.array(reported, dtype=float).reshape(-1, 2))
 
     def frame(
         self,
@@ -122,7 +123,7 @@ class Camera:
 
         The frame of vehicle `uav`'s exposure at local `xy` = geodetic `geo` (lat, lon, alt AMSL)
         with `heading` (the core's convention)."""
-        cells = self.detect(*xy)
+        cells = self.detect(uav, time_usec, *xy)
         found = tuple(zip(self.cell_lat[cells].tolist(), self.cell_lon[cells].tolist(), strict=True))
         lat, lon, alt = geo
         return detections.CameraFrame(

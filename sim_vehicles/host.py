@@ -131,8 +131,7 @@ class Host:
             if options.truth is not None:
                 record = cam.truth_record(mission, self.seed, self.grid, self.targets, self.frame)
                 cam.write_truth(options.truth, record)
-            rng = cam.instance_rng(self.seed, 0, cam.Stream.CAMERA)
-            self.camera = cam.Camera(mission, self.grid, self.targets, rng, self.frame)
+            self.camera = cam.Camera(mission, self.grid, self.targets, self.seed, self.frame)
             self.next_camera = 0.0
             if options.state is not None and options.state.exists():
                 load_state(self, options.state)

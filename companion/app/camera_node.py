@@ -97,8 +97,7 @@ class CameraNode:
         self.signing_secrets, self.positions = signing_secrets, positions
         self.frame = LocalFrame(mission.region.origin)
         self.grid, self.targets = cam.draw_truth(mission, seed)
-        rng = cam.instance_rng(seed, 0, cam.Stream.CAMERA)
-        self.camera = cam.Camera(mission, self.grid, self.targets, rng, self.frame)
+        self.camera = cam.Camera(mission, self.grid, self.targets, seed, self.frame)
         self.published = 0
         self.errors: list[str] = []
         self._lock = threading.Lock()

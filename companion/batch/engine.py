@@ -18,9 +18,11 @@ from companion.batch.dead_vehicle import DeadVehicle
 from companion.contracts.mission import Mission
 from companion.core.agent import Agent, Observation
 from companion.core.connectivity import algebraic_connectivity, min_pair_distance, pairwise_distances
+from companion.core.geometry import IntArray
 from companion.core.messages import Message, decode, encode
 from companion.core.prior import draw_targets
 from companion.core.search_area import keepout_entries, keepout_pieces
+from companion.core.sensing import reported_positions
 from companion.core.trajectory import segment_clearance, step_pose
 from companion.core.uncertainty import global_average_uncertainty, mark_seen
 from companion.core.world import Stream, World, build_world, instance_rng
@@ -54,11 +56,43 @@ class RunResult:
     # safety.margin or leaving a non-convex region's margin (`search_area.keepout_pieces`); None
     # for a convex region without zones
     keepout_entries: int | None = None
+    # what an imperfect sensor's confirmations did (`Sensing`); None for a perfect sensor, whose
+    # first look confirms (`confirm_steps` is then `target_steps`)
+    sensing: Sensing | None = None
     extras: dict = field(default_factory=dict)
 
     def target_times(self) -> np.ndarray:
         """First-seen step of each target, an unfound target counting as `steps`."""
         return np.where(self.target_steps >= 0, self.target_steps, self.steps)
+
+    @property
+    def confirm_steps(self) -> np.ndarray:
+        """The step at which some UAV first confirmed each target (-1 never)."""
+        return self.target_steps if self.sensing is None else self.sensing.confirm_steps
+
+    @property
+    def false_confirmations(self) -> int:
+        """Cells holding no target that some UAV confirmed."""
+        return 0 if self.sensing is None else int(self.sensing.false_cells.shape[0])
+
+    def confirm_times(self) -> np.ndarray:
+        """First confirmation step of each target, one never confirmed counting as `steps`."""
+        return np.where(self.confirm_steps >= 0, self.confirm_steps, self.steps)
+
+
+@dataclass
+class Sensing:
+    """The confirmations of a run with an imperfect sensor (docs/algorithm.md, "Imperfect sensing").
+
+    `confirm_steps`: per target (as `target_cells`), the step some UAV first held it confirmed (-1
+    never); `false_cells`/`false_steps`: the cells holding no target that some UAV confirmed, and
+    when first; `reports`/`false_reports`: the detector's reports, and those of empty cells."""
+
+    confirm_steps: np.ndarray
+    false_cells: np.ndarray
+    false_steps: np.ndarray
+    reports: int
+    false_reports: int
 
 
 @njit(cache=True)
@@ -147,6 +181,20 @@ class Scorer:
         self.keepout = keepout_pieces(m, world.grid.region, m.safety.margin, m.safety.margin)
         self.entries = 0
         self._before: np.ndarray | None = None
+        self.holds_target = np.zeros(world.grid.n_cells, dtype=bool)
+        self.holds_target[targets] = True
+        self.confirmed: dict[int, int] = {}  # cell -> step some UAV first held it confirmed
+        self.reports = self.false_reports = 0
+
+    def confirm(self, k: int, cells: tuple[int, ...]) -> None:
+        """Cells a UAV's map confirmed at step k."""
+        for c in cells:
+            self.confirmed.setdefault(c, k)
+
+    def reported(self, cells: IntArray) -> None:
+        """Cells the detector reported at one look (imperfect sensors: `Sensing.reports`)."""
+        self.reports += cells.shape[0]
+        self.false_reports += int(np.count_nonzero(~self.holds_target[cells]))
 
     def record(self, k: int, positions: np.ndarray, uncertainty: float = math.nan) -> np.ndarray:
         """Score the UAVs at `positions` at step k; returns which UAV sees which target (eq. 3).
@@ -192,6 +240,17 @@ class Scorer:
         """The run's `RunResult`, with `extra` fields."""
         steps = len(self.unc)
         m = self.world.mission
+        sensing = None
+        if not self.world.sensor.perfect:
+            steps_of = self.confirmed.get
+            false = sorted(c for c in self.confirmed if not self.holds_target[c])
+            sensing = Sensing(
+                np.array([steps_of(int(c), -1) for c in self.targets], dtype=np.int64),
+                np.array(false, dtype=np.int64),
+                np.array([self.confirmed[c] for c in false], dtype=np.int64),
+                self.reports,
+                self.false_reports,
+            )
         return RunResult(
             algorithm=self.world.mission.algorithm.name,
             run=run,
@@ -206,6 +265,7 @@ class Scorer:
             separation_losses=int(np.count_nonzero(self.approach <= m.comms.safety)),
             link_losses=int(np.count_nonzero(self.lam <= 0)) if m.n_uavs > 1 else 0,
             keepout_entries=self.entries if self.keepout.shape[0] else None,
+            sensing=sensing,
             target_cells=self.targets,
             target_steps=self.first,
             seconds=seconds,
@@ -305,7 +365,7 @@ def simulate(
     last = np.zeros(n)  # each vehicle's latest turn: the command a dead companion leaves held
     for k in range(steps):
         sees = scorer.record(k, poses[:, :2])
-        stepped = _step_agents(k, agents, world, faults, poses, last, sees, scorer.target_xy, inboxes)
+        stepped = _step_agents(k, agents, world, faults, poses, last, sees, scorer, (seed, run), inboxes)
         turns, outboxes, commanded = stepped
         if tasks is not None:
             tasks[k] = commanded
@@ -344,15 +404,18 @@ def _step_agents(
     poses: np.ndarray,
     last: np.ndarray,
     sees: np.ndarray,
-    target_xy: np.ndarray,
+    scorer: Scorer,
+    instance: tuple[int, int],
     inboxes: list[list[Message]],
 ) -> tuple[np.ndarray, list[list[Message]], np.ndarray]:
     """Step k of every UAV: the turns flown, the outboxes and each agent's task.
 
-    Step k of every UAV from `poses`, each agent with its inbox and the targets it `sees` (at
-    `target_xy`): the turns flown over [t_k, t_k+1] (a dead companion's vehicle flies its
-    `DeadVehicle` from its `last` turn; an unsteered one the loiter turn), the outboxes (empty for
-    the dead) and each agent's task (-1 for the dead)."""
+    Step k of every UAV from `poses`, each agent with its inbox and what its camera reports: the
+    targets it `sees` (a perfect sensor), or `reported_positions`' draws for run `instance`
+    (seed, run); the scorer learns the reports and each agent's confirmations. The turns flown
+    over [t_k, t_k+1] (a dead companion's vehicle flies its `DeadVehicle` from its `last` turn; an
+    unsteered one the loiter turn), the outboxes (empty for the dead) and each agent's task (-1 for
+    the dead)."""
     n = len(agents)
     turns, commanded = np.empty(n), np.full(n, -1, dtype=np.int64)
     outboxes: list[list[Message]] = []
@@ -366,10 +429,21 @@ def _step_agents(
             outboxes.append([])
             continue
         x, y, h = poses[i].tolist()
-        detections = tuple(map(tuple, target_xy[sees[i]].tolist())) if seen[i] else ()
+        if world.sensor.perfect:
+            detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
+        else:
+            cells = world.grid.fov_cell_list((x, y))
+            look = (*instance, i, k)
+            grid = world.grid
+            truth = scorer.holds_target
+            detections = reported_positions(grid.centres, cells, truth, world.sensor, look, (x, y))
+            if detections:
+                scorer.reported(world.grid.cell_at(np.array(detections)))
         steered = faults.steered_at(i, k)
         obs = Observation(step=k, x=x, y=y, heading=h, detections=detections, steered=steered)
         command, outbox = agent.step(obs, inboxes[i])
+        if agent.newly_confirmed:
+            scorer.confirm(k, agent.newly_confirmed)
         turns[i] = command.turn if steered else loiter_turn
         outboxes.append(outbox)
         commanded[i] = command.task

@@ -126,11 +126,24 @@ class Prior(_Base, frozen=True, kw_only=True):
 
 
 class Sensor(_Base, frozen=True, kw_only=True):
-    """Downward camera: FOV radius R_A (eq. 3) and detector error rates (simulator only)."""
+    """Downward camera: FOV radius R_A (eq. 3) and its detector (docs/algorithm.md, "Imperfect sensing").
+
+    A target in view is reported with probability Pd, falling linearly from `pd` under the UAV to
+    `pd_edge` (default `pd`) at R_A; an empty cell in view is reported with probability `pf` per
+    look. A cell is confirmed when its posterior reaches `confirm` and cleared below `clear`.
+    """
 
     radius: Positive
-    false_alarm: Probability = 0.0
-    miss: Probability = 0.0
+    pd: Probability = 1.0
+    pd_edge: Probability | None = None
+    pf: Probability = 0.0
+    confirm: Annotated[float, msgspec.Meta(gt=0, lt=1)] = 0.999
+    clear: Annotated[float, msgspec.Meta(gt=0, lt=1)] = 0.01
+
+    @property
+    def perfect(self) -> bool:
+        """Pd = 1 everywhere and Pf = 0: the paper's camera."""
+        return self.pd == 1.0 and self.pd_edge in (None, 1.0) and self.pf == 0.0
 
 
 class Kinematics(_Base, frozen=True, kw_only=True):

@@ -118,6 +118,7 @@ def _validate(m: Mission, source: str) -> None:
     if not m.prior.centres:
         fail("prior.centres", "at least one distribution centre is required")
     _validate_layers(m, fail)
+    _validate_sensor(m, fail)
     if m.kinematics.mode == "grid" and m.kinematics.turn_limit_deg < 45:
         fail("kinematics.turn_limit_deg", "grid mode turns in 45 degree steps: the limit must be >= 45")
     ports = [m.vehicle_port(i) for i in range(m.n_uavs)]
@@ -137,6 +138,16 @@ def _validate(m: Mission, source: str) -> None:
         members = [u for g in f.groups for u in g]
         if any(u >= m.n_uavs for u in members) or len(set(members)) != len(members):
             fail(f"{where}.groups", f"UAVs 0..{m.n_uavs - 1}, each in at most one group")
+
+
+def _validate_sensor(m: Mission, fail: Callable[[str, str], None]) -> None:
+    """A report must be evidence for a target, and the clearing floor below the threshold."""
+    s = m.sensor
+    pd_edge = s.pd if s.pd_edge is None else s.pd_edge
+    if min(s.pd, pd_edge) <= s.pf:
+        fail("sensor.pf", f"must be below pd ({s.pd}) and pd_edge ({pd_edge}), got {s.pf}")
+    if s.clear >= s.confirm:
+        fail("sensor.clear", f"must be below sensor.confirm ({s.confirm}), got {s.clear}")
 
 
 def _validate_region(m: Mission, fail: Callable[[str, str], None]) -> None:

@@ -25,6 +25,7 @@ import numpy as np
 
 from companion.core import pheromone as phero
 from companion.core.auction import claim_priority, local_auction
+from companion.core.belief import Belief
 from companion.core.commitment import Commitments
 from companion.core.geometry import FloatArray, IntArray
 from companion.core.messages import (
@@ -76,9 +77,10 @@ class StepDelta(msgspec.Struct, frozen=True, array_like=True):
     """What one step changed in an agent's own knowledge (`Agent.last`).
 
     What one step changed in an agent's own knowledge (`Agent.last`): every FOV cell applied to its
-    map (its own and its neighbours', in order), the cells newly known to hold a target, and its task
-    and commitments after the step. Replaying the deltas of steps k+1..k' on the snapshot of step k
-    (`Agent.replay`) gives the agent's map, targets, task and trajectory in force of step k'."""
+    map (its own and its neighbours', in order), the cells newly confirmed, its task and commitments
+    after the step, and every evidence record its target-probability map took (`core.belief`).
+    Replaying the deltas of steps k+1..k' on the snapshot of step k (`Agent.replay`) gives the
+    agent's maps, targets, task and trajectory in force of step k'."""
 
     step: int
     looks: tuple[int, ...]
@@ -87,14 +89,17 @@ class StepDelta(msgspec.Struct, frozen=True, array_like=True):
     task_reward: float
     inforce: Trajectory
     parents: tuple[int, ...]
+    records: tuple[int, ...] = ()
+    record_values: tuple[float, ...] = ()
 
 
 class AgentSnapshot(msgspec.Struct, frozen=True, array_like=True):
     """An agent's own knowledge after step `step` (`Agent.snapshot`, `Agent.restore`).
 
     An agent's own knowledge after step `step` (`Agent.snapshot`, `Agent.restore`): its uncertainty
-    map (float64, little-endian), the cells it has looked at (packed bits), the target cells it knows
-    of, its task, its trajectory in force and tethers, and the pheromone field (that algorithm only).
+    map (float64, little-endian), the cells it has looked at (packed bits), the cells it holds confirmed,
+    its task, its trajectory in force and tethers, the pheromone field (that algorithm only) and its
+    target-probability map's evidence (`Belief.to_bytes`).
     What it knew of the others is not kept: their next messages tell it again."""
 
     uav: int
@@ -107,6 +112,8 @@ class AgentSnapshot(msgspec.Struct, frozen=True, array_like=True):
     inforce: Trajectory
     parents: tuple[int, ...]
     phi: bytes | None = None
+    evidence: bytes = b""
+    evidence_stamps: bytes = b""
 
 
 class Command(msgspec.Struct, frozen=True, kw_only=True):
@@ -137,7 +144,12 @@ class Agent:
         # eq. 22 weighs its search term against eq. 29's barriers as it does the proposed method's eta
         self._relative_prior = world.prior / max(float(world.prior.max()), np.finfo(float).tiny)
         self.seen = np.zeros(n, dtype=bool)
-        self.found: set[int] = set()
+        self.belief = Belief(world.prior, m.n_uavs, uav, m.sensor.confirm, m.sensor.clear)
+        self._sensor = tuple(world.sensor)
+        self.found: set[int] = set()  # cells confirmed (`Belief.confirmed`)
+        self.candidates = np.zeros(0, dtype=np.int64)  # cells a detection left undecided
+        self._settled = -1  # the belief's version `_settle` last read
+        self._relayed: dict[int, tuple[int, ...]] = {}  # each neighbour's records, as last read
         self.peers: dict[int, UavState] = {}
         self.neighbours: dict[int, tuple[int, ...]] = {}  # heard from at this step -> whom they heard
         self._heard: tuple[int, ...] = ()  # whom we reported to have heard, in our last StateMsg
@@ -168,7 +180,8 @@ class Agent:
             (tess.labels, tess.cell_counts, tess.generators, tess.areas, tess.routes) if tess else None
         )
         self.commitments = Commitments(world, uav)
-        self.last: StepDelta | None = None  # what the latest step changed (journals keep it)
+        self._last: StepDelta | tuple | None = None  # `last`, or the parts it is built from
+        self.newly_confirmed: tuple[int, ...] = ()  # cells the latest step confirmed
 
     # -- inbox ---------------------------------------------------------------------------------
     def forget(self, uav: int) -> None:
@@ -200,10 +213,13 @@ class Agent:
             flat = chain.from_iterable(plan)
             self._rows[state.uav] = (state.stamp, state.x, state.y, *flat, state.heading, *heads)
 
-    def _ingest(self, inbox: Iterable[Message], k: int, looks: list[int]) -> dict[int, tuple[float, ...]]:
+    def _ingest(
+        self, inbox: Iterable[Message], k: int, looks: list[int], coverage: list[CoverageMsg]
+    ) -> dict[int, tuple[float, ...]]:
         """Sort the inbox by kind into looks, states and claims; return this round's bids.
 
-        Sort the inbox by kind: the neighbours' FOV cells go onto `looks`, states and claims into
+        Sort the inbox by kind: the neighbours' FOV cells go onto `looks` and their coverage messages
+        onto `coverage` (their evidence, fused after this UAV's own looks), states and claims into
         what this UAV knows of the others (and its commitments: `Commitments.observe`); returns the
         bids of this auction round. Messages are validated where they enter (`messages.check`);
         here only their timing counts."""
@@ -223,8 +239,7 @@ class Agent:
                     fresh[msg.sender] = msg
             elif isinstance(msg, CoverageMsg):
                 looks += msg.cells
-                if msg.detections:
-                    self.found.update(msg.detections)
+                coverage.append(msg)
             elif isinstance(msg, BidsMsg):
                 if msg.stamp == k - 1:
                     bids[msg.sender] = msg.rewards
@@ -254,6 +269,59 @@ class Agent:
         cells = np.array(looks, dtype=np.int64)
         apply_looks(self.eta, cells, self.world.mission.uncertainty.gamma)
         mark_seen(self.seen, self.covered, self._labels, cells)
+
+    def _sense(
+        self, obs: Observation, own: IntArray, coverage: list[CoverageMsg]
+    ) -> tuple[IntArray, FloatArray]:
+        """Bayes' rule for this UAV's looks, then the neighbours' evidence; returns the records taken.
+
+        Every cell in view is a look, a hit where the camera reported a target (a report outside
+        the FOV, from the camera's own position, is a look at its cell too). A neighbour's relayed
+        records are read only when they differ from those it sent last."""
+        grid, b = self.world.grid, self.belief
+        cells, hits = own, np.zeros(own.shape[0], dtype=np.bool_)
+        if obs.detections:
+            detected = grid.cell_at(np.array(obs.detections, dtype=float))
+            detected = np.unique(detected[detected >= 0])
+            cells = np.union1d(own, detected)
+            hits = np.isin(cells, detected)
+        mine = b.look(obs.step, cells, hits, (obs.x, obs.y), grid.centres, self._sensor)
+        triples: list[int] = []
+        values: list[float] = []
+        for msg in coverage:
+            if msg.evidence:
+                for c in msg.cells:
+                    triples += (msg.sender, c, msg.stamp)
+                values += msg.evidence
+            if msg.record_values and self._relayed.get(msg.sender) != msg.records:
+                self._relayed[msg.sender] = msg.records
+                triples += msg.records
+                values += msg.record_values
+        own_values = b.evidence[self.uav, cells]
+        if not values:
+            return mine, own_values
+        heard, heard_values = np.array(triples, dtype=np.int64), np.array(values, dtype=float)
+        kept = b.merge(heard, heard_values)
+        kept_triples = heard.reshape(-1, 3)[kept].ravel()
+        return np.concatenate([mine, kept_triples]), np.concatenate([own_values, heard_values[kept]])
+
+    def _settle(self) -> None:
+        """The cells confirmed and the candidates; a candidate's uncertainty rises to its posterior's.
+
+        eta_p <- max(eta_p, eta_0 H(P_p)) for every candidate p, H the binary entropy in bits: a
+        detection left undecided makes the cell uncertain again (docs/algorithm.md, "Imperfect
+        sensing"). A perfect sensor leaves no candidate."""
+        b = self.belief
+        if self._settled == b.version:
+            return
+        self._settled = b.version
+        self.candidates = b.candidates()
+        if self.candidates.size:
+            p = b.posterior(self.candidates)
+            h = -(p * np.log2(p) + (1.0 - p) * np.log2(1.0 - p))
+            eta0 = self.world.mission.uncertainty.eta0
+            self.eta[self.candidates] = np.maximum(self.eta[self.candidates], eta0 * h)
+        self.found = set(b.confirmed().tolist())
 
     # -- mission planning ----------------------------------------------------------------------
     def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> tuple[float, ...]:
@@ -329,12 +397,15 @@ class Agent:
         force, plan the task (Algorithm 2, eqs. 20-21) and the path (eq. 22) from the pose at t_k+1,
         and answer the command for [t_k, t_k+1] and the outbox stamped k."""
         k = obs.step
-        looks: list[int] = self.world.grid.fov_cell_list((obs.x, obs.y)).tolist()
+        own = self.world.grid.fov_cell_list((obs.x, obs.y))
+        looks: list[int] = own.tolist()
         own_cells = tuple(looks)
         known = set(self.found)
-        bids = self._ingest(inbox, k, looks)
+        coverage: list[CoverageMsg] = []
+        bids = self._ingest(inbox, k, looks, coverage)
         self._update_map(looks)
-        self._detect(obs.detections)
+        records, values = self._sense(obs, own, coverage)
+        self._settle()
 
         # safety layer: the trajectory in force for [t_k, t_k+1], then plan from the pose at t_k+1
         safety = self.commitments
@@ -370,17 +441,21 @@ class Agent:
             me = UavState(
                 self.uav, k, obs.x, obs.y, obs.heading, (), self.task, self.task_reward, steered=False
             )
-        found = tuple(sorted(self.found))  # every target known, not only this step's: late joiners catch up
+        found = tuple(sorted(self.found))
         outbox = self._outbox(obs, me, own_cells, found, announce)
         new = tuple(c for c in found if c not in known)
-        self.last = StepDelta(k, tuple(looks), new, self.task, self.task_reward, inforce, safety.parents)
+        self.newly_confirmed = new
+        self._last = (k, looks, new, self.task, self.task_reward, inforce, safety.parents, records, values)
         return command, outbox
 
-    def _detect(self, detections: tuple[tuple[float, float], ...]) -> None:
-        """Add the cells of the camera's detections (local positions) to the targets known."""
-        if detections:
-            detected = self.world.grid.cell_at(np.array(detections, dtype=float))
-            self.found.update({int(c) for c in detected if c >= 0})
+    @property
+    def last(self) -> StepDelta | None:
+        """What the latest step changed (`StepDelta`; journals keep it), built when first asked for."""
+        if isinstance(self._last, tuple):
+            k, looks, new, task, reward, inforce, parents, records, values = self._last
+            triples, values = tuple(records.tolist()), tuple(values.tolist())
+            self._last = StepDelta(k, tuple(looks), new, task, reward, inforce, parents, triples, values)
+        return self._last
 
     def _rank(
         self, pose: tuple[float, float, float], nxt: FloatArray, nbr_tracks: FloatArray
@@ -438,13 +513,13 @@ class Agent:
     def _outbox(
         self, obs: Observation, me: UavState, cells: tuple[int, ...], found: tuple[int, ...], announce: bool
     ) -> list[Message]:
-        """This step's messages: state, coverage (every target known), relayed states and bids."""
+        """This step's messages: state, coverage (looks, evidence, records), relayed states and bids."""
         k, x, y, parents = obs.step, obs.x, obs.y, self.commitments.parents
         heard, relay = tuple(sorted(self.neighbours)), self._relay()
         self._heard = heard
         outbox: list[Message] = [
             StateMsg(sender=self.uav, stamp=k, x=x, y=y, state=me, heard=heard, parents=parents),
-            CoverageMsg(sender=self.uav, stamp=k, x=x, y=y, cells=cells, detections=found),
+            self._coverage(obs, cells, found),
         ]
         if relay:
             known = tuple(self.peers[u] for u in relay)
@@ -453,6 +528,15 @@ class Agent:
             assert self.bids is not None
             outbox.append(BidsMsg(sender=self.uav, stamp=k, x=x, y=y, rewards=self.bids))
         return outbox
+
+    def _coverage(self, obs: Observation, cells: tuple[int, ...], found: tuple[int, ...]) -> CoverageMsg:
+        """Its looks with its evidence at them, every record at the cells of interest, the confirmed."""
+        evidence = self.belief.own_values(np.array(cells, dtype=np.int64))
+        records, values = self.belief.records()
+        return CoverageMsg(
+            sender=self.uav, stamp=obs.step, x=obs.x, y=obs.y, cells=cells, detections=found,
+            evidence=evidence, records=records, record_values=values,
+        )  # fmt: skip
 
     # -- snapshot and restore ------------------------------------------------------------------
     def snapshot(self) -> AgentSnapshot:
@@ -463,6 +547,7 @@ class Agent:
         return AgentSnapshot(
             self.uav, step, self.eta.astype("<f8").tobytes(), np.packbits(self.seen).tobytes(),
             tuple(sorted(self.found)), self.task, self.task_reward, c.inforce, c.parents, phi,
+            *self.belief.to_bytes(),
         )  # fmt: skip
 
     def restore(self, snap: AgentSnapshot) -> None:
@@ -478,13 +563,15 @@ class Agent:
             self.covered[:] = np.bincount(self._labels[:-1][self.seen], minlength=self.covered.size)
         if snap.phi is not None:
             self.phi = np.frombuffer(snap.phi, dtype="<f8").copy()
-        self.found = set(snap.found)
+        self.belief.restore(snap.evidence, snap.evidence_stamps)
+        self._settle()
         self._restart(snap.step, snap.task, snap.task_reward, snap.inforce, snap.parents)
 
     def replay(self, delta: StepDelta) -> None:
         """Apply a later step's delta to a restored agent, exactly as the step changed it."""
         self._update_map(list(delta.looks))
-        self.found.update(delta.found)
+        self.belief.merge(np.array(delta.records, dtype=np.int64), np.array(delta.record_values), own=True)
+        self._settle()
         if self.phi is not None:
             w = self.world
             self.phi = phero.step_field(
@@ -497,4 +584,4 @@ class Agent:
         self.bids, self.bid_stamp = None, -1
         c = self.commitments
         c.inforce, c.proposal, c.parents = inforce, None, tuple(parents)
-        self.last = StepDelta(step, (), (), task, reward, inforce, tuple(parents))
+        self._last = StepDelta(step, (), (), task, reward, inforce, tuple(parents))

@@ -15,7 +15,9 @@ import msgspec
 from companion.contracts.wire import MsgpackCodec
 from companion.core.trajectory import Trajectory
 
-PROTOCOL_VERSION = 5
+PROTOCOL_VERSION = 6
+MAX_RECORDS = 1024  # evidence records one coverage message relays (`belief.MAX_RECORDS`)
+MAX_EVIDENCE = 1e9  # |cumulative log-odds evidence| of a record
 MAX_PLAN = 16
 
 
@@ -69,20 +71,31 @@ class StateMsg(_Header, frozen=True, tag="state"):
 
 
 class CoverageMsg(_Header, frozen=True, tag="coverage"):
-    """Cells in the sender's FOV at `stamp` (eq. 11 looks) and every target cell it knows of.
+    """The sender's looks at `stamp` (eq. 11), its evidence, and what it knows of the targets.
 
-    The target cells are its camera's detections and those it heard of: each step re-announces them
-    all, so a UAV that joins or restarts late learns every earlier detection from any neighbour.
+    `cells`: its FOV at `stamp`; `evidence`: its cumulative log-odds evidence at each of them after
+    those looks (`core.belief`). `records`/`record_values`: every evidence record it holds at the
+    cells of interest (confirmed or candidate), as (source, cell, stamp) triples and values, so
+    that a UAV that joins, restarts or was out of range learns every detection from any
+    neighbour. `detections`: the cells it holds confirmed (for ground stations and views).
     """
 
     cells: tuple[int, ...]
     detections: tuple[int, ...] = ()
+    evidence: tuple[float, ...] = ()
+    records: tuple[int, ...] = ()
+    record_values: tuple[float, ...] = ()
 
 
 class BidsMsg(_Header, frozen=True, tag="bids"):
-    """The sender's rewards R_ij for every task (eq. 15): its bids for the next local auction."""
+    """The sender's rewards R_ij for every task (eq. 15): its bids for the next local auction.
+
+    `confirm`/`confirm_rewards`: its bids for the confirmation tasks of the candidate cells it
+    knows of (docs/algorithm.md, "Imperfect sensing")."""
 
     rewards: tuple[float, ...]
+    confirm: tuple[int, ...] = ()
+    confirm_rewards: tuple[float, ...] = ()
 
 
 class ClaimsMsg(_Header, frozen=True, tag="claims"):
@@ -126,6 +139,22 @@ def _check_state(s: UavState, n_uavs: int, n_tasks: int) -> None:
             raise MessageError(f"state of uav {s.uav}: bad trajectory")
 
 
+def _check_coverage(msg: CoverageMsg, n_uavs: int, n_cells: int) -> None:
+    if len(msg.cells) > n_cells or any(not 0 <= c < n_cells for c in msg.cells + msg.detections):
+        raise MessageError("cell index out of range")
+    if msg.evidence and len(msg.evidence) != len(msg.cells):
+        raise MessageError("evidence must be one value per cell looked at")
+    records, values = msg.records, msg.record_values
+    if len(values) > MAX_RECORDS or len(records) != 3 * len(values):
+        raise MessageError(f"records: (source, cell, stamp) triples, one per value, at most {MAX_RECORDS}")
+    if any(not -MAX_EVIDENCE <= v <= MAX_EVIDENCE for v in msg.evidence + values):  # also NaN
+        raise MessageError("evidence must be finite")
+    for i in range(0, len(records), 3):
+        u, c, s = records[i : i + 3]
+        if not (0 <= u < n_uavs and 0 <= c < n_cells and 0 <= s <= msg.stamp):
+            raise MessageError(f"record ({u}, {c}, {s}): unknown uav or cell, or stamped after its message")
+
+
 def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
     """Raise MessageError unless `msg` is a well-formed message of this mission."""
     if msg.v != PROTOCOL_VERSION:
@@ -134,8 +163,9 @@ def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
         raise MessageError(f"unknown sender {msg.sender}")
     if msg.stamp < 0 or not _finite(msg.x, msg.y):
         raise MessageError("bad stamp or position")
+    tasks = n_tasks + n_cells if n_tasks else 0  # a cell's confirmation task is n_tasks + cell
     if isinstance(msg, StateMsg):
-        _check_state(msg.state, n_uavs, n_tasks)
+        _check_state(msg.state, n_uavs, tasks)
         if msg.state.uav != msg.sender:
             raise MessageError("state of another uav in a state message")
         if msg.state.stamp != msg.stamp:
@@ -145,15 +175,22 @@ def check(msg: Message, n_uavs: int, n_cells: int, n_tasks: int) -> None:
         if len(msg.parents) > 2 or any(not 0 <= u < n_uavs or u == msg.sender for u in msg.parents):
             raise MessageError("parents list with unknown uavs")
     elif isinstance(msg, CoverageMsg):
-        if len(msg.cells) > n_cells or any(not 0 <= c < n_cells for c in msg.cells + msg.detections):
-            raise MessageError("cell index out of range")
+        _check_coverage(msg, n_uavs, n_cells)
     elif isinstance(msg, BidsMsg):
         if len(msg.rewards) != n_tasks or not _finite(*msg.rewards) or min(msg.rewards, default=0) < 0:
             raise MessageError("bids must be one finite non-negative reward per task")
+        if (
+            len(msg.confirm) != len(msg.confirm_rewards)
+            or len(msg.confirm) > n_cells
+            or any(not 0 <= c < n_cells for c in msg.confirm)
+            or not _finite(*msg.confirm_rewards)
+            or min(msg.confirm_rewards, default=0) < 0
+        ):
+            raise MessageError("confirmation bids must be one finite non-negative reward per known cell")
     elif isinstance(msg, ClaimsMsg):
         if len(msg.known) > n_uavs:
             raise MessageError("more relayed states than uavs")
         for s in msg.known:
-            _check_state(s, n_uavs, n_tasks)
+            _check_state(s, n_uavs, tasks)
             if s.stamp > msg.stamp:
                 raise MessageError("relayed state newer than its message")

@@ -21,6 +21,7 @@ from companion.core.routes import open_nodes, route_table
 from companion.core.safety.limits import Limits
 from companion.core.safety.start import initial_trajectories, tether_tree
 from companion.core.search_area import cell_mask, flyable_cells, keepout_pieces, plain, region_hull
+from companion.core.sensing import SensorModel, sensor_model
 from companion.core.tasks import CostWeights
 from companion.core.trajectory import Trajectory
 
@@ -31,7 +32,6 @@ class Stream(IntEnum):
     CVT = 0
     TARGETS = 1
     RADIO = 2
-    CAMERA = 3
 
 
 def instance_rng(seed: int, run: int, stream: Stream) -> np.random.Generator:
@@ -49,6 +49,7 @@ class World:
     tessellation: Tessellation | None
     costs: CostWeights
     safety: SafetyPlan
+    sensor: SensorModel
 
     @property
     def n_uavs(self) -> int:
@@ -215,4 +216,5 @@ def build_world(mission: Mission, seed: int | None = None, run: int = 0) -> Worl
             tess = onto_flyable(tess, grid.centres, flyable, mission.sensor.radius)
             open_ = open_nodes(grid, lim.fence_normals, lim.fence_offsets, lim.keepout)
             tess = replace(tess, routes=route_table(grid, tess.generators, open_))
-    return World(mission, grid, prior, kin, paths, tess, costs, safety)
+    sensor = sensor_model(mission.sensor.pd, mission.sensor.pd_edge, mission.sensor.pf, mission.sensor.radius)
+    return World(mission, grid, prior, kin, paths, tess, costs, safety, sensor)

@@ -123,19 +123,30 @@ def test_check_accepts_well_formed() -> None:
         CoverageMsg(**{**HEAD, "y": math.inf}, cells=()),
         StateMsg(**HEAD, state=state(x=math.nan)),  # NaN in the state
         StateMsg(**HEAD, state=state(uav=2)),  # state of another UAV
-        StateMsg(**HEAD, state=state(task=N_TASKS)),  # task out of range
+        StateMsg(**HEAD, state=state(task=N_TASKS + N_CELLS)),  # beyond the last confirmation task
         StateMsg(**HEAD, state=state(task=-2)),
         StateMsg(**HEAD, state=state(plan=((math.nan, 0.0),))),
         StateMsg(**HEAD, state=state(plan=((0.0, 0.0),) * 17)),  # plan too long
         CoverageMsg(**HEAD, cells=(0, N_CELLS)),  # out-of-range cell
         CoverageMsg(**HEAD, cells=(-1,)),
         CoverageMsg(**HEAD, cells=(), detections=(N_CELLS,)),
+        CoverageMsg(**HEAD, cells=(0, 1), evidence=(1.0,)),  # evidence not one per cell
+        CoverageMsg(**HEAD, cells=(0,), evidence=(math.nan,)),
+        CoverageMsg(**HEAD, cells=(), records=(0, 1), record_values=(1.0,)),  # not a triple
+        CoverageMsg(**HEAD, cells=(), records=(4, 1, 0), record_values=(1.0,)),  # unknown source
+        CoverageMsg(**HEAD, cells=(), records=(0, N_CELLS, 0), record_values=(1.0,)),
+        CoverageMsg(**HEAD, cells=(), records=(0, 1, HEAD["stamp"] + 1), record_values=(1.0,)),  # future
+        CoverageMsg(**HEAD, cells=(), records=(0, 1, 0), record_values=(math.inf,)),
+        CoverageMsg(**HEAD, cells=(), records=(0, 1, 0) * 1025, record_values=(1.0,) * 1025),  # too many
+        BidsMsg(**HEAD, rewards=(1.0,) * N_TASKS, confirm=(1, 2), confirm_rewards=(1.0,)),
+        BidsMsg(**HEAD, rewards=(1.0,) * N_TASKS, confirm=(N_CELLS,), confirm_rewards=(1.0,)),
+        BidsMsg(**HEAD, rewards=(1.0,) * N_TASKS, confirm=(1,), confirm_rewards=(-1.0,)),
         BidsMsg(**HEAD, rewards=(1.0,) * (N_TASKS - 1)),  # wrong bid length
         BidsMsg(**HEAD, rewards=(1.0,) * (N_TASKS + 1)),
         BidsMsg(**HEAD, rewards=(1.0, math.nan, 1.0, 1.0, 1.0)),
         BidsMsg(**HEAD, rewards=(1.0, -1.0, 1.0, 1.0, 1.0)),
         ClaimsMsg(**HEAD, known=(state(uav=9),)),  # relayed state of an unknown UAV
-        ClaimsMsg(**HEAD, known=(state(uav=0, task=99),)),
+        ClaimsMsg(**HEAD, known=(state(uav=0, task=N_TASKS + N_CELLS),)),
         ClaimsMsg(**HEAD, known=tuple(state(uav=i % N_UAVS) for i in range(N_UAVS + 1))),
     ],
 )

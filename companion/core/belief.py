@@ -1,0 +1,197 @@
+"""The target-probability map: Bayes' rule in log-odds, fused between UAVs without double counting.
+
+Each cell's log-odds is L_p = logit(Pr_p) + sum over UAVs u of E_{u,p}, where Pr_p is eq. 1's prior
+and E_{u,p} the sum of the log-likelihood ratios of every look UAV u made at cell p
+(`sensing.look_llr`). Only u adds to E_{u,p}; the others hold a copy stamped with the step u last
+looked at p, and keep the newer of two copies (a record (u, p, stamp, E) is cumulative, so the
+newer includes the older). Fusing is then idempotent and independent of order and relay path,
+and since every term is a multiple of 2^-20 the sums are exact: two UAVs that exchanged every
+record hold the posterior that one UAV making all their looks would hold.
+
+A cell is *confirmed* when its posterior reaches `confirm`; a *candidate* while its evidence is
+positive and its posterior lies strictly between `clear` and `confirm` (one look more decides it).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from companion.core.geometry import FloatArray, IntArray
+from companion.core.sensing import LLR_QUANTUM, look_llr
+
+PRIOR_FLOOR = 1e-9  # eq. 1's prior clipped to [PRIOR_FLOOR, 1 - PRIOR_FLOOR] before its logit
+MAX_RECORDS = 1024  # records a coverage message relays (`Belief.records`)
+
+# one UAV's evidence records: (source, cell, stamp) triples flattened, and the cumulative values
+Records = tuple[tuple[int, ...], tuple[float, ...]]
+
+
+def logit(p: float) -> float:
+    """log(p / (1 - p))."""
+    return math.log(p / (1.0 - p))
+
+
+def prior_logodds(prior: FloatArray) -> FloatArray:
+    """logit of eq. 1's prior per cell, clipped and quantized (`sensing.quantized` without the cap)."""
+    p = np.clip(prior, PRIOR_FLOOR, 1.0 - PRIOR_FLOOR)
+    return np.round(np.log(p / (1.0 - p)) / LLR_QUANTUM) * LLR_QUANTUM
+
+
+# one UAV's map as the kernels take it: log-odds L, prior log-odds L0, evidence E (UAVs x cells) and
+# the stamp of each evidence record (-1: none held)
+MapArrays = tuple[FloatArray, FloatArray, FloatArray, IntArray]
+
+
+@njit(cache=True)
+def _set(arrays: MapArrays, u: int, c: int, stamp: int, value: float) -> bool:
+    """E_{u,c} <- value at `stamp`, L_c recomputed in a fixed order; whether c is or was of interest."""
+    logodds, l0, evidence, stamps = arrays
+    before = logodds[c] > l0[c]
+    evidence[u, c] = value
+    stamps[u, c] = stamp
+    total = l0[c]
+    for v in range(evidence.shape[0]):
+        total += evidence[v, c]
+    logodds[c] = total
+    return before or total > l0[c]
+
+
+@njit(cache=True)
+def add_looks(
+    arrays: MapArrays, me: int, step: int, cells: IntArray, hits: np.ndarray, at: tuple[float, float],
+    centres: FloatArray, model: tuple[float, float, float, float],
+) -> tuple[IntArray, bool]:  # fmt: skip
+    """UAV `me`'s looks from `at` at step `step`: E_{me,p} += `look_llr` for each cell, hit or miss.
+
+    Returns the records changed, as (source, cell, stamp) triples, and whether a cell of interest
+    (positive evidence) changed."""
+    pd, pd_edge, pf, radius = model
+    evidence = arrays[2]
+    triples = np.empty(3 * cells.shape[0], dtype=np.int64)
+    interest = False
+    for i in range(cells.shape[0]):
+        c = cells[i]
+        d = math.hypot(centres[c, 0] - at[0], centres[c, 1] - at[1])
+        llr = look_llr(hits[i], d, pd, pd_edge, pf, radius)
+        interest |= _set(arrays, me, c, step, evidence[me, c] + llr)
+        triples[3 * i], triples[3 * i + 1], triples[3 * i + 2] = me, c, step
+    return triples, interest
+
+
+@njit(cache=True)
+def merge_records(
+    arrays: MapArrays, me: int, triples: IntArray, values: FloatArray
+) -> tuple[np.ndarray, bool]:
+    """Keep each record (source, cell, stamp, E) newer than the copy held.
+
+    Returns which were kept and whether a cell of interest changed. Records of `me`'s own
+    evidence are ignored (only it adds to them); `me` = -1 takes all."""
+    stamps = arrays[3]
+    taken = np.zeros(values.shape[0], dtype=np.bool_)
+    interest = False
+    for i in range(values.shape[0]):
+        u, c, s = triples[3 * i], triples[3 * i + 1], triples[3 * i + 2]
+        if u != me and s > stamps[u, c]:
+            interest |= _set(arrays, u, c, s, round(values[i] / LLR_QUANTUM) * LLR_QUANTUM)
+            taken[i] = True
+    return taken, interest
+
+
+@njit(cache=True)
+def interest_cells(logodds: FloatArray, l0: FloatArray, clear_logodds: float) -> IntArray:
+    """Cells whose evidence is positive and whose posterior is above the clearing floor."""
+    out = np.empty(logodds.shape[0], dtype=np.int64)
+    n = 0
+    for c in range(logodds.shape[0]):
+        if logodds[c] > l0[c] and logodds[c] > clear_logodds:
+            out[n] = c
+            n += 1
+    return out[:n]
+
+
+class Belief:
+    """One UAV's target-probability map (log-odds) and the evidence records it fuses."""
+
+    def __init__(self, prior: FloatArray, n_uavs: int, me: int, confirm: float, clear: float) -> None:
+        self.me = me
+        self.l0 = prior_logodds(prior)
+        n = self.l0.shape[0]
+        self.evidence = np.zeros((n_uavs, n))
+        self.stamps = np.full((n_uavs, n), -1, dtype=np.int64)
+        self.logodds = self.l0.copy()
+        self.confirm_logodds, self.clear_logodds = logit(confirm), logit(clear)
+        self.version = 0  # changes whenever a cell of interest (positive evidence) changed
+        self._records: tuple[int, Records] = (-1, ((), ()))
+
+    # -- evidence ------------------------------------------------------------------------------
+    @property
+    def arrays(self) -> MapArrays:
+        return (self.logodds, self.l0, self.evidence, self.stamps)
+
+    def look(
+        self, step: int, cells: IntArray, hits: np.ndarray, at: tuple[float, float], centres: FloatArray,
+        model: tuple[float, float, float, float],
+    ) -> IntArray:  # fmt: skip
+        """This UAV's looks at `cells` from `at` at step `step`; returns the records, as triples."""
+        triples, interest = add_looks(self.arrays, self.me, step, cells, hits, at, centres, model)
+        self.version += interest
+        return triples
+
+    def own_values(self, cells: IntArray) -> tuple[float, ...]:
+        """This UAV's cumulative evidence at `cells` (what its coverage message carries)."""
+        return tuple(self.evidence[self.me, cells].tolist())
+
+    def merge(self, triples: IntArray, values: FloatArray, own: bool = False) -> np.ndarray:
+        """Records as (source, cell, stamp) triples and values (rounded to the quantum).
+
+        Returns which records were kept (newer than the copies held). Records of this UAV's own
+        evidence are skipped unless `own` (a journal's replay)."""
+        taken, interest = merge_records(self.arrays, -1 if own else self.me, triples, values)
+        self.version += interest
+        return taken
+
+    def records(self) -> Records:
+        """Every record held at the cells of interest (confirmed or candidate), for relaying."""
+        version, cached = self._records
+        if version == self.version:
+            return cached
+        cells = interest_cells(self.logodds, self.l0, self.clear_logodds)
+        held = self.stamps[:, cells] >= 0
+        sources, at = np.nonzero(held)
+        sources, at = sources[:MAX_RECORDS], cells[at[:MAX_RECORDS]]
+        triples = np.stack([sources, at, self.stamps[sources, at]], axis=1).ravel()
+        out = (tuple(triples.tolist()), tuple(self.evidence[sources, at].tolist()))
+        self._records = (self.version, out)
+        return out
+
+    # -- what it says ----------------------------------------------------------------------------
+    def posterior(self, cells: IntArray | None = None) -> FloatArray:
+        """P(target in cell | every look fused) for `cells` (all cells by default)."""
+        lo = self.logodds if cells is None else self.logodds[cells]
+        return 1.0 / (1.0 + np.exp(-lo))
+
+    def confirmed(self) -> IntArray:
+        """Cells whose posterior reaches the confirmation threshold."""
+        return np.flatnonzero(self.logodds >= self.confirm_logodds)
+
+    def candidates(self) -> IntArray:
+        """Cells a detection left between the clearing floor and the threshold."""
+        cells = interest_cells(self.logodds, self.l0, self.clear_logodds)
+        return cells[self.logodds[cells] < self.confirm_logodds]
+
+    # -- snapshot ------------------------------------------------------------------------------
+    def to_bytes(self) -> tuple[bytes, bytes]:
+        """The evidence and its stamps (little-endian), for `AgentSnapshot`."""
+        return self.evidence.astype("<f8").tobytes(), self.stamps.astype("<i8").tobytes()
+
+    def restore(self, evidence: bytes, stamps: bytes) -> None:
+        """Take back `to_bytes`'s evidence; raises ValueError if it does not fit."""
+        if len(evidence) != self.evidence.nbytes or len(stamps) != self.stamps.nbytes:
+            raise ValueError("belief of another mission")
+        self.evidence[:] = np.frombuffer(evidence, dtype="<f8").reshape(self.evidence.shape)
+        self.stamps[:] = np.frombuffer(stamps, dtype="<i8").reshape(self.stamps.shape)
+        self.logodds[:] = self.l0 + self.evidence.sum(axis=0)
+        self.version += 1
