@@ -17,6 +17,7 @@ again (synchronisation). A held task is reevaluated every step (eqs. 20-21).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from itertools import chain
 
@@ -47,12 +48,22 @@ from companion.core.rhc import (
 )
 from companion.core.routes import STRAIGHT
 from companion.core.swarm_view import swarm_view
-from companion.core.tasks import TaskSet, bid_rewards, keep_task, task_completion, task_costs
+from companion.core.tasks import (
+    TaskSet,
+    auction_table,
+    bid_rewards,
+    confirm_bids,
+    keep_task,
+    task_completion,
+    task_costs,
+)
 from companion.core.trajectory import Trajectory
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
 
 Track = tuple[tuple[float, float], ...]  # points of a plan, from its anchor on
+# a bidder's rewards (`BidsMsg`): one per CVT task, then the candidate cells and their rewards
+Bids = tuple[tuple[float, ...], tuple[int, ...], tuple[float, ...]]
 
 
 class Observation(msgspec.Struct, frozen=True, kw_only=True):
@@ -160,7 +171,7 @@ class Agent:
         self.rejected = 0
         self.task = -1
         self.task_reward = 0.0
-        self.bids: tuple[float, ...] | None = None  # announced at self.bid_stamp
+        self.bids: Bids | None = None  # announced at self.bid_stamp
         self.bid_stamp = -1
         tess = world.tessellation
         self.covered = np.zeros(tess.n_tasks if tess else 0, dtype=np.int64)
@@ -215,7 +226,7 @@ class Agent:
 
     def _ingest(
         self, inbox: Iterable[Message], k: int, looks: list[int], coverage: list[CoverageMsg]
-    ) -> dict[int, tuple[float, ...]]:
+    ) -> dict[int, Bids]:
         """Sort the inbox by kind into looks, states and claims; return this round's bids.
 
         Sort the inbox by kind: the neighbours' FOV cells go onto `looks` and their coverage messages
@@ -223,7 +234,7 @@ class Agent:
         what this UAV knows of the others (and its commitments: `Commitments.observe`); returns the
         bids of this auction round. Messages are validated where they enter (`messages.check`);
         here only their timing counts."""
-        bids: dict[int, tuple[float, ...]] = {}
+        bids: dict[int, Bids] = {}
         oldest = k - self.world.mission.comms.peer_timeout_steps
         states: list[UavState] = []
         fresh: dict[int, StateMsg] = {}
@@ -242,7 +253,7 @@ class Agent:
                 coverage.append(msg)
             elif isinstance(msg, BidsMsg):
                 if msg.stamp == k - 1:
-                    bids[msg.sender] = msg.rewards
+                    bids[msg.sender] = (msg.rewards, msg.confirm, msg.confirm_rewards)
             else:
                 states.extend(msg.known)
         self._remember(states)
@@ -324,63 +335,98 @@ class Agent:
         self.found = set(b.confirmed().tolist())
 
     # -- mission planning ----------------------------------------------------------------------
-    def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> tuple[float, ...]:
-        """Eq. 15 rewards, filtered by eq. 21 and the task held.
+    def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> Bids:
+        """Eq. 15 rewards, filtered by eq. 21 and the task held, and the confirmation tasks' rewards.
 
         Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21: complete or too costly)
         and, when it holds a task, for tasks not worth more than the task it holds (Algorithm 2's
-        greedy bidder would not take them: lines 10-11)."""
+        greedy bidder would not take them: lines 10-11). Then `confirm_bids` for the candidates."""
         w, tasks = self.world, self._tasks
         assert tasks is not None
         a = w.mission.algorithm
+        n_tasks = tasks[2].shape[0]
+        held = self.task if self.task < n_tasks else -1
         out = bid_rewards(
-            self.eta, w.prior, self.covered, tasks, a.v_max, a.c_max, position, mst_nbrs, w.costs, self.task
+            self.eta, w.prior, self.covered, tasks, a.v_max, a.c_max, position, mst_nbrs, w.costs, held
         )
-        return tuple(out.tolist())
+        out = out if out.size else np.zeros(n_tasks)  # every task complete
+        floor = self._confirm_reward(position, mst_nbrs)[0] if self.task >= n_tasks else 0.0
+        if floor > 0:
+            out[out <= floor] = 0.0
+        cvt = tuple(out.tolist())
+        if not self.candidates.size:
+            return cvt, (), ()
+        cells, rewards = confirm_bids(
+            self.candidates, self.belief.posterior(self.candidates), w.grid.centres, position, mst_nbrs,
+            w.costs, a.c_max,
+        )  # fmt: skip
+        if self.task >= 0:
+            current = self.task_reward if self.task < n_tasks else floor
+            rewards = np.where(rewards > current, rewards, 0.0)
+        keep = rewards > 0
+        return cvt, tuple(cells[keep].tolist()), tuple(rewards[keep].tolist())
+
+    def _confirm_reward(self, position: FloatArray, mst_nbrs: FloatArray) -> tuple[float, float]:
+        """The held confirmation task's reward (eq. 15 with eq. 18's capped cost) and its eq. 21 cost."""
+        w = self.world
+        assert self.world.tessellation is not None
+        c = self.task - self.world.tessellation.n_tasks
+        if c not in set(self.candidates.tolist()):
+            return 0.0, math.inf
+        gen = w.grid.centres[c : c + 1]
+        capped, uncapped = task_costs(
+            position, mst_nbrs, gen, np.array([w.costs.fov_area]), w.costs, STRAIGHT, 0
+        )
+        return float(self.belief.posterior(np.array([c]))[0] / capped[0]), float(uncapped[0])
 
     def _plan_task(
-        self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict[int, tuple[float, ...]]
+        self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict[int, Bids]
     ) -> bool:
         """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step.
 
         Every UAV is a greedy bidder (Algorithm 2): it announces its rewards at step k (`BidsMsg`),
         and at k+1 runs the local auction over the bids it heard, the tasks held by the UAVs it knows
         of removed; a task it wins replaces the one it holds (its bids already exclude tasks worth
-        less). The held task is then reevaluated (eqs. 20-21) and dropped on a conflicting claim of
-        a higher priority."""
-        w, tess = self.world, self.world.tessellation
+        less). The tasks are the CVT's and one confirmation task per candidate cell heard of
+        (`auction_table`). The held task is then reevaluated (eqs. 20-21) and dropped on a
+        conflicting claim of a higher priority."""
+        tess = self.world.tessellation
         assert tess is not None
-        a = w.mission.algorithm
         if self.bids is not None and self.bid_stamp == k - 1:
             bidders = [self.uav, *sorted(bids)]
-            table = np.array([self.bids, *(bids[u] for u in sorted(bids))])
-            available = np.ones(tess.n_tasks, dtype=bool)
-            for s in self.peers.values():
-                if s.task >= 0:
-                    available[s.task] = False
-            if self.task >= 0:
-                available[self.task] = False
+            held = [s.task for s in self.peers.values()] + [self.task]
+            rows = [self.bids, *(bids[u] for u in sorted(bids))]
+            ids, table, available = auction_table(tess.n_tasks, rows, held)
             won = local_auction(bidders, table, available).get(self.uav)
             if won is not None:
-                self.task, self.task_reward = won
+                self.task, self.task_reward = int(ids[won[0]]), won[1]
         if self.task >= 0:
             mine = claim_priority(self.task_reward, self.uav)
             lost = any(
                 s.task == self.task and claim_priority(s.task_reward, u) > mine for u, s in self.peers.items()
             )
-            j = self.task
-            completion = task_completion(int(self.covered[j]), int(tess.cell_counts[j]))
-            _, holding = task_costs(
-                position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs, tess.routes, j
-            )
-            cost = float(holding[0])
-            if lost or not keep_task(completion, cost, a.v_max, a.c_max):
+            if lost or not self._keep(position, mst_nbrs):
                 self.task, self.task_reward = -1, 0.0
         self.bids = None
         rewards = self._my_bids(position, mst_nbrs)
-        if max(rewards, default=0.0) > 0:  # nothing left to win: no auction
+        if max((*rewards[0], *rewards[2]), default=0.0) > 0:  # nothing left to win: no auction
             self.bids, self.bid_stamp = rewards, k
         return self.bids is not None
+
+    def _keep(self, position: FloatArray, mst_nbrs: FloatArray) -> bool:
+        """Eqs. 20-21 for the held task; a confirmation task is complete once its cell is decided."""
+        w, tess = self.world, self.world.tessellation
+        assert tess is not None
+        a = w.mission.algorithm
+        j = self.task
+        if j >= tess.n_tasks:
+            reward, cost = self._confirm_reward(position, mst_nbrs)
+            return reward > 0 and keep_task(0.0, cost, a.v_max, a.c_max)
+        completion = task_completion(int(self.covered[j]), int(tess.cell_counts[j]))
+        _, holding = task_costs(
+            position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs, tess.routes, j
+        )
+        return keep_task(completion, float(holding[0]), a.v_max, a.c_max)
 
     # -- step ----------------------------------------------------------------------------------
     def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -472,19 +518,26 @@ class Agent:
                 grid, self.phi, self.eta, w.prior, w.mission.algorithm.pheromone, self._values
             )
         tess = w.tessellation
-        if self.task >= 0 and tess is not None:
+        labels = self._labels
+        if self.task >= 0 and tess is not None and self.task >= tess.n_tasks:
+            c = self.task - tess.n_tasks  # a confirmation task: the FOV disc about its cell
+            region: TaskRegion = (self.task, grid.centres[c], grid.fov_radius, STRAIGHT)
+            labels = np.full_like(labels, -1)
+            labels[grid.fov_table[c]] = self.task
+            labels[-1] = -1
+        elif self.task >= 0 and tess is not None:
             j = self.task
-            region: TaskRegion = (j, tess.generators[j], float(tess.circumradii[j]), tess.routes)
+            region = (j, tess.generators[j], float(tess.circumradii[j]), tess.routes)
         else:
             region = (-1, nxt, 1.0, STRAIGHT)
         if w.kinematics.mode == "grid":
             return rank_grid_candidates(
-                x1, y1, w.paths.offsets_from(h1), self._grid_cells, self._values, self._labels, region,
+                x1, y1, w.paths.offsets_from(h1), self._grid_cells, self._values, labels, region,
                 nbr_tracks, self._weights,
             )  # fmt: skip
         pts = w.paths.expand(x1, y1, h1)
         cells, fov, prefix = continuous_path_cells(grid, w.kinematics, pts)
-        labels = self._labels[cells] if region[0] >= 0 else cells  # cell -1 reads the trailing -1
+        labels = labels[cells] if region[0] >= 0 else cells  # cell -1 reads the trailing -1
         return rank_candidates(pts, fov, prefix, self._values, labels, region, nbr_tracks, self._weights), pts
 
     def _plan_of(
@@ -526,7 +579,9 @@ class Agent:
             outbox.append(ClaimsMsg(sender=self.uav, stamp=k, x=x, y=y, known=known))
         if announce:
             assert self.bids is not None
-            outbox.append(BidsMsg(sender=self.uav, stamp=k, x=x, y=y, rewards=self.bids))
+            rewards, cells, confirm = self.bids
+            head = {"sender": self.uav, "stamp": k, "x": x, "y": y}
+            outbox.append(BidsMsg(**head, rewards=rewards, confirm=cells, confirm_rewards=confirm))
         return outbox
 
     def _coverage(self, obs: Observation, cells: tuple[int, ...], found: tuple[int, ...]) -> CoverageMsg:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -10,7 +11,7 @@ from numba import njit
 
 from companion.core.geometry import FloatArray, IntArray
 from companion.core.potential import link_cost
-from companion.core.routes import RouteTable, route_distance
+from companion.core.routes import STRAIGHT, RouteTable, route_distance
 
 
 class CostWeights(NamedTuple):
@@ -144,3 +145,55 @@ def task_completion(covered_cells: int, task_cells: int) -> float:
 def keep_task(completion: float, cost: float, v_max: float, c_max: float) -> bool:
     """Eq. 21: the task is kept while v_i <= v_max and C*_{i,k} <= C_max."""
     return completion <= v_max and cost <= c_max and math.isfinite(cost)
+
+
+MAX_CONFIRM_BIDS = 16  # confirmation tasks a bidder bids for at once, its best
+
+
+def confirm_bids(
+    cells: IntArray,
+    posteriors: FloatArray,
+    centres: FloatArray,
+    position: FloatArray,
+    neighbours: FloatArray,
+    w: CostWeights,
+    c_max: float,
+) -> tuple[IntArray, FloatArray]:
+    """Eq. 15 for the confirmation task of each candidate cell: R = P_p / C (eq. 18), best first.
+
+    The task of confirming candidate cell p is one look at it: its income is the posterior P_p
+    (the targets the look settles, in the units of eq. 15's eta Pr), its cost eq. 18 with q_j the
+    cell's centre and S_j the FOV area S_A (one look of search). Zero where keeping it would cost
+    more than C_max (eq. 21); at most MAX_CONFIRM_BIDS of them."""
+    gens = centres[cells]
+    areas = np.full(cells.shape[0], w.fov_area)
+    auction, holding = task_costs(position, neighbours, gens, areas, w, STRAIGHT, 0)
+    rewards = np.where(holding <= c_max, posteriors / auction, 0.0)
+    best = np.argsort(-rewards, kind="stable")[:MAX_CONFIRM_BIDS]
+    return cells[best], rewards[best]
+
+
+def auction_table(
+    n_tasks: int, bids: Sequence[tuple[Sequence[float], Sequence[int], Sequence[float]]], held: Iterable[int]
+) -> tuple[IntArray, FloatArray, np.ndarray]:
+    """The local auction's tasks, bids and availability over CVT and confirmation tasks.
+
+    Columns: the n_tasks CVT tasks, then the confirmation task n_tasks + p of every candidate cell
+    p some bidder bid for, in cell order (a bidder that did not bid for one bids 0). Returns each
+    column's task id, the table (a row per bidder, as `bids`) and which columns no one in `held`
+    holds."""
+    cells = sorted(set().union(*(b[1] for b in bids)))
+    column = {n_tasks + c: n_tasks + i for i, c in enumerate(cells)}
+    ids = np.concatenate([np.arange(n_tasks), n_tasks + np.array(cells, dtype=np.int64)])
+    table = np.zeros((len(bids), ids.shape[0]))
+    for row, (cvt, confirm, rewards) in enumerate(bids):
+        table[row, :n_tasks] = cvt
+        for c, r in zip(confirm, rewards, strict=True):
+            table[row, column[n_tasks + c]] = r
+    available = np.ones(ids.shape[0], dtype=bool)
+    for t in held:
+        if 0 <= t < n_tasks:
+            available[t] = False
+        elif t in column:
+            available[column[t]] = False
+    return ids, table, available

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -17,19 +18,24 @@ from companion.node.journal import CHECKPOINT_STEPS, Journal, JournalError, head
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="module")
-def world():
-    return build_world(load_mission(ROOT / "mission_files" / "scenario1.toml"), 1, 0)
+@pytest.fixture(scope="module", params=["perfect", "imperfect"])
+def world(request):
+    mission = load_mission(ROOT / "mission_files" / "scenario1.toml")
+    if request.param == "imperfect":  # the journal carries the target map's evidence records too
+        mission = msgspec.structs.replace(mission, sensor=msgspec.structs.replace(mission.sensor, pd=0.8, pf=0.05))
+    return build_world(mission, 1, 0)
 
 
 def _fly(agent: Agent, journal: Journal, steps: range) -> None:
-    """Steps of a lone UAV that detects a target every 7 steps, journaled."""
+    """Steps of a lone UAV, journaled, over a target in every 13th cell (each seen while in view)."""
     x, y, h = -620.0, -980.0, math.pi / 2
     if agent.last is not None:
         c = agent.commitments.inforce
         x, y, h = c.x, c.y, c.heading
+    grid = agent.world.grid
     for k in steps:
-        seen = ((x, y),) if k % 7 == 3 else ()
+        targets = [c for c in grid.fov_cell_list((x, y)).tolist() if c % 13 == 0]
+        seen = tuple((float(px), float(py)) for px, py in grid.centres[targets].tolist())
         command, _ = agent.step(Observation(step=k, x=x, y=y, heading=h, detections=seen), [])
         journal.append(agent)
         x, y, h = command.waypoint[0], command.waypoint[1], command.heading
@@ -39,6 +45,7 @@ def _same(a: Agent, b: Agent) -> None:
     assert np.array_equal(a.eta, b.eta) and np.array_equal(a.seen, b.seen)
     assert np.array_equal(a.covered, b.covered)
     assert a.found == b.found and a.found
+    assert np.array_equal(a.belief.logodds, b.belief.logodds) and np.array_equal(a.candidates, b.candidates)
     assert (a.task, a.task_reward) == (b.task, b.task_reward)
     assert a.commitments.inforce == b.commitments.inforce
     assert a.commitments.parents == b.commitments.parents
