@@ -1,7 +1,7 @@
 """The simulator's state file: a restarted simulator goes on where it stopped (`--state FILE`).
 
 At every sampling-step boundary the host writes its whole state (time, every vehicle's flight
-state and autopilot state, the camera's random stream, the lockstep step) to FILE, atomically
+state and autopilot state, the lockstep step) to FILE, atomically
 (a temporary file renamed over it), and a simulator started with an existing FILE resumes from it:
 same time, same poses, same modes and guidance, as an aircraft whose simulator process was
 restarted would be. The file is a pickle: only ever load one this simulator wrote.
@@ -46,7 +46,6 @@ def save_state(host: Host, path: Path) -> None:
         "epoch": host.unix_epoch_usec,
         "flight": {k: v for k, v in vars(host.flight).items() if k not in _NOT_SAVED},
         "vehicles": [vars(hv.vehicle) for hv in host.hosted],
-        "camera_rng": host.camera.rng.bit_generator.state,
         "next_camera": getattr(host, "next_camera", 0.0),
     }
     tmp = path.with_name(path.name + ".tmp")
@@ -72,7 +71,6 @@ def load_state(host: Host, path: Path) -> None:
     vars(host.flight).update(state["flight"])
     for hv, saved in zip(host.hosted, state["vehicles"], strict=True):
         vars(hv.vehicle).update(saved)
-    host.camera.rng.bit_generator.state = state["camera_rng"]
     host.next_camera = state["next_camera"]
     if isinstance(host.clock, LockstepClock):  # saved on step boundaries: the step of the saved tick
         host.clock.step = host.snapshot_step = host.tick // host.substeps

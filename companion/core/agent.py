@@ -17,15 +17,13 @@ again (synchronisation). A held task is reevaluated every step (eqs. 20-21).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 from itertools import chain
 
-import msgspec
 import numpy as np
 
 from companion.core import pheromone as phero
-from companion.core.auction import claim_priority, local_auction
+from companion.core.agent_io import AgentSnapshot, Command, Observation, StepDelta
 from companion.core.belief import Belief
 from companion.core.commitment import Commitments
 from companion.core.geometry import FloatArray, IntArray
@@ -48,98 +46,18 @@ from companion.core.rhc import (
 )
 from companion.core.routes import STRAIGHT
 from companion.core.swarm_view import swarm_view
-from companion.core.tasks import (
-    TaskSet,
-    auction_table,
-    bid_rewards,
-    confirm_bids,
-    keep_task,
-    task_completion,
-    task_costs,
-)
+from companion.core.task_planning import Bids, TaskPlanning
+from companion.core.tasks import TaskSet
 from companion.core.trajectory import Trajectory
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
 
+__all__ = ["Agent", "AgentSnapshot", "Command", "Observation", "StepDelta"]
+
 Track = tuple[tuple[float, float], ...]  # points of a plan, from its anchor on
-# a bidder's rewards (`BidsMsg`): one per CVT task, then the candidate cells and their rewards
-Bids = tuple[tuple[float, ...], tuple[int, ...], tuple[float, ...]]
 
 
-class Observation(msgspec.Struct, frozen=True, kw_only=True):
-    """The UAV's own pose at step k, its camera's detections and whether it steers its vehicle.
-
-    The UAV's own pose at step k (local frame, heading CCW from east), its camera's detections,
-    and whether its vehicle flies what the agent commands (False: a pilot, a failsafe or the guard's
-    way back inside flies it; the agent then commits to nothing: `UavState.steered`). `closing`: the
-    mission is over; the agent proposes nothing new and commands its trajectory in force, which ends
-    in a loiter that every peer's trajectory in force keeps clear of (the companion's hand-over)."""
-
-    step: int
-    x: float
-    y: float
-    heading: float
-    detections: tuple[tuple[float, float], ...] = ()
-    steered: bool = True
-    closing: bool = False
-
-
-class StepDelta(msgspec.Struct, frozen=True, array_like=True):
-    """What one step changed in an agent's own knowledge (`Agent.last`).
-
-    What one step changed in an agent's own knowledge (`Agent.last`): every FOV cell applied to its
-    map (its own and its neighbours', in order), the cells newly confirmed, its task and commitments
-    after the step, and every evidence record its target-probability map took (`core.belief`).
-    Replaying the deltas of steps k+1..k' on the snapshot of step k (`Agent.replay`) gives the
-    agent's maps, targets, task and trajectory in force of step k'."""
-
-    step: int
-    looks: tuple[int, ...]
-    found: tuple[int, ...]
-    task: int
-    task_reward: float
-    inforce: Trajectory
-    parents: tuple[int, ...]
-    records: tuple[int, ...] = ()
-    record_values: tuple[float, ...] = ()
-
-
-class AgentSnapshot(msgspec.Struct, frozen=True, array_like=True):
-    """An agent's own knowledge after step `step` (`Agent.snapshot`, `Agent.restore`).
-
-    An agent's own knowledge after step `step` (`Agent.snapshot`, `Agent.restore`): its uncertainty
-    map (float64, little-endian), the cells it has looked at (packed bits), the cells it holds confirmed,
-    its task, its trajectory in force and tethers, the pheromone field (that algorithm only) and its
-    target-probability map's evidence (`Belief.to_bytes`).
-    What it knew of the others is not kept: their next messages tell it again."""
-
-    uav: int
-    step: int
-    eta: bytes
-    seen: bytes
-    found: tuple[int, ...]
-    task: int
-    task_reward: float
-    inforce: Trajectory
-    parents: tuple[int, ...]
-    phi: bytes | None = None
-    evidence: bytes = b""
-    evidence_stamps: bytes = b""
-
-
-class Command(msgspec.Struct, frozen=True, kw_only=True):
-    """The first step of the chosen path: turn over the step, and the path for waypoint autopilots."""
-
-    step: int
-    turn: float
-    heading_rate: float
-    heading: float
-    waypoint: tuple[float, float]
-    path: tuple[tuple[float, float], ...]
-    task: int = -1
-
-
-class Agent:
+class Agent(TaskPlanning):
     """The distributed cooperative search algorithm for UAV `uav` (0-based)."""
 
     def __init__(self, world: World, uav: int) -> None:
@@ -156,7 +74,7 @@ class Agent:
         self._relative_prior = world.prior / max(float(world.prior.max()), np.finfo(float).tiny)
         self.seen = np.zeros(n, dtype=bool)
         self.belief = Belief(world.prior, m.n_uavs, uav, m.sensor.confirm, m.sensor.clear)
-        self._sensor = tuple(world.sensor)
+        self._sensor = world.sensor
         self.found: set[int] = set()  # cells confirmed (`Belief.confirmed`)
         self.candidates = np.zeros(0, dtype=np.int64)  # cells a detection left undecided
         self._settled = -1  # the belief's version `_settle` last read
@@ -290,6 +208,7 @@ class Agent:
         the FOV, from the camera's own position, is a look at its cell too). A neighbour's relayed
         records are read only when they differ from those it sent last."""
         grid, b = self.world.grid, self.belief
+        own = own if obs.looked else own[:0]
         cells, hits = own, np.zeros(own.shape[0], dtype=np.bool_)
         if obs.detections:
             detected = grid.cell_at(np.array(obs.detections, dtype=float))
@@ -335,100 +254,6 @@ class Agent:
         self.found = set(b.confirmed().tolist())
 
     # -- mission planning ----------------------------------------------------------------------
-    def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> Bids:
-        """Eq. 15 rewards, filtered by eq. 21 and the task held, and the confirmation tasks' rewards.
-
-        Eq. 15 rewards; zero for tasks this UAV could not keep (eq. 21: complete or too costly)
-        and, when it holds a task, for tasks not worth more than the task it holds (Algorithm 2's
-        greedy bidder would not take them: lines 10-11). Then `confirm_bids` for the candidates."""
-        w, tasks = self.world, self._tasks
-        assert tasks is not None
-        a = w.mission.algorithm
-        n_tasks = tasks[2].shape[0]
-        held = self.task if self.task < n_tasks else -1
-        out = bid_rewards(
-            self.eta, w.prior, self.covered, tasks, a.v_max, a.c_max, position, mst_nbrs, w.costs, held
-        )
-        out = out if out.size else np.zeros(n_tasks)  # every task complete
-        floor = self._confirm_reward(position, mst_nbrs)[0] if self.task >= n_tasks else 0.0
-        if floor > 0:
-            out[out <= floor] = 0.0
-        cvt = tuple(out.tolist())
-        if not self.candidates.size:
-            return cvt, (), ()
-        cells, rewards = confirm_bids(
-            self.candidates, self.belief.posterior(self.candidates), w.grid.centres, position, mst_nbrs,
-            w.costs, a.c_max,
-        )  # fmt: skip
-        if self.task >= 0:
-            current = self.task_reward if self.task < n_tasks else floor
-            rewards = np.where(rewards > current, rewards, 0.0)
-        keep = rewards > 0
-        return cvt, tuple(cells[keep].tolist()), tuple(rewards[keep].tolist())
-
-    def _confirm_reward(self, position: FloatArray, mst_nbrs: FloatArray) -> tuple[float, float]:
-        """The held confirmation task's reward (eq. 15 with eq. 18's capped cost) and its eq. 21 cost."""
-        w = self.world
-        assert self.world.tessellation is not None
-        c = self.task - self.world.tessellation.n_tasks
-        if c not in set(self.candidates.tolist()):
-            return 0.0, math.inf
-        gen = w.grid.centres[c : c + 1]
-        capped, uncapped = task_costs(
-            position, mst_nbrs, gen, np.array([w.costs.fov_area]), w.costs, STRAIGHT, 0
-        )
-        return float(self.belief.posterior(np.array([c]))[0] / capped[0]), float(uncapped[0])
-
-    def _plan_task(
-        self, k: int, position: FloatArray, mst_nbrs: FloatArray, bids: dict[int, Bids]
-    ) -> bool:
-        """Algorithm 2 + synchronisation + eqs. 20-21; returns True when bids go out this step.
-
-        Every UAV is a greedy bidder (Algorithm 2): it announces its rewards at step k (`BidsMsg`),
-        and at k+1 runs the local auction over the bids it heard, the tasks held by the UAVs it knows
-        of removed; a task it wins replaces the one it holds (its bids already exclude tasks worth
-        less). The tasks are the CVT's and one confirmation task per candidate cell heard of
-        (`auction_table`). The held task is then reevaluated (eqs. 20-21) and dropped on a
-        conflicting claim of a higher priority."""
-        tess = self.world.tessellation
-        assert tess is not None
-        if self.bids is not None and self.bid_stamp == k - 1:
-            bidders = [self.uav, *sorted(bids)]
-            held = [s.task for s in self.peers.values()] + [self.task]
-            rows = [self.bids, *(bids[u] for u in sorted(bids))]
-            ids, table, available = auction_table(tess.n_tasks, rows, held)
-            won = local_auction(bidders, table, available).get(self.uav)
-            if won is not None:
-                self.task, self.task_reward = int(ids[won[0]]), won[1]
-        if self.task >= 0:
-            mine = claim_priority(self.task_reward, self.uav)
-            lost = any(
-                s.task == self.task and claim_priority(s.task_reward, u) > mine for u, s in self.peers.items()
-            )
-            if lost or not self._keep(position, mst_nbrs):
-                self.task, self.task_reward = -1, 0.0
-        self.bids = None
-        rewards = self._my_bids(position, mst_nbrs)
-        if max((*rewards[0], *rewards[2]), default=0.0) > 0:  # nothing left to win: no auction
-            self.bids, self.bid_stamp = rewards, k
-        return self.bids is not None
-
-    def _keep(self, position: FloatArray, mst_nbrs: FloatArray) -> bool:
-        """Eqs. 20-21 for the held task; a confirmation task is complete once its cell is decided."""
-        w, tess = self.world, self.world.tessellation
-        assert tess is not None
-        a = w.mission.algorithm
-        j = self.task
-        if j >= tess.n_tasks:
-            reward, cost = self._confirm_reward(position, mst_nbrs)
-            return reward > 0 and keep_task(0.0, cost, a.v_max, a.c_max)
-        completion = task_completion(int(self.covered[j]), int(tess.cell_counts[j]))
-        _, holding = task_costs(
-            position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs, tess.routes, j
-        )
-        return keep_task(completion, float(holding[0]), a.v_max, a.c_max)
-
-    # -- step ----------------------------------------------------------------------------------
     def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
         """`swarm_view` of what this UAV knows, at t_k (eq. 26 and the neighbours' predicted motion)."""
         if not self._rows:
@@ -580,8 +405,16 @@ class Agent:
         if announce:
             assert self.bids is not None
             rewards, cells, confirm = self.bids
-            head = {"sender": self.uav, "stamp": k, "x": x, "y": y}
-            outbox.append(BidsMsg(**head, rewards=rewards, confirm=cells, confirm_rewards=confirm))
+            bid = BidsMsg(
+                sender=self.uav,
+                stamp=k,
+                x=x,
+                y=y,
+                rewards=rewards,
+                confirm=cells,
+                confirm_rewards=confirm,
+            )
+            outbox.append(bid)
         return outbox
 
     def _coverage(self, obs: Observation, cells: tuple[int, ...], found: tuple[int, ...]) -> CoverageMsg:

@@ -151,5 +151,5 @@ def reported_positions(
     `at` is the UAV's position (x, y); `draw_reports` decides each cell."""
     seed, run, uav, step = look
     distances = cell_distances(centres, cells, *at)
-    reported = cells[draw_reports(seed, run, uav, step, cells, distances, holds_target, tuple(model))]
+    reported = cells[draw_reports(seed, run, uav, step, cells, distances, holds_target, model)]
     return tuple((float(x), float(y)) for x, y in centres[reported].tolist())
