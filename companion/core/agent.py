@@ -45,6 +45,7 @@ from companion.core.rhc import (
     rank_grid_candidates,
 )
 from companion.core.routes import STRAIGHT
+from companion.core.sensing import LLR_QUANTUM
 from companion.core.swarm_view import swarm_view
 from companion.core.task_planning import Bids, TaskPlanning
 from companion.core.tasks import TaskSet
@@ -199,14 +200,13 @@ class Agent(TaskPlanning):
         apply_looks(self.eta, cells, self.world.mission.uncertainty.gamma)
         mark_seen(self.seen, self.covered, self._labels, cells)
 
-    def _sense(
-        self, obs: Observation, own: IntArray, coverage: list[CoverageMsg]
-    ) -> tuple[IntArray, FloatArray]:
-        """Bayes' rule for this UAV's looks, then the neighbours' evidence; returns the records taken.
+    def _sense(self, obs: Observation, own: IntArray, coverage: list[CoverageMsg]) -> tuple:
+        """Bayes' rule for this UAV's looks, then the neighbours' evidence; returns what it took.
 
         Every cell in view is a look, a hit where the camera reported a target (a report outside
         the FOV, from the camera's own position, is a look at its cell too). A neighbour's relayed
-        records are read only when they differ from those it sent last."""
+        records are read only when they differ from those it sent last. Returns the records taken
+        as `_records_taken` reads them."""
         grid, b = self.world.grid, self.belief
         own = own if obs.looked else own[:0]
         cells, hits = own, np.zeros(own.shape[0], dtype=np.bool_)
@@ -215,25 +215,35 @@ class Agent(TaskPlanning):
             detected = np.unique(detected[detected >= 0])
             cells = np.union1d(own, detected)
             hits = np.isin(cells, detected)
-        mine = b.look(obs.step, cells, hits, (obs.x, obs.y), grid.centres, self._sensor)
-        triples: list[int] = []
+        b.look(obs.step, cells, hits, (obs.x, obs.y), grid.centres, self._sensor)
+        mine = (cells, b.evidence[self.uav, cells])
+        flat: list[int] = []  # (source, cell, stamp) triples
         values: list[float] = []
         for msg in coverage:
             if msg.evidence:
-                for c in msg.cells:
-                    triples += (msg.sender, c, msg.stamp)
+                n = len(msg.cells)
+                flat += [msg.sender, 0, msg.stamp] * n
+                flat[len(flat) - 3 * n + 1 :: 3] = msg.cells
                 values += msg.evidence
             if msg.record_values and self._relayed.get(msg.sender) != msg.records:
                 self._relayed[msg.sender] = msg.records
-                triples += msg.records
+                flat += msg.records
                 values += msg.record_values
-        own_values = b.evidence[self.uav, cells]
         if not values:
-            return mine, own_values
-        heard, heard_values = np.array(triples, dtype=np.int64), np.array(values, dtype=float)
-        kept = b.merge(heard, heard_values)
-        kept_triples = heard.reshape(-1, 3)[kept].ravel()
-        return np.concatenate([mine, kept_triples]), np.concatenate([own_values, heard_values[kept]])
+            return mine, None
+        heard = np.array(flat, dtype=np.int64).reshape(-1, 3), np.array(values, dtype=float)
+        return mine, (*heard, b.merge(*heard))
+
+    def _records_taken(self, step: int, taken: tuple) -> tuple[tuple[int, ...], tuple[float, ...]]:
+        """The records a step's `_sense` took, as `StepDelta` keeps them: (triples, values)."""
+        (cells, own_values), heard = taken
+        rows = [np.stack([np.full_like(cells, self.uav), cells, np.full_like(cells, step)], axis=1)]
+        values = [own_values]
+        if heard is not None:
+            records, heard_values, kept = heard
+            rows.append(records[kept])
+            values.append(np.round(heard_values[kept] / LLR_QUANTUM) * LLR_QUANTUM)
+        return tuple(np.concatenate(rows).ravel().tolist()), tuple(np.concatenate(values).tolist())
 
     def _settle(self) -> None:
         """The cells confirmed and the candidates; a candidate's uncertainty rises to its posterior's.
@@ -275,7 +285,7 @@ class Agent(TaskPlanning):
         coverage: list[CoverageMsg] = []
         bids = self._ingest(inbox, k, looks, coverage)
         self._update_map(looks)
-        records, values = self._sense(obs, own, coverage)
+        taken = self._sense(obs, own, coverage)
         self._settle()
 
         # safety layer: the trajectory in force for [t_k, t_k+1], then plan from the pose at t_k+1
@@ -316,15 +326,15 @@ class Agent(TaskPlanning):
         outbox = self._outbox(obs, me, own_cells, found, announce)
         new = tuple(c for c in found if c not in known)
         self.newly_confirmed = new
-        self._last = (k, looks, new, self.task, self.task_reward, inforce, safety.parents, records, values)
+        self._last = (k, looks, new, self.task, self.task_reward, inforce, safety.parents, taken)
         return command, outbox
 
     @property
     def last(self) -> StepDelta | None:
         """What the latest step changed (`StepDelta`; journals keep it), built when first asked for."""
         if isinstance(self._last, tuple):
-            k, looks, new, task, reward, inforce, parents, records, values = self._last
-            triples, values = tuple(records.tolist()), tuple(values.tolist())
+            k, looks, new, task, reward, inforce, parents, taken = self._last
+            triples, values = self._records_taken(k, taken)
             self._last = StepDelta(k, tuple(looks), new, task, reward, inforce, parents, triples, values)
         return self._last
 
@@ -458,7 +468,8 @@ class Agent(TaskPlanning):
     def replay(self, delta: StepDelta) -> None:
         """Apply a later step's delta to a restored agent, exactly as the step changed it."""
         self._update_map(list(delta.looks))
-        self.belief.merge(np.array(delta.records, dtype=np.int64), np.array(delta.record_values), own=True)
+        records = np.array(delta.records, dtype=np.int64).reshape(-1, 3)
+        self.belief.merge(records, np.array(delta.record_values, dtype=float), own=True)
         self._settle()
         if self.phi is not None:
             w = self.world

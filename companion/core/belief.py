@@ -63,29 +63,26 @@ def _set(arrays: MapArrays, u: int, c: int, stamp: int, value: float) -> bool:
 def add_looks(
     arrays: MapArrays, me: int, step: int, cells: IntArray, hits: np.ndarray, at: tuple[float, float],
     centres: FloatArray, model: tuple[float, float, float, float],
-) -> tuple[IntArray, bool]:  # fmt: skip
+) -> bool:  # fmt: skip
     """UAV `me`'s looks from `at` at step `step`: E_{me,p} += `look_llr` for each cell, hit or miss.
 
-    Returns the records changed, as (source, cell, stamp) triples, and whether a cell of interest
-    (positive evidence) changed."""
+    Returns whether a cell of interest (positive evidence) changed."""
     pd, pd_edge, pf, radius = model
     evidence = arrays[2]
-    triples = np.empty(3 * cells.shape[0], dtype=np.int64)
     interest = False
     for i in range(cells.shape[0]):
         c = cells[i]
         d = math.hypot(centres[c, 0] - at[0], centres[c, 1] - at[1])
         llr = look_llr(hits[i], d, pd, pd_edge, pf, radius)
         interest |= _set(arrays, me, c, step, evidence[me, c] + llr)
-        triples[3 * i], triples[3 * i + 1], triples[3 * i + 2] = me, c, step
-    return triples, interest
+    return interest
 
 
 @njit(cache=True)
 def merge_records(
-    arrays: MapArrays, me: int, triples: IntArray, values: FloatArray
+    arrays: MapArrays, me: int, records: IntArray, values: FloatArray
 ) -> tuple[np.ndarray, bool]:
-    """Keep each record (source, cell, stamp, E) newer than the copy held.
+    """Keep each record (source, cell, stamp: a row of `records`) newer than the copy held.
 
     Returns which were kept and whether a cell of interest changed. Records of `me`'s own
     evidence are ignored (only it adds to them); `me` = -1 takes all."""
@@ -93,7 +90,7 @@ def merge_records(
     taken = np.zeros(values.shape[0], dtype=np.bool_)
     interest = False
     for i in range(values.shape[0]):
-        u, c, s = triples[3 * i], triples[3 * i + 1], triples[3 * i + 2]
+        u, c, s = records[i, 0], records[i, 1], records[i, 2]
         if u != me and s > stamps[u, c]:
             interest |= _set(arrays, u, c, s, round(values[i] / LLR_QUANTUM) * LLR_QUANTUM)
             taken[i] = True
@@ -134,22 +131,20 @@ class Belief:
     def look(
         self, step: int, cells: IntArray, hits: np.ndarray, at: tuple[float, float], centres: FloatArray,
         model: tuple[float, float, float, float],
-    ) -> IntArray:  # fmt: skip
-        """This UAV's looks at `cells` from `at` at step `step`; returns the records, as triples."""
-        triples, interest = add_looks(self.arrays, self.me, step, cells, hits, at, centres, model)
-        self.version += interest
-        return triples
+    ) -> None:  # fmt: skip
+        """This UAV's looks at `cells` from `at` at step `step`, a hit where `hits`."""
+        self.version += add_looks(self.arrays, self.me, step, cells, hits, at, centres, model)
 
     def own_values(self, cells: IntArray) -> tuple[float, ...]:
         """This UAV's cumulative evidence at `cells` (what its coverage message carries)."""
         return tuple(self.evidence[self.me, cells].tolist())
 
-    def merge(self, triples: IntArray, values: FloatArray, own: bool = False) -> np.ndarray:
-        """Records as (source, cell, stamp) triples and values (rounded to the quantum).
+    def merge(self, records: IntArray, values: FloatArray, own: bool = False) -> np.ndarray:
+        """Records, a (source, cell, stamp) row each, and their values (rounded to the quantum).
 
         Returns which records were kept (newer than the copies held). Records of this UAV's own
         evidence are skipped unless `own` (a journal's replay)."""
-        taken, interest = merge_records(self.arrays, -1 if own else self.me, triples, values)
+        taken, interest = merge_records(self.arrays, -1 if own else self.me, records, values)
         self.version += interest
         return taken
 

@@ -40,8 +40,7 @@ def _fly(belief: Belief, step: int, cell: int, hit: bool, distance: float) -> No
 def _records(b: Belief) -> tuple[np.ndarray, np.ndarray]:
     """Every record `b` holds (not only those at the cells of interest)."""
     sources, cells = np.nonzero(b.stamps >= 0)
-    triples = np.stack([sources, cells, b.stamps[sources, cells]], axis=1).ravel()
-    return triples, b.evidence[sources, cells]
+    return np.stack([sources, cells, b.stamps[sources, cells]], axis=1), b.evidence[sources, cells]
 
 
 @settings(max_examples=200, deadline=None)
@@ -59,7 +58,7 @@ def test_fused_posterior_equals_one_uav_making_every_look(made, rnd, via_relay: 
     for sender in (0, 1):
         triples, values = _records(uavs[sender])
         for i in range(values.shape[0]):
-            pieces.append((1 - sender, triples[3 * i : 3 * i + 3], values[i : i + 1]))
+            pieces.append((1 - sender, triples[i : i + 1], values[i : i + 1]))
     pieces += rnd.sample(pieces, len(pieces) // 2)  # duplicates
     rnd.shuffle(pieces)
     for to, triples, values in pieces:
@@ -115,11 +114,12 @@ def test_relayed_records_are_the_cells_of_interest_and_merging_twice_changes_not
     a, b = Belief(PRIOR, 2, 0, 0.999, 0.01), Belief(PRIOR, 2, 1, 0.999, 0.01)
     _fly(a, 0, 3, True, 0.0)
     _fly(a, 1, 7, False, 0.0)
-    triples, values = (np.array(x) for x in a.records())
-    assert triples.reshape(-1, 3).tolist() == [[0, 3, 0]]  # the candidate only, not the miss
+    flat, values = (np.array(x) for x in a.records())
+    triples = flat.reshape(-1, 3)
+    assert triples.tolist() == [[0, 3, 0]]  # the candidate only, not the miss
     b.merge(triples, values)
     once = b.logodds.copy()
     b.merge(triples, values)
     assert np.array_equal(once, b.logodds) and b.candidates().tolist() == [3]
     assert math.isclose(b.posterior(np.array([3]))[0], a.posterior(np.array([3]))[0])
-    assert not b.merge(np.array([1, 3, 5]), np.array([1.0])).any()  # its own evidence: only it adds
+    assert not b.merge(np.array([[1, 3, 5]]), np.array([1.0])).any()  # its own evidence: only it adds
