@@ -1,10 +1,11 @@
 """Scoring a distributed run from what the companions logged and the simulator's truth record.
 
-The companions log, per step, their pose, task and mean uncertainty (`uav{i}.csv`); the simulator
-(or the stand-alone camera) writes the ground-truth targets (`truth.json`). From these the
-evaluator rebuilds a `RunResult`, so a flown mission is summarised, plotted and compared exactly
-like a batch-engine run. `flight_report` adds what only a real flight has: the companions'
-plan-versus-flight errors (`uav{i}_plan.csv`) and how the poses kept to the fence.
+The companions log, per step, their pose, task and mean uncertainty (`uav{i}.csv`), and the cells
+their maps confirmed (`uav{i}_targets.csv`); the simulator (or the stand-alone camera) writes the
+ground-truth targets (`truth.json`). From these the evaluator rebuilds a `RunResult`, so a flown
+mission is summarised, plotted and compared exactly like a batch-engine run. `flight_report` adds
+what only a real flight has: the companions' plan-versus-flight errors (`uav{i}_plan.csv`) and how
+the poses kept to the fence.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import csv
 import json
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import msgspec
 import numpy as np
@@ -87,6 +89,39 @@ class CompanionLogs:
                 self.logs[i][step] = row
                 new[i].append(row)
         return new
+
+
+class TargetRow(NamedTuple):
+    """One row of a companion's target log (`uav{i}_targets.csv`): a candidate, confirmation or retraction."""
+
+    uav: int
+    step: int
+    event: str
+    cell: int
+    lat: float
+    lon: float
+    posterior: float
+
+
+def read_target_logs(out: Path, n_uavs: int) -> list[TargetRow]:
+    """The companions' target logs in `out`, by step then UAV (missing logs and damaged rows: none)."""
+    rows = []
+    for i in range(n_uavs):
+        path = out / f"uav{i}_targets.csv"
+        if not path.exists():
+            continue
+        lines = path.read_text(encoding="utf-8", errors="replace").split("\n")[:-1]  # a line cut short: out
+        for r in csv.DictReader(lines):
+            try:
+                rows.append(
+                    TargetRow(
+                        i, int(r["step"]), r["event"], int(r["cell"]), float(r["lat"]), float(r["lon"]),
+                        float(r["posterior"]),
+                    )
+                )  # fmt: skip
+            except (KeyError, TypeError, ValueError):
+                continue
+    return sorted(rows, key=lambda r: (r.step, r.uav, r.cell))
 
 
 def truth_cells(path: Path) -> np.ndarray:
@@ -172,12 +207,16 @@ def evaluate(
     seconds: float,
     seed: int,
     approach: dict[int, float] | None = None,
+    target_log: list[TargetRow] | None = None,
 ) -> RunResult:
     """A RunResult of the flown mission, scored as a batch-engine run is.
 
     A RunResult of the flown mission: eq. 30, targets found, coverage, lambda_2, min distance, and
     the closest approach between sampling moments: the separation record where there is one
-    (`read_approach`), else the logged poses' distance at the sampling moments.
+    (`read_approach`), else the logged poses' distance at the sampling moments. With an imperfect
+    sensor, `RunResult.sensing` holds the cells the companions confirmed (`target_log`, the first
+    confirmation of each cell in a scored step; a confirmation before step 0 counts at step 0):
+    the targets' confirmation steps and the false confirmations.
 
     Step 0 of the result is the first step every companion logged. A UAV with no row for a step (a
     companion that skipped it, a killed one whose log stops) keeps its latest logged pose for the
@@ -186,6 +225,7 @@ def evaluate(
     """
     m = world.mission
     n = m.n_uavs
+    closing = {i: {k for k, r in rows.items() if r.get("closing")} for i, rows in logs.items()}
     logs = mission_rows(logs)
     span = logged_span(logs)
     steps = len(span)
@@ -208,6 +248,9 @@ def evaluate(
     for k, step in enumerate(span):
         scorer.record(k, traj[k, :, :2], unc[k])
         scorer.approach[k] = approach.get(step, math.inf) if approach else scorer.mind[k]
+    for t in target_log or ():  # by step: the scorer keeps each cell's first confirmation
+        if t.event == "confirmed" and t.step < span.stop and t.step not in closing.get(t.uav, ()):
+            scorer.confirm(max(t.step - span.start, 0), (t.cell,))
     return scorer.result(0, seed, seconds, trajectory=traj, tasks=tasks)
 
 
@@ -217,12 +260,17 @@ def failed_criteria(world: World, result: RunResult, record: Path | None = None)
     Separation is judged in three dimensions over everything the separation record at `record`
     holds, start-up and hand-over included (`losses_3d`: a pair within R_s horizontally and closer
     vertically than `Mission.vertical_floor`); without a record, on the logged poses in 2D. A chord
-    into the keep-out (`RunResult.keepout_entries`) always fails."""
+    into the keep-out (`RunResult.keepout_entries`) always fails. A target counts as found once some
+    UAV confirmed it (`RunResult.confirm_steps`: with a perfect sensor, once it was in view); a
+    confirmed cell holding no target never counts, and fails past `max_false_confirmations`."""
     m, c = world.mission, world.mission.pass_criteria
     failures = []
-    found = int(np.count_nonzero(result.target_steps >= 0))
+    found = int(np.count_nonzero(result.confirm_steps >= 0))
     if found < min(c.min_targets_found, len(result.target_cells)):
         failures.append(f"targets found {found} < {c.min_targets_found}")
+    false = result.false_confirmations
+    if c.max_false_confirmations is not None and false > c.max_false_confirmations:
+        failures.append(f"false confirmations {false} > {c.max_false_confirmations}")
     if c.require_connected and result.steps and result.lambda2.min() <= 0:
         failures.append(f"network disconnected (min lambda_2 = {result.lambda2.min():.4f})")
     if c.require_safe_distance and record is not None and record.exists():

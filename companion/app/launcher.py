@@ -18,9 +18,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from companion.app import px4_sitl, sitl
 from companion.app.children import Children
-from companion.app.evaluation import CompanionLogs, truth_cells
+from companion.app.evaluation import CompanionLogs, read_target_logs, truth_cells
 from companion.app.progress import Progress
 from companion.app.run_options import RunOptions, check_options
 from companion.app.run_report import report_run
@@ -37,7 +39,7 @@ from companion.contracts.keys import (
 from companion.contracts.mission import Mission
 from companion.core.feasibility import load_mission
 from companion.core.warm import warm_up
-from companion.core.world import build_world
+from companion.core.world import World, build_world
 from sim_vehicles import camera as cam
 
 
@@ -237,7 +239,7 @@ def run_mission(opts: RunOptions) -> int:
         _start_swarm(children, opts, mission, seed)
         targets = truth_cells(out / "truth.json")
         progress = Progress(world, world.grid.centres[targets], started)
-        failure = _watch(children, opts, logs, progress, stop)
+        failure = _watch(children, opts, logs, progress, stop, targets)
     except (RuntimeError, sitl.SitlError) as exc:
         failure = str(exc)
     finally:
@@ -254,6 +256,14 @@ def run_mission(opts: RunOptions) -> int:
         if line is not None:
             print(line, flush=True)
     return report_run(opts, mission, world, logs, seed, run, started, stop.is_set())
+
+
+def _confirmed(out: Path, world: World, targets: np.ndarray) -> bool:
+    """Whether the companions' target logs confirm every target (always, with a perfect sensor)."""
+    if world.sensor.perfect:
+        return True
+    confirmed = {r.cell for r in read_target_logs(out, world.mission.n_uavs) if r.event == "confirmed"}
+    return confirmed >= set(targets.tolist())
 
 
 def _start_swarm(children: Children, opts: RunOptions, mission: Mission, seed: int) -> None:
@@ -301,12 +311,18 @@ def _start_swarm(children: Children, opts: RunOptions, mission: Mission, seed: i
 
 
 def _watch(
-    children: Children, opts: RunOptions, logs: CompanionLogs, progress: Progress, stop: threading.Event
+    children: Children,
+    opts: RunOptions,
+    logs: CompanionLogs,
+    progress: Progress,
+    stop: threading.Event,
+    targets: np.ndarray,
 ) -> str | None:
     """Follow the flight until it ends; returns what went wrong, if anything did.
 
     The flight ends when every target is found (unless `keep_going`), every companion has exited
-    or a signal comes.
+    or a signal comes. With an imperfect sensor a target is found once some companion confirmed it
+    (its target log), not when it was in view.
     """
     last_print = 0.0
     while not stop.is_set():
@@ -316,7 +332,8 @@ def _watch(
             print(line, flush=True)
             last_print = time.monotonic()
         companions = [p for n, p in children.procs.items() if n.startswith("companion")]
-        all_found = progress.seen.all() and not opts.keep_going
+        found = progress.seen.all() and _confirmed(opts.out, progress.world, targets)
+        all_found = found and not opts.keep_going
         if all_found or all(p.poll() is not None for p in companions):
             return None
         failure = _stopped_early(children)

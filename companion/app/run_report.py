@@ -17,12 +17,14 @@ from companion.app.evaluation import (
     failed_criteria,
     flight_report,
     read_approach,
+    read_target_logs,
     read_vertical,
     truth_cells,
 )
 from companion.app.operator_files import export
 from companion.app.operator_run import ExportError, load_picture
 from companion.app.run_options import RunOptions
+from companion.app.target_report import target_line, target_summary, write_target_summary
 from companion.batch import plots, report
 from companion.batch.engine import RunResult
 from companion.batch.montecarlo import Summary
@@ -80,7 +82,8 @@ def report_run(
     out = opts.out
     approach = read_approach(out / "approach.csv")
     targets = truth_cells(out / "truth.json")
-    result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed, approach)
+    target_log = read_target_logs(out, mission.n_uavs)
+    result = evaluate(world, logs.logs, targets, time.monotonic() - started, seed, approach, target_log)
     if result.steps == 0:
         if stopped:
             print("stopped by a signal before any step was flown", file=sys.stderr)
@@ -100,6 +103,10 @@ def report_run(
         print(f"replay the run with: uavsearch view --replay {out}", flush=True)
     failures = failed_criteria(world, result, out / "approach.csv")
     _print_figures(opts, mission, result, summary.algorithms[mission.algorithm.name], approach, vertical)
+    confirmed = target_summary(result, target_log, mission.sensor.perfect)
+    write_target_summary(out, confirmed)
+    if not mission.sensor.perfect:
+        print(target_line(confirmed))
     _print_tracking(opts, mission, flight, refused)
     (out / "criteria.json").write_text(
         json.dumps({"passed": not failures, "failures": failures}, indent=2) + "\n"
@@ -151,7 +158,7 @@ def _print_figures(
 ) -> None:
     """The run's search figures and its closest approaches, horizontal and in three dimensions."""
     print(
-        f"{mission.name}: {result.steps} steps, targets found {int(np.sum(result.target_steps >= 0))}/"
+        f"{mission.name}: {result.steps} steps, targets found {int(np.sum(result.confirm_steps >= 0))}/"
         f"{len(result.target_cells)}, mean target time {s.mean_target_time:.1f}, "
         f"min lambda_2 {s.min_lambda2:.4f}, min distance {s.min_distance:.1f} m"
     )

@@ -329,11 +329,15 @@ class Security(_Base, frozen=True, kw_only=True):
 
 
 class PassCriteria(_Base, frozen=True, kw_only=True):
-    """What a scripted mission must achieve to pass."""
+    """What a scripted mission must achieve to pass.
+
+    Targets found are the true targets some UAV confirmed; `max_false_confirmations` (None: not
+    judged) bounds the confirmed cells that hold no target."""
 
     min_targets_found: Annotated[int, msgspec.Meta(ge=0)] = 0
     require_connected: bool = True
     require_safe_distance: bool = True
+    max_false_confirmations: Annotated[int, msgspec.Meta(ge=0)] | None = None
 
 
 class Mission(_Base, frozen=True, kw_only=True):

@@ -1,11 +1,11 @@
 """The search shown in the ground station, sent through the autopilot's own link once a step.
 
-Found targets (STATUSTEXT and CAMERA_TRACKING_GEO_STATUS), progress (NAMED_VALUE_FLOAT), the
-companion's health (its HEARTBEAT's system status, its CPU load as NAMED_VALUE_FLOAT) and the
-peers as traffic (ADSB_VEHICLE). None names a target system, so an autopilot forwards them to its
-other links, where a ground station connected to it sees them; ArduPlane with ADS-B on keeps the
-ADSB_VEHICLEs and sends the peers in its own ADS-B list instead (docs/companion.md, "What the
-ground station sees").
+Confirmed targets (STATUSTEXT and CAMERA_TRACKING_GEO_STATUS; a retraction as STATUSTEXT),
+progress (NAMED_VALUE_FLOAT), the companion's health (its HEARTBEAT's system status, its CPU load
+as NAMED_VALUE_FLOAT) and the peers as traffic (ADSB_VEHICLE). None names a target system, so an
+autopilot forwards them to its other links, where a ground station connected to it sees them;
+ArduPlane with ADS-B on keeps the ADSB_VEHICLEs and sends the peers in its own ADS-B list instead
+(docs/companion.md, "What the ground station sees").
 """
 
 from __future__ import annotations
@@ -35,9 +35,9 @@ PROGRESS_NAMES = ("coverage", "mean_eta", "found", "p_unfound")  # NAMED_VALUE_F
 CPU_NAME = "cpu_pct"  # the companion process's CPU load since the previous step, percent of one core
 
 
-def target_text(uav: int, lat: float, lon: float) -> bytes:
-    """The STATUSTEXT of one found target: who reports it and where (at most 50 bytes)."""
-    return f"UAV{uav} target at {lat:.6f} {lon:.6f}".encode()[:50]
+def target_text(uav: int, lat: float, lon: float, retracted: bool = False) -> bytes:
+    """The STATUSTEXT of one confirmed target, or of its retraction: who and where (at most 50 bytes)."""
+    return f"UAV{uav} target {'retracted' if retracted else 'at'} {lat:.6f} {lon:.6f}".encode()[:50]
 
 
 class GroundStationFeed:
@@ -46,7 +46,7 @@ class GroundStationFeed:
     def __init__(self, link: VehicleLink, frame: LocalFrame, mission: Mission, uav: int) -> None:
         self.link, self.frame, self.mission, self.uav = link, frame, mission, uav
         self.dt, self.speed = mission.kinematics.step, mission.kinematics.speed
-        self.announced: set[int] = set()  # target cells already reported
+        self.announced: set[int] = set()  # confirmed target cells reported and not retracted since
         self.sent = 0  # messages sent so far
         self._start = time.monotonic()
         self._cpu = (self._start, self._cpu_seconds())
@@ -69,8 +69,17 @@ class GroundStationFeed:
         return int((time.monotonic() - self._start) * 1000) & 0xFFFFFFFF
 
     def _targets(self, agent: Agent) -> None:
-        """A STATUSTEXT (NOTICE) and a CAMERA_TRACKING_GEO_STATUS for every target not reported yet."""
+        """A STATUSTEXT (NOTICE) and a CAMERA_TRACKING_GEO_STATUS for every confirmed target not reported yet.
+
+        Only confirmed cells (`Agent.found`) are targets; one that fell back below the confirmation
+        threshold is retracted by a STATUSTEXT, and announced again if confirmed again."""
         centres, mav = agent.world.grid.centres, self.link.mav
+        for cell in sorted(self.announced - agent.found):
+            x, y = centres[cell]
+            lat, lon, _ = self.frame.to_geodetic(float(x), float(y))
+            mav.statustext_send(mavlink.MAV_SEVERITY_NOTICE, target_text(self.uav, lat, lon, retracted=True))
+            self.announced.discard(cell)
+            self.sent += 1
         for cell in sorted(agent.found - self.announced):
             x, y = centres[cell]
             lat, lon, alt = self.frame.to_geodetic(float(x), float(y))

@@ -26,6 +26,7 @@ from companion.node.journal import Header, Journal, Recovered, header_of
 from companion.node.mesh import Mesh
 from companion.node.records import RunLogs
 from companion.node.takeover import steerable
+from companion.node.target_watch import TargetWatch
 from companion.node.tracking import Guard, PlanTracker, RegionGuard
 from companion.node.vehicle_link import VehicleLink
 
@@ -72,6 +73,7 @@ class Pilot:
         if opts.journal is not None:  # JournalError (a ValueError) for a journal of another mission
             self._restore(opts.journal, header_of(m, opts.uav, seed, opts.run))
         self.frame = LocalFrame(m.region.origin)
+        self.targets = TargetWatch(opts.uav, self.frame, self.agent)  # candidates and confirmations
         self.dt = m.kinematics.step
         self.steps_done = 0
         self.last_position: np.ndarray | None = None
@@ -174,6 +176,7 @@ class Pilot:
         )
         if self.journal is not None:
             self.journal.append(self.agent)  # durable before any peer hears of this step
+        events = self.targets.step(k, self.agent)
         self.mesh.publish(k, outbox, position=(x, y))
         self.last_position = np.array([x, y])
         self._fly(k, command, (x, y), steered)
@@ -184,6 +187,7 @@ class Pilot:
         if self.logs is not None:
             pose = (x, y, heading)
             self.logs.step(k, self.dt, pose, command, self.agent, steered, self.link.state.up, self.closing)
+            self.logs.targets(events)
         return command
 
     def _fly(self, k: int, command: Command, position: tuple[float, float], steered: bool) -> None:

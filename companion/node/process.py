@@ -26,6 +26,7 @@ from companion.node.pilot import CompanionOptions, Pilot
 from companion.node.preflight import Preflight
 from companion.node.realtime import RealtimeLoop
 from companion.node.report import CompanionReport
+from companion.node.target_watch import CANDIDATE, CONFIRMED, RETRACTED
 from companion.node.vehicle_link import VEHICLE_WAIT_S, VehicleLink
 from companion.node.watch import VehicleWatch
 
@@ -89,6 +90,10 @@ class Companion:
             uav=self.opts.uav,
             steps=pilot.steps_done,
             found_cells=sorted(int(c) for c in pilot.agent.found),
+            candidate_cells=sorted(int(c) for c in pilot.agent.candidates),
+            candidates_raised=pilot.targets.counts[CANDIDATE],
+            confirmations=pilot.targets.counts[CONFIRMED],
+            retractions=pilot.targets.counts[RETRACTED],
             task=pilot.agent.task,
             rejected_mavlink=link.rejected,
             mavlink_signed=link.signing.enabled,

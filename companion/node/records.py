@@ -1,4 +1,4 @@
-"""The companion's run logs: one CSV row per step flown and one per plan-versus-flight measurement."""
+"""The companion's run logs: a CSV row per step flown, per plan-versus-flight error, per target change."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TextIO
 
 from companion.core.agent import Agent, Command
+from companion.node.target_watch import TargetEvent
 from companion.node.tracking import PlanError
 
 LOG_COLUMNS = [
@@ -18,6 +19,7 @@ LOG_COLUMNS = [
     "task",
     "mean_eta",
     "found",
+    "candidates",
     "steered",
     "turn",
     "cmd_x",
@@ -37,6 +39,7 @@ PLAN_COLUMNS = [
     "error_m",
     "error_deg",
 ]
+TARGET_COLUMNS = ["step", "event", "cell", "x", "y", "lat", "lon", "posterior"]
 
 
 class CsvLog:
@@ -67,13 +70,16 @@ class CsvLog:
 
 
 class RunLogs:
-    """The step log (`uav<N>.csv`) and the plan-versus-flight log (`uav<N>_plan.csv`) of one UAV."""
+    """One UAV's step log (`uav<N>.csv`), plan-versus-flight log (`uav<N>_plan.csv`) and target log.
+
+    The target log (`uav<N>_targets.csv`) has a row per new candidate, confirmation and retraction."""
 
     def __init__(self, out: Path, uav: int, append: bool) -> None:
-        """Open both logs in `out` (`append`: a restarted companion goes on with its logs)."""
+        """Open the logs in `out` (`append`: a restarted companion goes on with its logs)."""
         out.mkdir(parents=True, exist_ok=True)
         self._steps = CsvLog(out / f"uav{uav}.csv", LOG_COLUMNS, append)
         self._plan = CsvLog(out / f"uav{uav}_plan.csv", PLAN_COLUMNS, append)
+        self._targets = CsvLog(out / f"uav{uav}_targets.csv", TARGET_COLUMNS, append)
 
     def step(
         self,
@@ -102,6 +108,7 @@ class RunLogs:
                 command.task,
                 f"{float(agent.eta.mean()):.6f}",
                 len(agent.found),
+                len(agent.candidates),
                 int(steered),
                 f"{command.turn:.6f}",
                 f"{command.waypoint[0]:.3f}",
@@ -126,6 +133,13 @@ class RunLogs:
             ]
         )
 
+    def targets(self, events: list[TargetEvent]) -> None:
+        """The target log's rows of one step's events (`TargetWatch.step`)."""
+        for e in events:
+            where = (f"{e.x:.3f}", f"{e.y:.3f}", f"{e.lat:.7f}", f"{e.lon:.7f}")
+            self._targets.write([e.step, e.event, e.cell, *where, f"{e.posterior:.6f}"])
+
     def close(self) -> None:
         self._steps.close()
         self._plan.close()
+        self._targets.close()

@@ -13,7 +13,11 @@ class CompanionReport(msgspec.Struct, frozen=True):
 
     uav: int
     steps: int
-    found_cells: list[int]
+    found_cells: list[int]  # confirmed at the end (`Agent.found`)
+    candidate_cells: list[int]  # undecided at the end (`Agent.candidates`)
+    candidates_raised: int  # target log events since this process started (`TargetWatch`)
+    confirmations: int
+    retractions: int
     task: int
     rejected_mavlink: int
     mavlink_signed: bool
