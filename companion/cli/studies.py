@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -12,6 +13,7 @@ from companion.contracts.mission import ALGORITHMS
 from companion.core.feasibility import load_mission
 
 if TYPE_CHECKING:
+    from companion.batch.montecarlo import Summary
     from companion.batch.report import StudySummary
 
 
@@ -43,7 +45,7 @@ def _mc(args: argparse.Namespace) -> int:
     copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
     starts = " and starts.csv" if layouts else ""
-    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv, plots{starts}")
+    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv, plots (pos.png: the confirmations){starts}")
     return 0
 
 
@@ -79,6 +81,27 @@ def _print_summary(summary: StudySummary) -> None:
             str(s.runs_with_event),
             *([str(s.keepout_entries or 0)] if zones else []),
             f"{s.seconds_per_1000_steps:.3f}",
+        )
+    Console().print(table)
+    _print_confirmations(summary.algorithms)
+
+
+def _print_confirmations(summaries: Mapping[str, Summary]) -> None:
+    """An imperfect sensor's confirmations, one row per algorithm (nothing for a perfect sensor)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    if all(s.mean_confirm_time is None for s in summaries.values()):
+        return
+    table = Table(title="Confirmed detections (imperfect sensor; 95 % intervals)")
+    for col in ("algorithm", "time to confirmation", "false confirmations / run", "never confirmed / run"):
+        table.add_column(col, justify="right")
+    for name, s in summaries.items():
+        table.add_row(
+            name,
+            f"{s.mean_confirm_time or 0.0:.1f} ± {s.mean_confirm_time_ci95 or 0.0:.1f}",
+            f"{s.false_confirmations_per_run or 0.0:.2f} ± {s.false_confirmations_per_run_ci95 or 0.0:.2f}",
+            f"{s.never_confirmed_per_run or 0.0:.2f} ± {s.never_confirmed_per_run_ci95 or 0.0:.2f}",
         )
     Console().print(table)
 
