@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import sys
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -206,6 +207,8 @@ def fly(
     folder = out / "cells"
     done = {c.name: read_rows(folder / f"{c.name}.csv") for c in cells if (folder / f"{c.name}.csv").exists()}
     todo = [c for c in cells if c.name not in done]
+    if done and progress:
+        print(f"resuming: {len(done)} of {len(cells)} cells already in {folder}", file=sys.stderr)
     runs, per_cell = definition.runs, len(algorithms) * definition.runs
     specs = [
         RunSpec(c.mission.with_algorithm(a), c.mission.seed if definition.seed is None else definition.seed,
