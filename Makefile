@@ -6,8 +6,9 @@ OUT ?= out/scenario1
 STUDY_RUNS ?= 1000
 STUDY_OUT ?= out/study
 SWEEP_RUNS ?= 50
+SENSING_RUNS ?= 1000
 
-.PHONY: install browser run run-nofly run-sitl run-px4 mc study test bench clean
+.PHONY: install browser run run-nofly run-sitl run-px4 mc study sensing-study test bench clean
 
 $(BIN)/uavsearch: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -55,6 +56,13 @@ study: install
 	echo "the whole study took $$(( $$(date +%s) - start )) s"
 	$(BIN)/uavsearch sweep --mission mission_files/scenario2.toml --param n_g \
 		--values 10,20,30,40,50,60,70,80,90 --runs $(SWEEP_RUNS) --steps 1000 --seed 1 --out $(STUDY_OUT)/sweep_n_g
+
+# Imperfect sensing (docs/results.md, "Imperfect sensing"): 3 scenarios x Pd {1, 0.9, 0.7} x
+# Pf {0, 0.01, 0.05} x 3 algorithms x SENSING_RUNS runs of 1,000 steps, paired. Cells are written as
+# they finish; the same command again resumes. SENSING_RUNS=20 make sensing-study: a quick one.
+sensing-study: install
+	$(BIN)/uavsearch sensing-study --runs $(SENSING_RUNS) --steps 1000 --seed 1 \
+		--out $(STUDY_OUT)/sensing_$(SENSING_RUNS)
 
 # The view's browser tests drive Debian's Chromium (Playwright cannot download browsers here).
 browser:

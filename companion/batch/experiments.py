@@ -135,6 +135,7 @@ def compare(
     plots.plot_trajectories(out / "trajectories.png", worlds, {a: results[a][0] for a in algorithms})
     plots.plot_uncertainty(out / "uncertainty.png", results)
     plots.plot_found(out / "targets_found.png", results)
+    plots.plot_pos(out / "pos.png", results)
     return summary
 
 

@@ -21,13 +21,13 @@ import numpy as np
 
 from companion.batch import plots
 from companion.batch.executors import RunExecutor
-from companion.batch.paired import METRICS, measure, specs_grid, write_json
+from companion.batch.paired import CONFIRMATIONS, METRICS, measure, specs_grid, write_json
 from companion.batch.stats import Interval, mean_ci, wilson
 from companion.contracts.mission import ALGORITHMS, Mission
 
 PROPOSED = "proposed"
 MIN_RUNS = 2  # a per-mission interval needs two paired runs
-RUN_COLUMNS = ("mission", "algorithm", "run", *METRICS)
+RUN_COLUMNS = ("mission", "algorithm", "run", *METRICS, *CONFIRMATIONS)
 
 
 class MissionRow(msgspec.Struct, frozen=True):
@@ -269,13 +269,16 @@ def evaluate(
     """Run the three algorithms on the missions and write the evaluation's files.
 
     Run the three algorithms on the missions (on `executor`, default a local pool) and write
-    evaluate.json, missions.csv, overall.csv, runs.csv, evaluate.png and evaluate_density.png into
-    `out`; returns what evaluate.json holds (what the command line prints)."""
+    evaluate.json, missions.csv, overall.csv, runs.csv (per run: `paired.METRICS` and
+    `paired.CONFIRMATIONS`), evaluate.png and evaluate_density.png into `out`; returns what
+    evaluate.json holds (what the command line prints)."""
     if runs < MIN_RUNS:
         raise ValueError(f"--runs must be at least {MIN_RUNS} (a per-mission interval needs two paired runs)")
     algorithms = (PROPOSED, *(a for a in ALGORITHMS if a != PROPOSED))
     specs = specs_grid(missions, algorithms, runs, steps, layouts)
-    values = measure(specs, executor, advance).reshape(len(missions), len(algorithms), runs, len(METRICS))
+    shape = (len(missions), len(algorithms), runs, len(METRICS) + len(CONFIRMATIONS))
+    measured = measure(specs, executor, advance, confirmations=True).reshape(shape)
+    values = measured[..., : len(METRICS)]
     names = [m.name for m in missions]
     table = paired_table(values, algorithms, names)
     info = [mission_features(m) for m in missions]
@@ -293,7 +296,7 @@ def evaluate(
         for m, name in enumerate(names):
             for a, algorithm in enumerate(algorithms):
                 for r in range(runs):
-                    w.writerow([name, algorithm, r, *(f"{v:.10g}" for v in values[m, a, r])])
+                    w.writerow([name, algorithm, r, *(f"{v:.10g}" for v in measured[m, a, r])])
     plots.plot_paired(out / "evaluate.png", table, METRICS)
     plots.plot_density(out / "evaluate_density.png", table, info, METRICS)
     return result

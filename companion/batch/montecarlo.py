@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import msgspec
 import numpy as np
 
+from companion.batch.confirmation import confirm_time, never_confirmed
 from companion.batch.engine import RunResult, simulate
 from companion.batch.executors import LocalPool, RunExecutor, in_order
 from companion.contracts.mission import Mission
@@ -102,6 +103,15 @@ class Summary(msgspec.Struct, frozen=True, omit_defaults=True):
     # chords that entered a no-fly zone inflated by the margin (`RunResult.keepout_entries`), summed
     # over the runs; absent when the region is convex and has no zones
     keepout_entries: int | None = None
+    # an imperfect sensor's confirmations (`confirmation`): the mean time to a confirmed detection,
+    # false confirmations and targets never confirmed per run; absent when every run's sensor was
+    # perfect (then they are the first-sight metrics above)
+    mean_confirm_time: float | None = None
+    mean_confirm_time_ci95: float | None = None
+    false_confirmations_per_run: float | None = None
+    false_confirmations_per_run_ci95: float | None = None
+    never_confirmed_per_run: float | None = None
+    never_confirmed_per_run_ci95: float | None = None
 
 
 SUMMARY_KEYS = frozenset(
@@ -126,6 +136,10 @@ def summarize(results: list[RunResult]) -> Summary:
     asked = sum(r.extras.get("first_choices", 0) for r in results)
     refused = sum(r.extras.get("first_choices_refused", 0) for r in results)
     entries = sum(r.keepout_entries or 0 for r in results)
+    sensing = any(r.sensing is not None for r in results)
+    confirm = np.array([confirm_time(r) for r in results])
+    false = np.array([r.false_confirmations for r in results], dtype=float)
+    never = np.array([never_confirmed(r) for r in results], dtype=float)
     return Summary(
         runs=len(results),
         steps=int(results[0].steps),
@@ -144,4 +158,10 @@ def summarize(results: list[RunResult]) -> Summary:
         seconds_per_1000_steps=float(np.mean([1000.0 * r.seconds / r.steps for r in results])),
         first_choice_refused_share=float(refused / asked) if asked else None,
         keepout_entries=None if all(r.keepout_entries is None for r in results) else entries,
+        mean_confirm_time=float(confirm.mean()) if sensing else None,
+        mean_confirm_time_ci95=ci95(confirm) if sensing else None,
+        false_confirmations_per_run=float(false.mean()) if sensing else None,
+        false_confirmations_per_run_ci95=ci95(false) if sensing else None,
+        never_confirmed_per_run=float(never.mean()) if sensing else None,
+        never_confirmed_per_run_ci95=ci95(never) if sensing else None,
     )

@@ -17,6 +17,7 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
+from companion.batch.confirmation import confirm_time, never_confirmed
 from companion.batch.engine import RunResult
 from companion.batch.executors import RunExecutor
 from companion.batch.montecarlo import RunSpec, run_specs
@@ -25,6 +26,9 @@ from companion.contracts.mission import Mission, MissionError
 from companion.core.feasibility import load_mission, validate
 
 METRICS = ("target_time", "mean_uncertainty")
+# reported per run beside METRICS (`measure(confirmations=True)`): an imperfect sensor's
+# confirmations (`confirmation`); for a perfect one, target_time, the unfound targets and 0
+CONFIRMATIONS = ("confirm_time", "never_confirmed", "false_confirmations")
 
 
 def run_metrics(r: RunResult) -> tuple[float, float]:
@@ -63,15 +67,17 @@ def measure(
     specs: Sequence[RunSpec],
     executor: RunExecutor | None = None,
     advance: Callable[[], object] | None = None,
+    confirmations: bool = False,
 ) -> np.ndarray:
     """`run_metrics` of every spec, shape (len(specs), len(METRICS)), in spec order.
 
     They are computed on `executor` (default: a local pool of every core); `advance` is called as
-    each run comes back.
+    each run comes back. With `confirmations`, each row goes on with the run's CONFIRMATIONS.
     """
-    out = np.empty((len(specs), len(METRICS)))
+    out = np.empty((len(specs), len(METRICS) + len(CONFIRMATIONS) * confirmations))
     for i, r in enumerate(run_specs(list(specs), executor=executor, on_result=advance)):
-        out[i] = run_metrics(r)
+        extra = (confirm_time(r), never_confirmed(r), r.false_confirmations) if confirmations else ()
+        out[i] = (*run_metrics(r), *extra)
     return out
 
 

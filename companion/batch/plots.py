@@ -17,6 +17,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from companion.batch.confirmation import run_pos
 from companion.batch.engine import RunResult
 from companion.batch.montecarlo import Summary
 from companion.batch.report import mean_band
@@ -209,6 +210,21 @@ def plot_found(path: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
         _band(ax, name, np.array([r.found for r in runs], dtype=float))
     ax.set_xlabel("sampling moment k")
     ax.set_ylabel("targets found")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_pos(path: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
+    """The swarm's probability of success vs step: the fraction of targets confirmed (95 % band)."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, runs in results.items():
+        _band(ax, name, np.array([run_pos(r) for r in runs]))
+    ax.set_xlabel("sampling moment k")
+    ax.set_ylabel("probability of success (targets confirmed)")
+    ax.set_ylim(0, 1.02)
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()

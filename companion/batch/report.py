@@ -14,6 +14,7 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
+from companion.batch.confirmation import confirm_time, never_confirmed, run_pos
 from companion.batch.engine import RunResult
 from companion.batch.montecarlo import Summary, summarize
 from companion.contracts.mission import Mission
@@ -63,7 +64,9 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
     separation_losses, link_losses: steps with such a pair within R_s, sampling moments with
     lambda_2 = 0; keepout_entries: chords between sampling points that entered a no-fly zone
     inflated by the margin (`search_area.keepout_pieces`; empty for a convex region without zones);
-    first_choice_refused: the share of the RHC's first choices the safety layer refused."""
+    first_choice_refused: the share of the RHC's first choices the safety layer refused;
+    mean_confirm_time, never_confirmed, false_confirmations: the confirmations (`confirmation`;
+    for a perfect sensor the first look confirms: mean_target_time, targets - targets_found, 0)."""
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -86,6 +89,9 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                 "keepout_entries",
                 "first_choice_refused",
                 "seconds",
+                "mean_confirm_time",
+                "never_confirmed",
+                "false_confirmations",
             ]
         )
         for name, runs in results.items():
@@ -111,6 +117,9 @@ def write_runs(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                         "" if r.keepout_entries is None else r.keepout_entries,
                         f"{refused_share(r):.4f}",
                         f"{r.seconds:.4f}",
+                        f"{confirm_time(r):.3f}",
+                        never_confirmed(r),
+                        r.false_confirmations,
                     ]
                 )
 
@@ -126,8 +135,9 @@ def mean_band(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def write_curves(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
     """curves.csv: per algorithm and step, the mean curves with their 95 % CI.
 
-    The mean and 95 % CI of uncertainty (eq. 30), targets found and coverage, and the minimum over
-    runs of lambda_2 and of the inter-UAV distance."""
+    The mean and 95 % CI of uncertainty (eq. 30), targets found and coverage, the minimum over
+    runs of lambda_2 and of the inter-UAV distance, and the probability of success (POS: the
+    fraction of targets confirmed by the step, `confirmation.pos_curve`) with its 95 % CI."""
     with (out / "curves.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -142,6 +152,8 @@ def write_curves(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                 "coverage_ci95",
                 "min_lambda2",
                 "min_distance",
+                "pos",
+                "pos_ci95",
             ]
         )
         for name, runs in results.items():
@@ -150,6 +162,7 @@ def write_curves(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
             cov, cov_ci = mean_band(np.array([r.coverage for r in runs]))
             lam = np.min([r.lambda2 for r in runs], axis=0)
             dist = np.min([r.min_distance for r in runs], axis=0)
+            pos, pos_ci = mean_band(np.array([run_pos(r) for r in runs]))
             for k in range(len(unc)):
                 w.writerow(
                     [
@@ -163,6 +176,8 @@ def write_curves(out: Path, results: Mapping[str, Sequence[RunResult]]) -> None:
                         f"{cov_ci[k]:.6f}",
                         f"{lam[k]:.6f}",
                         f"{dist[k]:.3f}",
+                        f"{pos[k]:.4f}",
+                        f"{pos_ci[k]:.4f}",
                     ]
                 )
 

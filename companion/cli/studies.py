@@ -1,17 +1,19 @@
-"""`uavsearch mc`, `targets`, `versus` and `sweep`: Monte Carlo studies on the batch engine."""
+"""`uavsearch mc`, `targets`, `versus`, `sweep`, `sensing-study`: Monte Carlo studies on the batch engine."""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from companion.cli.options import ALGORITHM_LIST, Subparsers, add_executor_arguments, random_starts_option
-from companion.contracts.arguments import count, mission_argument, names, natural, step_count
+from companion.contracts.arguments import count, fraction, mission_argument, names, natural, step_count
 from companion.contracts.mission import ALGORITHMS
 from companion.core.feasibility import load_mission
 
 if TYPE_CHECKING:
+    from companion.batch.montecarlo import Summary
     from companion.batch.report import StudySummary
 
 
@@ -43,7 +45,7 @@ def _mc(args: argparse.Namespace) -> int:
     copy_mission(Path(args.mission), Path(args.out))
     _print_summary(summary)
     starts = " and starts.csv" if layouts else ""
-    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv, plots{starts}")
+    print(f"wrote {args.out}/summary.json, runs.csv, curves.csv, plots (pos.png: the confirmations){starts}")
     return 0
 
 
@@ -79,6 +81,27 @@ def _print_summary(summary: StudySummary) -> None:
             str(s.runs_with_event),
             *([str(s.keepout_entries or 0)] if zones else []),
             f"{s.seconds_per_1000_steps:.3f}",
+        )
+    Console().print(table)
+    _print_confirmations(summary.algorithms)
+
+
+def _print_confirmations(summaries: Mapping[str, Summary]) -> None:
+    """An imperfect sensor's confirmations, one row per algorithm (nothing for a perfect sensor)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    if all(s.mean_confirm_time is None for s in summaries.values()):
+        return
+    table = Table(title="Confirmed detections (imperfect sensor; 95 % intervals)")
+    for col in ("algorithm", "time to confirmation", "false confirmations / run", "never confirmed / run"):
+        table.add_column(col, justify="right")
+    for name, s in summaries.items():
+        table.add_row(
+            name,
+            f"{s.mean_confirm_time or 0.0:.1f} ± {s.mean_confirm_time_ci95 or 0.0:.1f}",
+            f"{s.false_confirmations_per_run or 0.0:.2f} ± {s.false_confirmations_per_run_ci95 or 0.0:.2f}",
+            f"{s.never_confirmed_per_run or 0.0:.2f} ± {s.never_confirmed_per_run_ci95 or 0.0:.2f}",
         )
     Console().print(table)
 
@@ -193,8 +216,53 @@ def _sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+PAPER_SCENARIOS = ",".join(f"mission_files/scenario{s}.toml" for s in (1, 2, 3))
+
+
+def probabilities(text: str) -> tuple[float, ...]:
+    """'1,0.9,0.7': one or more probabilities in [0, 1], distinct, in the order given."""
+    values = tuple(fraction(v.strip()) for v in text.split(",") if v.strip())
+    if not values or len(set(values)) != len(values):
+        raise argparse.ArgumentTypeError(f"need distinct probabilities, comma-separated: {text!r}")
+    return values
+
+
+def _sensing_study(args: argparse.Namespace) -> int:
+    """`uavsearch sensing-study`: the algorithms over a grid of Pd x Pf on each mission."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from companion.batch.executors import open_executor
+    from companion.batch.sensing_report import study
+    from companion.batch.sensing_study import Definition
+
+    paths = [p.strip() for p in args.missions.split(",") if p.strip()]
+    missions = [load_mission(p) for p in paths]
+    steps = args.steps or max(m.steps for m in missions)
+    definition = Definition(
+        paths, list(args.pd), list(args.pf), list(args.algorithms), args.runs, steps, args.seed
+    )
+    with open_executor(args.scheduler, args.workers) as executor:
+        result = study(missions, definition, Path(args.out), executor, progress=not args.quiet)
+    table = Table(title="Proposed - baseline: time to a confirmed detection (paired, 95 % intervals)")
+    for col in ("mission", "Pd", "Pf", "baseline", "runs", "proposed", "baseline's", "difference"):
+        table.add_column(col, justify="right")
+    for p in result.paired:
+        table.add_row(
+            p.mission, f"{p.pd:g}", f"{p.pf:g}", p.baseline, str(p.runs), f"{p.proposed:.1f}",
+            f"{p.baseline_value:.1f}",
+            f"{p.difference:+.1f} [{p.difference_low:+.1f}, {p.difference_high:+.1f}]",
+        )  # fmt: skip
+    Console().print(table)
+    print(
+        f"wrote {args.out}/summary.csv, paired.csv, pos_curves.csv, results_table.md, plots "
+        "(pos_*.png, confirm_*.png) and cells/ (per-run rows; run again to resume)"
+    )
+    return 0
+
+
 def register(sub: Subparsers) -> None:
-    """Add `mc`, `targets`, `versus` and `sweep` to the subcommands."""
+    """Add `mc`, `targets`, `versus`, `sweep` and `sensing-study` to the subcommands."""
     mc = sub.add_parser("mc", help="Monte Carlo comparison of algorithms (the paper's Figures 8-10)")
     mission_argument(mc)
     mc.add_argument(
@@ -253,3 +321,22 @@ def register(sub: Subparsers) -> None:
     add_executor_arguments(sw)
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
     sw.set_defaults(func=_sweep)
+
+    ss = sub.add_parser(
+        "sensing-study", help="the algorithms under imperfect sensing: a grid of Pd x Pf (issue 37)"
+    )
+    ss.add_argument("--missions", default=PAPER_SCENARIOS, help="mission files, comma-separated")
+    ss.add_argument("--pd", type=probabilities, default="1,0.9,0.7", help="probabilities of detection")
+    ss.add_argument("--pf", type=probabilities, default="0,0.01,0.05", help="false-alarm rates per look")
+    ss.add_argument(
+        "--algorithms", type=names(ALGORITHMS), default="proposed,no-ta,pheromone", help=ALGORITHM_LIST
+    )
+    ss.add_argument("--runs", type=count, default=20, help="runs per algorithm and cell")
+    ss.add_argument(
+        "--steps", type=step_count, default=None, help="sampling moments per run (default: the missions')"
+    )
+    ss.add_argument("--seed", type=natural, default=None, help="the runs' seed (default: each mission's)")
+    ss.add_argument("--out", default="out/sensing", help="output folder (a study there is resumed)")
+    add_executor_arguments(ss)
+    ss.add_argument("--quiet", action="store_true", help="no progress bar")
+    ss.set_defaults(func=_sensing_study)

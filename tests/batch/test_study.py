@@ -75,7 +75,13 @@ def test_mc_cli_writes_summary_runs_curves_trajectories_and_plots(tmp_path: Path
         closest = min(float(r["closest_approach"]) for r in mine)
         assert closest == pytest.approx(summary[name]["closest_approach"], abs=1e-3)
         assert 60.0 < closest <= min(float(r["min_distance"]) for r in mine) + 1e-3
-    for png in ("prior_cvt.png", "trajectories.png", "uncertainty.png", "targets_found.png"):
+        # a perfect sensor: the first look confirms, nothing false; summary.json as before
+        for r in mine:
+            assert r["mean_confirm_time"] == r["mean_target_time"] and r["false_confirmations"] == "0"
+            assert int(r["never_confirmed"]) == int(r["targets"]) - int(r["targets_found"])
+        assert "mean_confirm_time" not in summary[name]
+    assert "Confirmed detections" not in proc.stdout
+    for png in ("prior_cvt.png", "trajectories.png", "uncertainty.png", "targets_found.png", "pos.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
 
 

@@ -198,6 +198,9 @@ def test_evaluate_end_to_end_on_a_tiny_budget(tmp_path: Path) -> None:
     ]
     runs = _rows(out / "runs.csv")
     assert len(runs) == 3 * 3 * 2
+    for r in runs:  # generated missions have the paper's sensor: the first look confirms
+        assert float(r["confirm_time"]) == pytest.approx(float(r["target_time"]))
+        assert r["false_confirmations"] == "0"
     value = {(r["mission"], r["algorithm"], int(r["run"])): r for r in runs}
     result = json.loads((out / "evaluate.json").read_text())
     assert result["meta"]["generated"]["seed"] == 4 and result["meta"]["runs"] == 2
