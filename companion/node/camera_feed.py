@@ -49,14 +49,18 @@ class CameraFeed:
         with self._cond:
             return self._cond.wait_for(lambda: self.latest_usec >= time_usec, timeout)
 
-    def take(self, until_usec: int) -> tuple[tuple[float, float], ...]:
-        """Local (x, y) of every detection in the frames up to `until_usec`, consumed once."""
+    def take(self, until_usec: int) -> tuple[tuple[tuple[float, float], ...], int]:
+        """Local (x, y) of every detection in the frames up to `until_usec`, and how many frames.
+
+        Each frame is consumed once; no frame means the camera took no picture over the step."""
         out: list[tuple[float, float]] = []
+        frames = 0
         with self._cond:
             while self._frames and self._frames[0].time_usec <= until_usec:
                 frame = self._frames.popleft()
                 out.extend(self.frame.to_local(lat, lon) for lat, lon in frame.detections)
-        return tuple(out)
+                frames += 1
+        return tuple(out), frames
 
     def close(self) -> None:
         self._sub.undeclare()

@@ -163,17 +163,16 @@ class Pilot:
         """Step k from the pose predicted `ahead` seconds on (the start of step k)."""
         self._forget_departed(k)
         x, y, heading = self.pose(ahead)
-        seen = self.camera.take(round(k * self.dt * 1e6))
+        seen, frames = self.camera.take(round(k * self.dt * 1e6))
         own = self.last_position if self.last_position is not None else np.array([x, y])
         inbox = self.faults.filter(k, self.mesh.inbox(k, (float(own[0]), float(own[1]))))
         # whether the vehicle will fly this step's plan: the peers are told when it does not
         steered = self.steering and self.steerable() and self._guard(k, x, y)
-        command, outbox = self.agent.step(
-            Observation(
-                step=k, x=x, y=y, heading=heading, detections=seen, steered=steered, closing=self.closing
-            ),
-            inbox,
-        )
+        obs = Observation(
+            step=k, x=x, y=y, heading=heading, detections=seen, steered=steered, closing=self.closing,
+            looked=frames > 0,
+        )  # fmt: skip
+        command, outbox = self.agent.step(obs, inbox)
         if self.journal is not None:
             self.journal.append(self.agent)  # durable before any peer hears of this step
         events = self.targets.step(k, self.agent)

@@ -22,7 +22,8 @@ ROOT = Path(__file__).resolve().parents[2]
 def world(request):
     mission = load_mission(ROOT / "mission_files" / "scenario1.toml")
     if request.param == "imperfect":  # the journal carries the target map's evidence records too
-        mission = msgspec.structs.replace(mission, sensor=msgspec.structs.replace(mission.sensor, pd=0.8, pf=0.05))
+        sensor = msgspec.structs.replace(mission.sensor, pd=0.8, pf=0.05)
+        mission = msgspec.structs.replace(mission, sensor=sensor)
     return build_world(mission, 1, 0)
 
 
