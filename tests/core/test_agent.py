@@ -110,7 +110,7 @@ def test_eq_21_ends_and_refuses_tasks_beyond_a_neighbours_range(scenario1) -> No
             me, uav1 = (np.array(outs[i][1][0].state.plan[0]) for i in (0, 1))  # both next poses
             beyond = np.hypot(*(gens - uav1).T) > r_c
             agents[0].task = -1  # bids as a UAV without a task: every task it could keep
-            bids = np.array(agents[0]._my_bids(me, uav1[None, :]))
+            bids = np.array(agents[0]._my_bids(me, uav1[None, :])[0])  # the CVT tasks
             assert beyond.any() and (bids[~beyond] > 0).any()
             assert np.all(bids[beyond] == 0.0)
             far = int(np.flatnonzero(beyond)[0])
