@@ -383,7 +383,11 @@ def measure(outcome: RowOutcome, mission: Mission, out: Path, before: set[int]) 
     outcome.lost_detections = sorted(told - set.intersection(*found))
     if outcome.lost_detections:
         fail(f"detections not known to every UAV: {outcome.lost_detections}")
-    truth = json.loads((out / "truth.json").read_text())
+    truth_path = out / "truth.json"
+    if not truth_path.exists():  # the simulator never came up: what failed is already in `failures`
+        fail("the simulator wrote no truth record (truth.json)")
+        return
+    truth = json.loads(truth_path.read_text())
     outcome.notes["targets"] = len(truth.get("targets", []))
     separation = read_approach(out / "approach.csv")
     if separation:
