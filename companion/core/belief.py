@@ -20,10 +20,10 @@ import numpy as np
 from numba import njit
 
 from companion.core.geometry import FloatArray, IntArray
+from companion.core.messages import MAX_RECORDS  # records a coverage message relays
 from companion.core.sensing import LLR_QUANTUM, look_llr
 
 PRIOR_FLOOR = 1e-9  # eq. 1's prior clipped to [PRIOR_FLOOR, 1 - PRIOR_FLOOR] before its logit
-MAX_RECORDS = 1024  # records a coverage message relays (`Belief.records`)
 
 # one UAV's evidence records: (source, cell, stamp) triples flattened, and the cumulative values
 Records = tuple[tuple[int, ...], tuple[float, ...]]

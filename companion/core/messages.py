@@ -16,7 +16,7 @@ from companion.contracts.wire import MsgpackCodec
 from companion.core.trajectory import Trajectory
 
 PROTOCOL_VERSION = 6
-MAX_RECORDS = 1024  # evidence records one coverage message relays (`belief.MAX_RECORDS`)
+MAX_RECORDS = 1024  # evidence records one coverage message relays (`Belief.records`)
 MAX_EVIDENCE = 1e9  # |cumulative log-odds evidence| of a record
 MAX_PLAN = 16
 

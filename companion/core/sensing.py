@@ -74,16 +74,6 @@ def look_llr(hit: bool, distance: float, pd: float, pd_edge: float, pf: float, r
 
 
 @njit(cache=True)
-def look_llrs(hits: np.ndarray, distances: FloatArray, model: tuple[float, ...]) -> FloatArray:
-    """`look_llr` of each look: hit or miss, at its distance."""
-    pd, pd_edge, pf, radius = model
-    out = np.empty(hits.shape[0])
-    for i in range(hits.shape[0]):
-        out[i] = look_llr(hits[i], distances[i], pd, pd_edge, pf, radius)
-    return out
-
-
-@njit(cache=True)
 def _mix(z: np.uint64) -> np.uint64:
     """splitmix64's finaliser: a bijection of 64-bit words that scrambles every bit."""
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
