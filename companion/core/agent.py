@@ -53,6 +53,8 @@ from companion.core.trajectory import Trajectory
 from companion.core.uncertainty import apply_looks, mark_seen
 from companion.core.world import World
 
+_NO_RECORDS = np.zeros(0, dtype=np.int64)
+
 __all__ = ["Agent", "AgentSnapshot", "Command", "Observation", "StepDelta"]
 
 Track = tuple[tuple[float, float], ...]  # points of a plan, from its anchor on
@@ -77,6 +79,8 @@ class Agent(TaskPlanning):
         self.belief = Belief(world.prior, m.n_uavs, uav, m.sensor.confirm, m.sensor.clear)
         self._sensor = world.sensor
         self.found: set[int] = set()  # cells confirmed (`Belief.confirmed`)
+        self._found: tuple[int, ...] = ()  # `found` ascending; another tuple only when it changed
+        self._misses = np.zeros(0, dtype=np.bool_)  # no camera report (`_sense`)
         self.candidates = np.zeros(0, dtype=np.int64)  # cells a detection left undecided
         self._settled = -1  # the belief's version `_settle` last read
         self._relayed: dict[int, tuple[int, ...]] = {}  # each neighbour's records, as last read
@@ -194,45 +198,60 @@ class Agent(TaskPlanning):
         return relay
 
     # -- map -----------------------------------------------------------------------------------
-    def _update_map(self, looks: list[int]) -> None:
-        """Eqs. 10-11 and the covered-cell count of each task (eq. 20) for the FOV cells `looks`."""
+    def _update_map(self, looks: list[int]) -> IntArray:
+        """Eqs. 10-11 and the covered-cell count of each task (eq. 20) for the FOV cells `looks`.
+
+        Returns `looks` as an array."""
         cells = np.array(looks, dtype=np.int64)
         apply_looks(self.eta, cells, self.world.mission.uncertainty.gamma)
         mark_seen(self.seen, self.covered, self._labels, cells)
+        return cells
 
-    def _sense(self, obs: Observation, own: IntArray, coverage: list[CoverageMsg]) -> tuple:
+    def _sense(
+        self, obs: Observation, own: IntArray, looks: IntArray, coverage: list[CoverageMsg]
+    ) -> tuple[tuple, tuple[float, ...]]:
         """Bayes' rule for this UAV's looks, then the neighbours' evidence; returns what it took.
 
         Every cell in view is a look, a hit where the camera reported a target (a report outside
         the FOV, from the camera's own position, is a look at its cell too). A neighbour's relayed
-        records are read only when they differ from those it sent last. Returns the records taken
-        as `_records_taken` reads them."""
+        records are read only when they differ from those it sent last. `looks` is `own` followed by
+        the cells of each message of `coverage`. Returns the records taken as `_records_taken` reads
+        them, and this UAV's evidence at `own` after its looks (what its coverage message carries)."""
         grid, b = self.world.grid, self.belief
-        own = own if obs.looked else own[:0]
-        cells, hits = own, np.zeros(own.shape[0], dtype=np.bool_)
+        cells = own if obs.looked else own[:0]
+        if self._misses.shape[0] < cells.shape[0]:
+            self._misses = np.zeros(cells.shape[0], dtype=np.bool_)
+        hits = self._misses  # no report: every look a miss
         if obs.detections:
             detected = grid.cell_at(np.array(obs.detections, dtype=float))
             detected = np.unique(detected[detected >= 0])
-            cells = np.union1d(own, detected)
+            cells = np.union1d(cells, detected)
             hits = np.isin(cells, detected)
-        b.look(obs.step, cells, hits, (obs.x, obs.y), grid.centres, self._sensor)
-        mine = (cells, b.evidence[self.uav, cells])
-        flat: list[int] = []  # (source, cell, stamp) triples
-        values: list[float] = []
+        values = b.look(obs.step, cells, hits, (obs.x, obs.y), grid.centres, self._sensor)
+        evidence = tuple((values if cells is own else b.evidence[self.uav, own]).tolist())
+        mine = (cells, values)
+        segments: list[int] = []  # (source, stamp, start, count) each: `Belief.merge_heard`
+        relayed: list[int] = []  # (source, cell, stamp) triples
+        heard: list[float] = []
+        at = own.shape[0]
         for msg in coverage:
+            n = len(msg.cells)
             if msg.evidence:
-                n = len(msg.cells)
-                flat += [msg.sender, 0, msg.stamp] * n
-                flat[len(flat) - 3 * n + 1 :: 3] = msg.cells
-                values += msg.evidence
+                segments += (msg.sender, msg.stamp, at, n)
+                heard += msg.evidence
+            at += n
             if msg.record_values and self._relayed.get(msg.sender) != msg.records:
                 self._relayed[msg.sender] = msg.records
-                flat += msg.records
-                values += msg.record_values
-        if not values:
-            return mine, None
-        heard = np.array(flat, dtype=np.int64).reshape(-1, 3), np.array(values, dtype=float)
-        return mine, (*heard, b.merge(*heard))
+                segments += (-1, 0, len(relayed) // 3, len(msg.record_values))
+                relayed += msg.records
+                heard += msg.record_values
+        if not heard:
+            return (mine, None), evidence
+        heard_values = np.array(heard, dtype=float)
+        triples = np.array(relayed, dtype=np.int64) if relayed else _NO_RECORDS
+        segs = np.array(segments, dtype=np.int64).reshape(-1, 4)
+        records, kept = b.merge_heard(looks, segs, triples, heard_values)
+        return (mine, (records, heard_values, kept)), evidence
 
     def _records_taken(self, step: int, taken: tuple) -> tuple[tuple[int, ...], tuple[float, ...]]:
         """The records a step's `_sense` took, as `StepDelta` keeps them: (triples, values)."""
@@ -262,6 +281,9 @@ class Agent(TaskPlanning):
             eta0 = self.world.mission.uncertainty.eta0
             self.eta[self.candidates] = np.maximum(self.eta[self.candidates], eta0 * h)
         self.found = set(b.confirmed().tolist())
+        found = tuple(sorted(self.found))
+        if found != self._found:
+            self._found = found
 
     # -- mission planning ----------------------------------------------------------------------
     def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -281,11 +303,10 @@ class Agent(TaskPlanning):
         own = self.world.grid.fov_cell_list((obs.x, obs.y))
         looks: list[int] = own.tolist()
         own_cells = tuple(looks)
-        known = set(self.found)
+        known = self._found
         coverage: list[CoverageMsg] = []
         bids = self._ingest(inbox, k, looks, coverage)
-        self._update_map(looks)
-        taken = self._sense(obs, own, coverage)
+        taken, evidence = self._sense(obs, own, self._update_map(looks), coverage)
         self._settle()
 
         # safety layer: the trajectory in force for [t_k, t_k+1], then plan from the pose at t_k+1
@@ -322,9 +343,9 @@ class Agent(TaskPlanning):
             me = UavState(
                 self.uav, k, obs.x, obs.y, obs.heading, (), self.task, self.task_reward, steered=False
             )
-        found = tuple(sorted(self.found))
-        outbox = self._outbox(obs, me, own_cells, found, announce)
-        new = tuple(c for c in found if c not in known)
+        found = self._found
+        outbox = self._outbox(obs, me, (own_cells, evidence), found, announce)
+        new = () if found is known else tuple(c for c in found if c not in set(known))
         self.newly_confirmed = new
         self._last = (k, looks, new, self.task, self.task_reward, inforce, safety.parents, taken)
         return command, outbox
@@ -399,7 +420,12 @@ class Agent(TaskPlanning):
         return None, *self.commitments.limits.track(ahead)
 
     def _outbox(
-        self, obs: Observation, me: UavState, cells: tuple[int, ...], found: tuple[int, ...], announce: bool
+        self,
+        obs: Observation,
+        me: UavState,
+        looked: tuple[tuple[int, ...], tuple[float, ...]],
+        found: tuple[int, ...],
+        announce: bool,
     ) -> list[Message]:
         """This step's messages: state, coverage (looks, evidence, records), relayed states and bids."""
         k, x, y, parents = obs.step, obs.x, obs.y, self.commitments.parents
@@ -407,7 +433,7 @@ class Agent(TaskPlanning):
         self._heard = heard
         outbox: list[Message] = [
             StateMsg(sender=self.uav, stamp=k, x=x, y=y, state=me, heard=heard, parents=parents),
-            self._coverage(obs, cells, found),
+            self._coverage(obs, looked[0], looked[1], found),
         ]
         if relay:
             known = tuple(self.peers[u] for u in relay)
@@ -427,9 +453,10 @@ class Agent(TaskPlanning):
             outbox.append(bid)
         return outbox
 
-    def _coverage(self, obs: Observation, cells: tuple[int, ...], found: tuple[int, ...]) -> CoverageMsg:
+    def _coverage(
+        self, obs: Observation, cells: tuple[int, ...], evidence: tuple[float, ...], found: tuple[int, ...]
+    ) -> CoverageMsg:
         """Its looks with its evidence at them, every record at the cells of interest, the confirmed."""
-        evidence = self.belief.own_values(np.array(cells, dtype=np.int64))
         records, values = self.belief.records()
         return CoverageMsg(
             sender=self.uav, stamp=obs.step, x=obs.x, y=obs.y, cells=cells, detections=found,

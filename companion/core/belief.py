@@ -63,10 +63,11 @@ def _set(arrays: MapArrays, u: int, c: int, stamp: int, value: float) -> bool:
 def add_looks(
     arrays: MapArrays, me: int, step: int, cells: IntArray, hits: np.ndarray, at: tuple[float, float],
     centres: FloatArray, model: tuple[float, float, float, float],
-) -> bool:  # fmt: skip
+) -> tuple[bool, FloatArray]:  # fmt: skip
     """UAV `me`'s looks from `at` at step `step`: E_{me,p} += `look_llr` for each cell, hit or miss.
 
-    Returns whether a cell of interest (positive evidence) changed."""
+    `hits` may be longer than `cells` (its first len(cells) entries count). Returns whether a cell
+    of interest (positive evidence) changed, and E_{me,p} after the looks at each of `cells`."""
     pd, pd_edge, pf, radius = model
     evidence = arrays[2]
     interest = False
@@ -75,7 +76,10 @@ def add_looks(
         d = math.hypot(centres[c, 0] - at[0], centres[c, 1] - at[1])
         llr = look_llr(hits[i], d, pd, pd_edge, pf, radius)
         interest |= _set(arrays, me, c, step, evidence[me, c] + llr)
-    return interest
+    values = np.empty(cells.shape[0])
+    for i in range(cells.shape[0]):
+        values[i] = evidence[me, cells[i]]
+    return interest, values
 
 
 @njit(cache=True)
@@ -95,6 +99,39 @@ def merge_records(
             interest |= _set(arrays, u, c, s, round(values[i] / LLR_QUANTUM) * LLR_QUANTUM)
             taken[i] = True
     return taken, interest
+
+
+@njit(cache=True)
+def heard_records(looks: IntArray, segments: IntArray, relayed: IntArray) -> IntArray:
+    """The (source, cell, stamp) rows that `segments` describe, in their order.
+
+    A segment (source, stamp, start, count) with source >= 0 stands for the cells
+    looks[start:start+count], each looked at by `source` at `stamp`; one with source -1 for the
+    triples relayed[3 start:3 (start+count)]."""
+    n = 0
+    for s in range(segments.shape[0]):
+        n += segments[s, 3]
+    out = np.empty((n, 3), dtype=np.int64)
+    i = 0
+    for s in range(segments.shape[0]):
+        source, stamp, start, count = segments[s, 0], segments[s, 1], segments[s, 2], segments[s, 3]
+        for j in range(start, start + count):
+            if source >= 0:
+                out[i, 0], out[i, 1], out[i, 2] = source, looks[j], stamp
+            else:
+                out[i, 0], out[i, 1], out[i, 2] = relayed[3 * j], relayed[3 * j + 1], relayed[3 * j + 2]
+            i += 1
+    return out
+
+
+@njit(cache=True)
+def merge_heard(
+    arrays: MapArrays, me: int, looks: IntArray, segments: IntArray, relayed: IntArray, values: FloatArray
+) -> tuple[IntArray, np.ndarray, bool]:
+    """`merge_records` of the rows of `heard_records`; returns them, which were kept, and the interest."""
+    records = heard_records(looks, segments, relayed)
+    taken, interest = merge_records(arrays, me, records, values)
+    return records, taken, interest
 
 
 @njit(cache=True)
@@ -131,13 +168,13 @@ class Belief:
     def look(
         self, step: int, cells: IntArray, hits: np.ndarray, at: tuple[float, float], centres: FloatArray,
         model: tuple[float, float, float, float],
-    ) -> None:  # fmt: skip
-        """This UAV's looks at `cells` from `at` at step `step`, a hit where `hits`."""
-        self.version += add_looks(self.arrays, self.me, step, cells, hits, at, centres, model)
+    ) -> FloatArray:  # fmt: skip
+        """This UAV's looks at `cells` from `at` at step `step`, a hit where `hits`; its evidence there after.
 
-    def own_values(self, cells: IntArray) -> tuple[float, ...]:
-        """This UAV's cumulative evidence at `cells` (what its coverage message carries)."""
-        return tuple(self.evidence[self.me, cells].tolist())
+        `hits` may be longer than `cells` (its first len(cells) entries count)."""
+        interest, values = add_looks(self.arrays, self.me, step, cells, hits, at, centres, model)
+        self.version += interest
+        return values
 
     def merge(self, records: IntArray, values: FloatArray, own: bool = False) -> np.ndarray:
         """Records, a (source, cell, stamp) row each, and their values (rounded to the quantum).
@@ -147,6 +184,14 @@ class Belief:
         taken, interest = merge_records(self.arrays, -1 if own else self.me, records, values)
         self.version += interest
         return taken
+
+    def merge_heard(
+        self, looks: IntArray, segments: IntArray, relayed: IntArray, values: FloatArray
+    ) -> tuple[IntArray, np.ndarray]:
+        """`merge` of the records `segments` describes (`heard_records`); returns them and which were kept."""
+        records, taken, interest = merge_heard(self.arrays, self.me, looks, segments, relayed, values)
+        self.version += interest
+        return records, taken
 
     def records(self) -> Records:
         """Every record held at the cells of interest (confirmed or candidate), for relaying."""
