@@ -17,7 +17,8 @@ again (synchronisation). A held task is reevaluated every step (eqs. 20-21).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from array import array
+from collections.abc import Iterable, MutableSequence
 from itertools import chain
 
 import numpy as np
@@ -50,7 +51,7 @@ from companion.core.swarm_view import swarm_view
 from companion.core.task_planning import Bids, TaskPlanning
 from companion.core.tasks import TaskSet
 from companion.core.trajectory import Trajectory
-from companion.core.uncertainty import apply_looks, mark_seen
+from companion.core.uncertainty import look_map
 from companion.core.world import World
 
 _NO_RECORDS = np.zeros(0, dtype=np.int64)
@@ -77,7 +78,9 @@ class Agent(TaskPlanning):
         self._relative_prior = world.prior / max(float(world.prior.max()), np.finfo(float).tiny)
         self.seen = np.zeros(n, dtype=bool)
         self.belief = Belief(world.prior, m.n_uavs, uav, m.sensor.confirm, m.sensor.clear)
-        self._sensor = world.sensor
+        s = world.sensor
+        self._sensor = (s.pd, s.pd_edge, s.pf, s.radius)  # a plain tuple: numba types it faster
+        self._gamma = m.uncertainty.gamma
         self.found: set[int] = set()  # cells confirmed (`Belief.confirmed`)
         self._found: tuple[int, ...] = ()  # `found` ascending; another tuple only when it changed
         self._misses = np.zeros(0, dtype=np.bool_)  # no camera report (`_sense`)
@@ -148,7 +151,7 @@ class Agent(TaskPlanning):
             self._rows[state.uav] = (state.stamp, state.x, state.y, *flat, state.heading, *heads)
 
     def _ingest(
-        self, inbox: Iterable[Message], k: int, looks: list[int], coverage: list[CoverageMsg]
+        self, inbox: Iterable[Message], k: int, looks: MutableSequence[int], coverage: list[CoverageMsg]
     ) -> dict[int, Bids]:
         """Sort the inbox by kind into looks, states and claims; return this round's bids.
 
@@ -172,7 +175,7 @@ class Agent(TaskPlanning):
                     neighbours[msg.sender] = msg.heard
                     fresh[msg.sender] = msg
             elif isinstance(msg, CoverageMsg):
-                looks += msg.cells
+                looks.extend(msg.cells)
                 coverage.append(msg)
             elif isinstance(msg, BidsMsg):
                 if msg.stamp == k - 1:
@@ -198,14 +201,9 @@ class Agent(TaskPlanning):
         return relay
 
     # -- map -----------------------------------------------------------------------------------
-    def _update_map(self, looks: list[int]) -> IntArray:
-        """Eqs. 10-11 and the covered-cell count of each task (eq. 20) for the FOV cells `looks`.
-
-        Returns `looks` as an array."""
-        cells = np.array(looks, dtype=np.int64)
-        apply_looks(self.eta, cells, self.world.mission.uncertainty.gamma)
-        mark_seen(self.seen, self.covered, self._labels, cells)
-        return cells
+    def _update_map(self, cells: IntArray) -> None:
+        """Eqs. 10-11 and the covered-cell count of each task (eq. 20) for the FOV cells `cells`."""
+        look_map(self.eta, self._gamma, self.seen, self.covered, self._labels, cells)
 
     def _sense(
         self, obs: Observation, own: IntArray, looks: IntArray, coverage: list[CoverageMsg]
@@ -301,12 +299,14 @@ class Agent(TaskPlanning):
         and answer the command for [t_k, t_k+1] and the outbox stamped k."""
         k = obs.step
         own = self.world.grid.fov_cell_list((obs.x, obs.y))
-        looks: list[int] = own.tolist()
-        own_cells = tuple(looks)
+        own_cells = tuple(own.tolist())
+        looks = array("q", own_cells)  # a buffer numpy reads without converting each int
         known = self._found
         coverage: list[CoverageMsg] = []
         bids = self._ingest(inbox, k, looks, coverage)
-        taken, evidence = self._sense(obs, own, self._update_map(looks), coverage)
+        cells = np.frombuffer(looks, dtype=np.int64)
+        self._update_map(cells)
+        taken, evidence = self._sense(obs, own, cells, coverage)
         self._settle()
 
         # safety layer: the trajectory in force for [t_k, t_k+1], then plan from the pose at t_k+1
@@ -494,7 +494,7 @@ class Agent(TaskPlanning):
 
     def replay(self, delta: StepDelta) -> None:
         """Apply a later step's delta to a restored agent, exactly as the step changed it."""
-        self._update_map(list(delta.looks))
+        self._update_map(np.array(delta.looks, dtype=np.int64))
         records = np.array(delta.records, dtype=np.int64).reshape(-1, 3)
         self.belief.merge(records, np.array(delta.record_values, dtype=float), own=True)
         self._settle()

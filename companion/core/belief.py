@@ -159,11 +159,12 @@ class Belief:
         self.confirm_logodds, self.clear_logodds = logit(confirm), logit(clear)
         self.version = 0  # changes whenever a cell of interest (positive evidence) changed
         self._records: tuple[int, Records] = (-1, ((), ()))
+        self._arrays: MapArrays = (self.logodds, self.l0, self.evidence, self.stamps)  # updated in place
 
     # -- evidence ------------------------------------------------------------------------------
     @property
     def arrays(self) -> MapArrays:
-        return (self.logodds, self.l0, self.evidence, self.stamps)
+        return self._arrays
 
     def look(
         self, step: int, cells: IntArray, hits: np.ndarray, at: tuple[float, float], centres: FloatArray,

@@ -40,6 +40,15 @@ def mark_seen(seen: np.ndarray, covered: IntArray, labels: IntArray, cells: IntA
     return new
 
 
+@njit(cache=True)
+def look_map(
+    eta: FloatArray, gamma: float, seen: np.ndarray, covered: IntArray, labels: IntArray, cells: IntArray
+) -> None:
+    """`apply_looks` then `mark_seen` for the FOV cells `cells`, in one call."""
+    apply_looks(eta, cells, gamma)
+    mark_seen(seen, covered, labels, cells)
+
+
 def importance(eta: FloatArray, prior: FloatArray) -> FloatArray:
     """Eq. 12: s_p = eta_p * Pr_p."""
     return eta * prior
