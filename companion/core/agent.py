@@ -238,7 +238,8 @@ class Agent(TaskPlanning):
                 segments += (msg.sender, msg.stamp, at, n)
                 heard += msg.evidence
             at += n
-            if msg.record_values and self._relayed.get(msg.sender) != msg.records:
+            held = self._relayed.get(msg.sender)
+            if msg.record_values and held is not msg.records and held != msg.records:
                 self._relayed[msg.sender] = msg.records
                 segments += (-1, 0, len(relayed) // 3, len(msg.record_values))
                 relayed += msg.records
@@ -272,14 +273,14 @@ class Agent(TaskPlanning):
         if self._settled == b.version:
             return
         self._settled = b.version
-        self.candidates = b.candidates()
+        self.candidates, confirmed = b.decided()
         if self.candidates.size:
             p = b.posterior(self.candidates)
             h = -(p * np.log2(p) + (1.0 - p) * np.log2(1.0 - p))
             eta0 = self.world.mission.uncertainty.eta0
             self.eta[self.candidates] = np.maximum(self.eta[self.candidates], eta0 * h)
-        self.found = set(b.confirmed().tolist())
-        found = tuple(sorted(self.found))
+        found = tuple(confirmed.tolist())  # ascending
+        self.found = set(found)
         if found != self._found:
             self._found = found
 

@@ -146,6 +146,38 @@ def interest_cells(logodds: FloatArray, l0: FloatArray, clear_logodds: float) ->
     return out[:n]
 
 
+@njit(cache=True)
+def held_records(arrays: MapArrays, clear_logodds: float, limit: int) -> tuple[IntArray, FloatArray]:
+    """The first `limit` records held at the cells of interest, by source then cell: triples, values."""
+    logodds, l0, evidence, stamps = arrays
+    cells = interest_cells(logodds, l0, clear_logodds)
+    triples = np.empty(3 * limit, dtype=np.int64)
+    values = np.empty(limit)
+    n = 0
+    for u in range(stamps.shape[0]):
+        for c in cells:
+            if stamps[u, c] >= 0 and n < limit:
+                triples[3 * n], triples[3 * n + 1], triples[3 * n + 2] = u, c, stamps[u, c]
+                values[n] = evidence[u, c]
+                n += 1
+    return triples[: 3 * n], values[:n]
+
+
+@njit(cache=True)
+def decided_cells(
+    logodds: FloatArray, l0: FloatArray, clear_logodds: float, confirm_logodds: float
+) -> tuple[IntArray, IntArray]:
+    """The candidate cells and the confirmed ones, ascending (`Belief.candidates`, `Belief.confirmed`)."""
+    cells = interest_cells(logodds, l0, clear_logodds)
+    candidates = np.empty(cells.shape[0], dtype=np.int64)
+    n = 0
+    for c in cells:
+        if logodds[c] < confirm_logodds:
+            candidates[n] = c
+            n += 1
+    return candidates[:n], np.flatnonzero(logodds >= confirm_logodds)
+
+
 class Belief:
     """One UAV's target-probability map (log-odds) and the evidence records it fuses."""
 
@@ -199,12 +231,8 @@ class Belief:
         version, cached = self._records
         if version == self.version:
             return cached
-        cells = interest_cells(self.logodds, self.l0, self.clear_logodds)
-        held = self.stamps[:, cells] >= 0
-        sources, at = np.nonzero(held)
-        sources, at = sources[:MAX_RECORDS], cells[at[:MAX_RECORDS]]
-        triples = np.stack([sources, at, self.stamps[sources, at]], axis=1).ravel()
-        out = (tuple(triples.tolist()), tuple(self.evidence[sources, at].tolist()))
+        triples, values = held_records(self._arrays, self.clear_logodds, MAX_RECORDS)
+        out = (tuple(triples.tolist()), tuple(values.tolist()))
         self._records = (self.version, out)
         return out
 
@@ -220,8 +248,11 @@ class Belief:
 
     def candidates(self) -> IntArray:
         """Cells a detection left between the clearing floor and the threshold."""
-        cells = interest_cells(self.logodds, self.l0, self.clear_logodds)
-        return cells[self.logodds[cells] < self.confirm_logodds]
+        return self.decided()[0]
+
+    def decided(self) -> tuple[IntArray, IntArray]:
+        """`candidates()` and `confirmed()` in one pass."""
+        return decided_cells(self.logodds, self.l0, self.clear_logodds, self.confirm_logodds)
 
     # -- snapshot ------------------------------------------------------------------------------
     def to_bytes(self) -> tuple[bytes, bytes]:
