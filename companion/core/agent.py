@@ -301,7 +301,7 @@ class Agent(TaskPlanning):
         k = obs.step
         own = self.world.grid.fov_cell_list((obs.x, obs.y))
         own_cells = tuple(own.tolist())
-        looks = array("q", own_cells)  # a buffer numpy reads without converting each int
+        looks = array("q", own.tobytes())  # int64: a buffer numpy reads without converting each int
         known = self._found
         coverage: list[CoverageMsg] = []
         bids = self._ingest(inbox, k, looks, coverage)
