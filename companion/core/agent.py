@@ -54,8 +54,6 @@ from companion.core.trajectory import Trajectory
 from companion.core.uncertainty import look_map
 from companion.core.world import World
 
-_NO_RECORDS = np.zeros(0, dtype=np.int64)
-
 __all__ = ["Agent", "AgentSnapshot", "Command", "Observation", "StepDelta"]
 
 Track = tuple[tuple[float, float], ...]  # points of a plan, from its anchor on
@@ -212,9 +210,10 @@ class Agent(TaskPlanning):
 
         Every cell in view is a look, a hit where the camera reported a target (a report outside
         the FOV, from the camera's own position, is a look at its cell too). A neighbour's relayed
-        records are read only when they differ from those it sent last. `looks` is `own` followed by
-        the cells of each message of `coverage`. Returns the records taken as `_records_taken` reads
-        them, and this UAV's evidence at `own` after its looks (what its coverage message carries)."""
+        records are read only when they differ from those it sent last (`Belief.merge_coverage`).
+        `looks` is `own` followed by the cells of each message of `coverage`. Returns the records
+        taken as `_records_taken` reads them, and this UAV's evidence at `own` after its looks (what
+        its coverage message carries)."""
         grid, b = self.world.grid, self.belief
         cells = own if obs.looked else own[:0]
         if self._misses.shape[0] < cells.shape[0]:
@@ -228,29 +227,7 @@ class Agent(TaskPlanning):
         values = b.look(obs.step, cells, hits, (obs.x, obs.y), grid.centres, self._sensor)
         evidence = tuple((values if cells is own else b.evidence[self.uav, own]).tolist())
         mine = (cells, values)
-        segments: list[int] = []  # (source, stamp, start, count) each: `Belief.merge_heard`
-        relayed: list[int] = []  # (source, cell, stamp) triples
-        heard: list[float] = []
-        at = own.shape[0]
-        for msg in coverage:
-            n = len(msg.cells)
-            if msg.evidence:
-                segments += (msg.sender, msg.stamp, at, n)
-                heard += msg.evidence
-            at += n
-            held = self._relayed.get(msg.sender)
-            if msg.record_values and held is not msg.records and held != msg.records:
-                self._relayed[msg.sender] = msg.records
-                segments += (-1, 0, len(relayed) // 3, len(msg.record_values))
-                relayed += msg.records
-                heard += msg.record_values
-        if not heard:
-            return (mine, None), evidence
-        heard_values = np.array(heard, dtype=float)
-        triples = np.array(relayed, dtype=np.int64) if relayed else _NO_RECORDS
-        segs = np.array(segments, dtype=np.int64).reshape(-1, 4)
-        records, kept = b.merge_heard(looks, segs, triples, heard_values)
-        return (mine, (records, heard_values, kept)), evidence
+        return (mine, b.merge_coverage(looks, own.shape[0], coverage, self._relayed)), evidence
 
     def _records_taken(self, step: int, taken: tuple) -> tuple[tuple[int, ...], tuple[float, ...]]:
         """The records a step's `_sense` took, as `StepDelta` keeps them: (triples, values)."""

@@ -15,14 +15,16 @@ positive and its posterior lies strictly between `clear` and `confirm` (one look
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import numpy as np
 from numba import njit
 
 from companion.core.geometry import FloatArray, IntArray
-from companion.core.messages import MAX_RECORDS  # records a coverage message relays
+from companion.core.messages import MAX_RECORDS, CoverageMsg  # MAX_RECORDS: records one relays
 from companion.core.sensing import LLR_QUANTUM, look_llr
 
+_NO_RECORDS = np.zeros(0, dtype=np.int64)
 PRIOR_FLOOR = 1e-9  # eq. 1's prior clipped to [PRIOR_FLOOR, 1 - PRIOR_FLOOR] before its logit
 
 # one UAV's evidence records: (source, cell, stamp) triples flattened, and the cumulative values
@@ -225,6 +227,41 @@ class Belief:
         records, taken, interest = merge_heard(self.arrays, self.me, looks, segments, relayed, values)
         self.version += interest
         return records, taken
+
+    def merge_coverage(
+        self,
+        looks: IntArray,
+        start: int,
+        coverage: Iterable[CoverageMsg],
+        relayed: dict[int, tuple[int, ...]],
+    ) -> tuple[IntArray, FloatArray, np.ndarray] | None:
+        """The neighbours' evidence and records of `coverage`, merged; None if it holds none.
+
+        `looks[start:]` holds the cells of each message, in order (`CoverageMsg.cells`). A message's
+        records are read only when they differ from `relayed[sender]`, those last read (updated).
+        Returns the records, a (source, cell, stamp) row each, their values and which were kept."""
+        segments: list[int] = []  # (source, stamp, start, count) each: `heard_records`
+        triples: list[int] = []
+        heard: list[float] = []
+        for msg in coverage:
+            n = len(msg.cells)
+            if msg.evidence:
+                segments += (msg.sender, msg.stamp, start, n)
+                heard += msg.evidence
+            start += n
+            held = relayed.get(msg.sender)
+            if msg.record_values and held is not msg.records and held != msg.records:
+                relayed[msg.sender] = msg.records
+                segments += (-1, 0, len(triples) // 3, len(msg.record_values))
+                triples += msg.records
+                heard += msg.record_values
+        if not heard:
+            return None
+        values = np.array(heard, dtype=float)
+        rows = np.array(triples, dtype=np.int64) if triples else _NO_RECORDS
+        segs = np.array(segments, dtype=np.int64).reshape(-1, 4)
+        records, taken = self.merge_heard(looks, segs, rows, values)
+        return records, values, taken
 
     def records(self) -> Records:
         """Every record held at the cells of interest (confirmed or candidate), for relaying."""
