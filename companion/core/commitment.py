@@ -12,19 +12,23 @@ invariant and its argument: docs/algorithm.md, "Safety layer" and "The contingen
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Iterable
 
 import numpy as np
 
-from companion.core.gathered import Gathered, first_allowed_from, flyable_from, may_switch_from
+from companion.core.gathered import (
+    Gathered,
+    first_allowed_from,
+    flyable_from,
+    gathered_rows,
+    may_switch_from,
+)
 from companion.core.geometry import FloatArray, IntArray
 from companion.core.messages import StateMsg, UavState
-from companion.core.safety.expansion import expand_with_centres
 from companion.core.safety.inputs import CandidatesArgs, RegionsArgs, RulesArgs
 from companion.core.safety.separation import compatible
-from companion.core.trajectory import Trajectory, step_pose
+from companion.core.trajectory import HEAD, Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
@@ -78,6 +82,10 @@ class Commitments:
         self._contingencies = [
             ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
         ]
+        # their kernel rows but the anchor's step and pose (columns 0-3, `_flyable`)
+        self._contingency_rows = np.array(
+            [(0, 0, 0, 0, side, *turns) for turns, side in self._contingencies], dtype=float
+        )
         # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
         # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
         self._gathered: Gathered = (
@@ -114,6 +122,9 @@ class Commitments:
         )
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
+        self._kids: set[int] | None = None  # `_children`, until the next `observe` or `gone`
+        self._tethers: tuple[tuple[int, ...], IntArray] | None = None  # `_links` and its parents
+        self._no_disks = (np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
 
     # -- what is known of the others -------------------------------------------------------------
     def observe(self, k: int, fresh: dict[int, StateMsg], states: Iterable[UavState]) -> None:
@@ -126,6 +137,7 @@ class Commitments:
                 if old is not None and old.committed is not None:
                     self.before[s.uav] = old.committed
         self.left -= fresh.keys()
+        self._kids = self._tethers = None
         self.dead = {
             j
             for j, s in self.latest.items()
@@ -137,6 +149,7 @@ class Commitments:
         if uav in self.latest:
             self.left.add(uav)
             self.dead.add(uav)
+            self._kids = self._tethers = None
 
     def _possible(self, k: int, j: int, both: bool) -> tuple[list[Trajectory], list[Disk]]:
         """Trajectories and disks that hold whatever UAV j flies from t_k on.
@@ -201,7 +214,12 @@ class Commitments:
         return [((cx, cy, self.fan_reach), path) for cx, cy, _ in disks for path in paths]
 
     def _children(self) -> set[int]:
-        return {c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead}
+        """The UAVs heard naming this one a parent, not taken as gone (kept until they may change)."""
+        if self._kids is None:
+            self._kids = {
+                c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead
+            }
+        return self._kids
 
     def _gather(self, k: int, x: float, y: float) -> None:
         """Expand what every other UAV may fly from t_k on, once for this step's checks.
@@ -216,14 +234,11 @@ class Commitments:
         near_reach = 2 * r.extent + 2 * r.step + max(lim.separation, self.contingency + lim.disk_separation)
         far_reach = 2 * r.extent + 2 * r.step + lim.separation
         links = set(self.parents) | self._children()
-        trajs: list[Trajectory] = []
-        owners: list[int] = []
-        proposals: list[bool] = []
+        table: list[float] = []  # per row: its kernel row, owner, in force, loiter entry, clause
+        lone: list[float] = []  # per lone trajectory: its kernel row, the row of its owner's in force
+        count = 0
         disks: list[tuple[float, float, float, float]] = []  # owner, cx, cy, r
         regions: list[tuple[Disk, FloatArray]] = []
-        lone: list[Trajectory] = []
-        lone_rows: list[int] = []
-        clause: list[bool] = []
         for j in self.latest:
             mine, dsk = self._possible(k, j, both=True)
             guarded = self.near[j]  # its failures can reach this UAV's layer
@@ -238,29 +253,25 @@ class Commitments:
                 ):
                     continue
             if guarded and j not in self.dead and mine and j in self.before:
-                lone.append(self.before[j])
-                lone_rows.append(len(trajs))  # the row of j's trajectory in force, mine[0]
+                lone += self.limits.kernel_row(self.before[j])[0]
+                lone += (count, 0, 0, 0)  # the row of j's trajectory in force, mine[0]
             for t in mine:
-                trajs.append(t)
-                owners.append(j)
-                proposals.append(t is not mine[0])
-                clause.append(guarded)
+                row, entry = self.limits.kernel_row(t)
+                table += row
+                table += (j, t is mine[0], entry, guarded)
+                count += 1
             disks += [(j, *d) for d in dsk]
-        kinematics = lim.kinematics_args
-        pts, centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
-        turn = lim.reach.loiter_turn
-        self._gathered = (
-            pts,
-            np.array(owners, dtype=np.int64),
-            ~np.array(proposals, dtype=bool),
-            centres,
-            np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64),
-            np.array(lone_rows, dtype=np.int64),
-            expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1],
-            np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:]),
-            np.array([j for j, *_ in disks], dtype=np.int64),
-            np.array(clause, dtype=bool),
+        width = HEAD + lim.horizon + 4
+        rows = np.array(table + lone, dtype=float).reshape(-1, width)
+        pts, owners, in_force, centres, entries, lone_rows, lone_centres, clause = gathered_rows(
+            rows, count, k, r.window, lim.kinematics_args
         )
+        if disks:
+            at = np.array(disks, dtype=float)
+            held = (np.ascontiguousarray(at[:, 1:]), np.array([j for j, *_ in disks], dtype=np.int64))
+        else:
+            held = self._no_disks
+        self._gathered = (pts, owners, in_force, centres, entries, lone_rows, lone_centres, *held, clause)
         if not regions:  # (empty arrays are never written to)
             self._regions = self._no_regions
             return
@@ -275,7 +286,10 @@ class Commitments:
 
     def _links(self) -> IntArray:
         """The tethered UAVs (parents and children) not taken as gone, ascending."""
-        return np.array(sorted((set(self.parents) | self._children()) - self.dead), dtype=np.int64)
+        if self._tethers is None or self._tethers[0] != self.parents:
+            links = np.array(sorted((set(self.parents) | self._children()) - self.dead), dtype=np.int64)
+            self._tethers = (self.parents, links)
+        return self._tethers[1]
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
@@ -289,9 +303,14 @@ class Commitments:
         self._gather(k, x, y)
         links = self._links()
         if self.proposal is not None and self.proposal.start == k:
-            both = lim.rows([self.proposal, self.inforce])
-            pe, ie = (t.loiter_entry(turn) - k for t in (self.proposal, self.inforce))
-            if may_switch_from(self._gathered, links, self.uav, both, k, pe, ie, self._regions, self.rules):
+            (proposed, pe), (held, ie) = (
+                self.limits.kernel_row(self.proposal),
+                self.limits.kernel_row(self.inforce),
+            )
+            both = np.array([proposed, held], dtype=float)
+            if may_switch_from(
+                self._gathered, links, self.uav, both, k, pe - k, ie - k, self._regions, self.rules
+            ):
                 chosen = self.proposal
                 self.accepted += 1
             else:
@@ -316,19 +335,17 @@ class Commitments:
         that strayed from its plan (a companion that started late, a gust) is re-anchored where it
         is, which may put its promise outside the fence or across another's: it then takes the
         first contingency that is not, or keeps its trajectory if none is."""
-        lim = self.limits
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
-        contingencies = (
-            Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
-            for turns, side in self._contingencies
-        )
-        for option in itertools.chain((trajectory,), contingencies):
-            row = lim.rows([option])[0]
+        row = np.array(self.limits.kernel_row(trajectory)[0], dtype=float)
+        if flyable_from(self._gathered, links, self.uav, row, k, self.rules):
+            return trajectory
+        options = self._contingency_rows.copy()
+        options[:, :4] = (k, trajectory.x, trajectory.y, trajectory.heading)
+        for (turns, side), row in zip(self._contingencies, options, strict=True):
             if flyable_from(self._gathered, links, self.uav, row, k, self.rules):
-                if option is not trajectory:
-                    self.recovered += 1
-                return option
+                self.recovered += 1
+                return Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
         return trajectory
 
     def next_pose(self, x: float, y: float, heading: float) -> tuple[float, float, float]:
@@ -392,14 +409,15 @@ class Commitments:
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
         towards = self._turn_towards(x, y)
+        held, entry = self.limits.kernel_row(self.inforce)
         candidates: CandidatesArgs = (order, self._shapes[h], self._shape_centres[h], x, y, c, s, towards)
         best, side = first_allowed_from(
             self._gathered,
             self._links(),
             self.uav,
             k + 1,
-            lim.rows([self.inforce]),  # a proposal not clearing the regions keeps as far from them as this
-            self.inforce.loiter_entry(lim.reach.loiter_turn) - (k + 1),
+            np.array([held], dtype=float),  # a proposal not clearing the regions keeps as far as this
+            entry - (k + 1),
             candidates,
             self._regions,
             self.rules,

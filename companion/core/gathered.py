@@ -18,6 +18,7 @@ from companion.core.safety.inputs import (
     CandidatesArgs,
     Checked,
     Expanded,
+    KinematicsArgs,
     Regions,
     RegionsArgs,
     Rules,
@@ -45,6 +46,45 @@ Gathered = tuple[
     IntArray,
     BoolArray,
 ]
+
+
+@njit(cache=True)
+def gathered_rows(
+    table: FloatArray, count: int, first: int, window: int, kinematics: KinematicsArgs
+) -> tuple[FloatArray, IntArray, BoolArray, FloatArray, IntArray, IntArray, FloatArray, BoolArray]:
+    """The rows of a step's gathering (`Gathered` but the disks), from one table.
+
+    The rows of `Gathered` but the disks and their owners, from the table `Commitments._gather`
+    builds: per row a kernel row (`Trajectory.fields`) then 4 columns; the first `count` rows are
+    the others' trajectories (owner, in force 1 / proposal 0, loiter entry step, clause 1 / 0),
+    expanded from step `first` over window + 1 steps, the rest the lone trajectories (the row of
+    their owner's trajectory in force), of which only the loiter centres are kept (over window)."""
+    width = table.shape[1] - 4
+    rows = np.ascontiguousarray(table[:count, :width])
+    pts, centres = expand_with_centres(rows, first, window + 1, kinematics)
+    owners = np.empty(count, dtype=np.int64)
+    in_force = np.empty(count, dtype=np.bool_)
+    entries = np.empty(count, dtype=np.int64)
+    clause = np.empty(count, dtype=np.bool_)
+    for i in range(count):
+        owners[i] = int(table[i, width])
+        in_force[i] = table[i, width + 1] != 0.0
+        entries[i] = int(table[i, width + 2]) - first
+        clause[i] = table[i, width + 3] != 0.0
+    lone_rows = np.empty(table.shape[0] - count, dtype=np.int64)
+    for o in range(lone_rows.shape[0]):
+        lone_rows[o] = int(table[count + o, width])
+    lone = np.ascontiguousarray(table[count:, :width])
+    return (
+        pts,
+        owners,
+        in_force,
+        centres,
+        entries,
+        lone_rows,
+        expand_with_centres(lone, first, window, kinematics)[1],
+        clause,
+    )
 
 
 @njit(cache=True)
