@@ -78,14 +78,7 @@ class Commitments:
         self.dead: set[int] = set()
         self.accepted = self.rejected = self.recovered = 0
         self.first_asked = self.first_refused = 0  # the RHC's first choices, and those refused
-        turn, m = plan.limits.reach.loiter_turn, plan.limits.horizon
-        self._contingencies = [
-            ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
-        ]
-        # their kernel rows but the anchor's step and pose (columns 0-3, `_flyable`)
-        self._contingency_rows = np.array(
-            [(0, 0, 0, 0, side, *turns) for turns, side in self._contingencies], dtype=float
-        )
+        self._candidate_tables(world)
         # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
         # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
         self._gathered: Gathered = (
@@ -121,10 +114,26 @@ class Commitments:
             self.progress,
         )
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
-        self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
         self._kids: set[int] | None = None  # `_children`, until the next `observe` or `gone`
         self._tethers: tuple[tuple[int, ...], IntArray] | None = None  # `_links` and its parents
         self._no_disks = (np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+
+    def _candidate_tables(self, world: World) -> None:
+        """The start contingencies (`_flyable`) and the candidates' shapes (`first_allowed`)."""
+        turn, m = self.limits.reach.loiter_turn, self.limits.horizon
+        self._contingencies = [
+            ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
+        ]
+        # their kernel rows but the anchor's step and pose (columns 0-3, `_flyable`)
+        self._contingency_rows = np.array(
+            [(0, 0, 0, 0, side, *turns) for turns, side in self._contingencies], dtype=float
+        )
+        self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
+        # per heading, how far any candidate's point and loiter centre lies from its anchor (`bounds`)
+        self._radii: list[tuple[float, float]] = [
+            (float(np.hypot(p[..., 0], p[..., 1]).max()), float(np.hypot(c[..., 0], c[..., 1]).max()))
+            for p, c in zip(self._shapes, self._shape_centres, strict=True)
+        ]
 
     # -- what is known of the others -------------------------------------------------------------
     def observe(self, k: int, fresh: dict[int, StateMsg], states: Iterable[UavState]) -> None:
@@ -410,7 +419,8 @@ class Commitments:
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
         towards = self._turn_towards(x, y)
         held, entry = self.limits.kernel_row(self.inforce)
-        candidates: CandidatesArgs = (order, self._shapes[h], self._shape_centres[h], x, y, c, s, towards)
+        shapes, centres = self._shapes[h], self._shape_centres[h]
+        candidates: CandidatesArgs = (order, shapes, centres, x, y, c, s, towards, *self._radii[h])
         best, side = first_allowed_from(
             self._gathered,
             self._links(),
