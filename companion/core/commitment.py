@@ -78,7 +78,6 @@ class Commitments:
         self.dead: set[int] = set()
         self.accepted = self.rejected = self.recovered = 0
         self.first_asked = self.first_refused = 0  # the RHC's first choices, and those refused
-        self._candidate_tables(world)
         # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
         # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
         self._gathered: Gathered = (
@@ -117,10 +116,20 @@ class Commitments:
         self._kids: set[int] | None = None  # `_children`, until the next `observe` or `gone`
         self._tethers: tuple[tuple[int, ...], IntArray] | None = None  # `_links` and its parents
         self._no_disks = (np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+        self._tables(world)
 
-    def _candidate_tables(self, world: World) -> None:
-        """The start contingencies (`_flyable`) and the candidates' shapes (`first_allowed`)."""
-        turn, m = self.limits.reach.loiter_turn, self.limits.horizon
+    def _tables(self, world: World) -> None:
+        """The reaches of `_gather`, the start contingencies and the candidates' shapes."""
+        lim = self.limits
+        r = lim.reach
+        # how far another UAV may be to matter (`_gather`): on a near layer, on another, and (plus a
+        # disk's radius and the disk separation) a UAV not heard
+        self._reaches = (
+            2 * r.extent + 2 * r.step + max(lim.separation, self.contingency + lim.disk_separation),
+            2 * r.extent + 2 * r.step + lim.separation,
+            r.extent + r.step,
+        )
+        turn, m = r.loiter_turn, lim.horizon
         self._contingencies = [
             ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
         ]
@@ -240,8 +249,7 @@ class Commitments:
         tethered or gone (their failsafe loiters are gathered too)."""
         lim = self.limits
         r = lim.reach
-        near_reach = 2 * r.extent + 2 * r.step + max(lim.separation, self.contingency + lim.disk_separation)
-        far_reach = 2 * r.extent + 2 * r.step + lim.separation
+        near_reach, far_reach, anchored = self._reaches
         links = set(self.parents) | self._children()
         table: list[float] = []  # per row: its kernel row, owner, in force, loiter entry, clause
         lone: list[float] = []  # per lone trajectory: its kernel row, the row of its owner's in force
@@ -257,9 +265,9 @@ class Commitments:
             elif j not in links:
                 s = self.fresh[j].state if j in self.fresh else self.latest[j]
                 reach = near_reach if guarded else far_reach
-                if math.hypot(s.x - x, s.y - y) > max(
-                    [reach] + [r.extent + r.step + d[2] + lim.disk_separation for d in dsk]
-                ):
+                for d in dsk:
+                    reach = max(reach, anchored + d[2] + lim.disk_separation)
+                if math.hypot(s.x - x, s.y - y) > reach:
                     continue
             if guarded and j not in self.dead and mine and j in self.before:
                 lone += self.limits.kernel_row(self.before[j])[0]
@@ -269,9 +277,9 @@ class Commitments:
                 table += row
                 table += (j, t is mine[0], entry, guarded)
                 count += 1
-            disks += [(j, *d) for d in dsk]
-        width = HEAD + lim.horizon + 4
-        rows = np.array(table + lone, dtype=float).reshape(-1, width)
+            if dsk:
+                disks += [(j, *d) for d in dsk]
+        rows = np.array(table + lone, dtype=float).reshape(-1, HEAD + lim.horizon + 4)
         pts, owners, in_force, centres, entries, lone_rows, lone_centres, clause = gathered_rows(
             rows, count, k, r.window, lim.kinematics_args
         )
