@@ -18,6 +18,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from companion.core.gathered import (
+    EXTRA,
     Gathered,
     first_allowed_from,
     flyable_from,
@@ -80,18 +81,11 @@ class Commitments:
         self.first_asked = self.first_refused = 0  # the RHC's first choices, and those refused
         # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
         # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
-        self._gathered: Gathered = (
-            np.zeros((0, plan.limits.reach.window + 2, 2)),
-            np.zeros(0, dtype=np.int64),
-            np.zeros(0, dtype=bool),
-            np.zeros((0, 2)),
-            np.zeros(0, dtype=np.int64),
-            np.zeros(0, dtype=np.int64),
-            np.zeros((0, 2)),
-            np.zeros((0, 3)),
-            np.zeros(0, dtype=np.int64),
-            np.zeros(0, dtype=bool),
-        )
+        no_rows = np.zeros((0, HEAD + plan.limits.horizon + EXTRA))
+        no_pts, no_centres = np.zeros((0, plan.limits.reach.window + 2, 2)), np.zeros((0, 2))
+        self._no_disks = (np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+        self._gathered: Gathered = (no_rows, 0, 0, no_pts, no_centres, no_centres, *self._no_disks)
+        self._gathered_owners: set[int] = set()  # the UAVs with rows in it
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
         self._no_regions: RegionsArgs = (np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64))
@@ -115,7 +109,6 @@ class Commitments:
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._kids: set[int] | None = None  # `_children`, until the next `observe` or `gone`
         self._tethers: tuple[tuple[int, ...], IntArray] | None = None  # `_links` and its parents
-        self._no_disks = (np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
         self._tables(world)
 
     def _tables(self, world: World) -> None:
@@ -254,6 +247,7 @@ class Commitments:
         table: list[float] = []  # per row: its kernel row, owner, in force, loiter entry, clause
         lone: list[float] = []  # per lone trajectory: its kernel row, the row of its owner's in force
         count = 0
+        owners: set[int] = set()
         disks: list[tuple[float, float, float, float]] = []  # owner, cx, cy, r
         regions: list[tuple[Disk, FloatArray]] = []
         for j in self.latest:
@@ -272,6 +266,8 @@ class Commitments:
             if guarded and j not in self.dead and mine and j in self.before:
                 lone += self.limits.kernel_row(self.before[j])[0]
                 lone += (count, 0, 0, 0)  # the row of j's trajectory in force, mine[0]
+            if mine:
+                owners.add(j)
             for t in mine:
                 row, entry = self.limits.kernel_row(t)
                 table += row
@@ -279,16 +275,15 @@ class Commitments:
                 count += 1
             if dsk:
                 disks += [(j, *d) for d in dsk]
-        rows = np.array(table + lone, dtype=float).reshape(-1, HEAD + lim.horizon + 4)
-        pts, owners, in_force, centres, entries, lone_rows, lone_centres, clause = gathered_rows(
-            rows, count, k, r.window, lim.kinematics_args
-        )
+        rows = np.array(table + lone, dtype=float).reshape(-1, HEAD + lim.horizon + EXTRA)
+        pts, centres, lone_centres = gathered_rows(rows, count, k, r.window, lim.kinematics_args)
         if disks:
             at = np.array(disks, dtype=float)
             held = (np.ascontiguousarray(at[:, 1:]), np.array([j for j, *_ in disks], dtype=np.int64))
         else:
             held = self._no_disks
-        self._gathered = (pts, owners, in_force, centres, entries, lone_rows, lone_centres, *held, clause)
+        self._gathered = (rows, count, k, pts, centres, lone_centres, *held)
+        self._gathered_owners = owners
         if not regions:  # (empty arrays are never written to)
             self._regions = self._no_regions
             return
@@ -411,7 +406,7 @@ class Commitments:
             if compatible(pts, empty_o, empty_d, tethers, empty_d, *lim.clearances):
                 self.parents = (*self.parents, j)
                 self.parent_since = k
-                if j not in self._gathered[1]:  # left out as too far to matter: not as a tether
+                if j not in self._gathered_owners:  # left out as too far to matter: not as a tether
                     self._gather(k, float(position[0]), float(position[1]))
                 return
 
