@@ -108,7 +108,10 @@ class Commitments:
         )
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
         self._kids: set[int] | None = None  # `_children`, until the next `observe` or `gone`
-        self._tethers: tuple[tuple[int, ...], IntArray] | None = None  # `_links` and its parents
+        self._tethers: tuple[int, ...] | None = None  # the parents `_links` holds for, till `observe`
+        self._link_ids: list[int] = []
+        self._link_array = np.zeros(0, dtype=np.int64)
+        self._held: tuple[Trajectory | None, FloatArray] = (None, np.zeros((1, 0)))  # the in force's row
         self._tables(world)
 
     def _tables(self, world: World) -> None:
@@ -298,10 +301,12 @@ class Commitments:
 
     def _links(self) -> IntArray:
         """The tethered UAVs (parents and children) not taken as gone, ascending."""
-        if self._tethers is None or self._tethers[0] != self.parents:
-            links = np.array(sorted((set(self.parents) | self._children()) - self.dead), dtype=np.int64)
-            self._tethers = (self.parents, links)
-        return self._tethers[1]
+        if self._tethers != self.parents:
+            ids = sorted((set(self.parents) | self._children()) - self.dead)
+            if ids != self._link_ids:  # (the array is never written to)
+                self._link_ids, self._link_array = ids, np.array(ids, dtype=np.int64)
+            self._tethers = self.parents
+        return self._link_array
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
@@ -349,8 +354,9 @@ class Commitments:
         first contingency that is not, or keeps its trajectory if none is."""
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
-        row = np.array(self.limits.kernel_row(trajectory)[0], dtype=float)
-        if flyable_from(self._gathered, links, self.uav, row, k, self.rules):
+        rows = np.array([self.limits.kernel_row(trajectory)[0]], dtype=float)
+        if flyable_from(self._gathered, links, self.uav, rows[0], k, self.rules):
+            self._held = (trajectory, rows)
             return trajectory
         options = self._contingency_rows.copy()
         options[:, :4] = (k, trajectory.x, trajectory.y, trajectory.heading)
@@ -422,6 +428,7 @@ class Commitments:
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
         towards = self._turn_towards(x, y)
         held, entry = self.limits.kernel_row(self.inforce)
+        reference = self._held[1] if self._held[0] is self.inforce else np.array([held], dtype=float)
         shapes, centres = self._shapes[h], self._shape_centres[h]
         candidates: CandidatesArgs = (order, shapes, centres, x, y, c, s, towards, *self._radii[h])
         best, side = first_allowed_from(
@@ -429,7 +436,7 @@ class Commitments:
             self._links(),
             self.uav,
             k + 1,
-            np.array([held], dtype=float),  # a proposal not clearing the regions keeps as far as this
+            reference,  # a proposal not clearing the regions keeps as far from them as this
             entry - (k + 1),
             candidates,
             self._regions,
