@@ -12,19 +12,24 @@ invariant and its argument: docs/algorithm.md, "Safety layer" and "The contingen
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Iterable
 
 import numpy as np
 
-from companion.core.gathered import Gathered, first_allowed_from, flyable_from, may_switch_from
+from companion.core.gathered import (
+    EXTRA,
+    Gathered,
+    first_allowed_from,
+    flyable_from,
+    gathered_rows,
+    may_switch_from,
+)
 from companion.core.geometry import FloatArray, IntArray
 from companion.core.messages import StateMsg, UavState
-from companion.core.safety.expansion import expand_with_centres
 from companion.core.safety.inputs import CandidatesArgs, RegionsArgs, RulesArgs
 from companion.core.safety.separation import compatible
-from companion.core.trajectory import Trajectory, step_pose
+from companion.core.trajectory import HEAD, Trajectory, step_pose
 from companion.core.world import FAILSAFE_WIDE, World
 
 Disk = tuple[float, float, float]  # centre x, centre y, radius
@@ -74,24 +79,13 @@ class Commitments:
         self.dead: set[int] = set()
         self.accepted = self.rejected = self.recovered = 0
         self.first_asked = self.first_refused = 0  # the RHC's first choices, and those refused
-        turn, m = plan.limits.reach.loiter_turn, plan.limits.horizon
-        self._contingencies = [
-            ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
-        ]
         # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
         # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
-        self._gathered: Gathered = (
-            np.zeros((0, plan.limits.reach.window + 2, 2)),
-            np.zeros(0, dtype=np.int64),
-            np.zeros(0, dtype=bool),
-            np.zeros((0, 2)),
-            np.zeros(0, dtype=np.int64),
-            np.zeros(0, dtype=np.int64),
-            np.zeros((0, 2)),
-            np.zeros((0, 3)),
-            np.zeros(0, dtype=np.int64),
-            np.zeros(0, dtype=bool),
-        )
+        no_rows = np.zeros((0, HEAD + plan.limits.horizon + EXTRA))
+        no_pts, no_centres = np.zeros((0, plan.limits.reach.window + 2, 2)), np.zeros((0, 2))
+        self._no_disks = (np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+        self._gathered: Gathered = (no_rows, 0, 0, no_pts, no_centres, no_centres, *self._no_disks)
+        self._gathered_owners: set[int] = set()  # the UAVs with rows in it
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
         self._no_regions: RegionsArgs = (np.zeros((0, 3)), no_paths, np.zeros(0, dtype=np.int64))
@@ -113,7 +107,38 @@ class Commitments:
             self.progress,
         )
         self._centre = np.asarray(world.grid.region.vertices.mean(axis=0), dtype=float)
+        self._kids: set[int] | None = None  # `_children`, until the next `observe` or `gone`
+        self._tethers: tuple[int, ...] | None = None  # the parents `_links` holds for, till `observe`
+        self._link_ids: list[int] = []
+        self._link_array = np.zeros(0, dtype=np.int64)
+        self._held: tuple[Trajectory | None, FloatArray] = (None, np.zeros((1, 0)))  # the in force's row
+        self._tables(world)
+
+    def _tables(self, world: World) -> None:
+        """The reaches of `_gather`, the start contingencies and the candidates' shapes."""
+        lim = self.limits
+        r = lim.reach
+        # how far another UAV may be to matter (`_gather`): on a near layer, on another, and (plus a
+        # disk's radius and the disk separation) a UAV not heard
+        self._reaches = (
+            2 * r.extent + 2 * r.step + max(lim.separation, self.contingency + lim.disk_separation),
+            2 * r.extent + 2 * r.step + lim.separation,
+            r.extent + r.step,
+        )
+        turn, m = r.loiter_turn, lim.horizon
+        self._contingencies = [
+            ((0.0,) * n + (side * turn,) * (m - n), side) for n in range(m, -1, -1) for side in (1, -1)
+        ]
+        # their kernel rows but the anchor's step and pose (columns 0-3, `_flyable`)
+        self._contingency_rows = np.array(
+            [(0, 0, 0, 0, side, *turns) for turns, side in self._contingencies], dtype=float
+        )
         self._shapes, self._shape_centres = world.safety.shapes, world.safety.centres
+        # per heading, how far any candidate's point and loiter centre lies from its anchor (`bounds`)
+        self._radii: list[tuple[float, float]] = [
+            (float(np.hypot(p[..., 0], p[..., 1]).max()), float(np.hypot(c[..., 0], c[..., 1]).max()))
+            for p, c in zip(self._shapes, self._shape_centres, strict=True)
+        ]
 
     # -- what is known of the others -------------------------------------------------------------
     def observe(self, k: int, fresh: dict[int, StateMsg], states: Iterable[UavState]) -> None:
@@ -126,6 +151,7 @@ class Commitments:
                 if old is not None and old.committed is not None:
                     self.before[s.uav] = old.committed
         self.left -= fresh.keys()
+        self._kids = self._tethers = None
         self.dead = {
             j
             for j, s in self.latest.items()
@@ -137,6 +163,7 @@ class Commitments:
         if uav in self.latest:
             self.left.add(uav)
             self.dead.add(uav)
+            self._kids = self._tethers = None
 
     def _possible(self, k: int, j: int, both: bool) -> tuple[list[Trajectory], list[Disk]]:
         """Trajectories and disks that hold whatever UAV j flies from t_k on.
@@ -201,7 +228,12 @@ class Commitments:
         return [((cx, cy, self.fan_reach), path) for cx, cy, _ in disks for path in paths]
 
     def _children(self) -> set[int]:
-        return {c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead}
+        """The UAVs heard naming this one a parent, not taken as gone (kept until they may change)."""
+        if self._kids is None:
+            self._kids = {
+                c for c, msg in self.fresh.items() if self.uav in msg.parents and c not in self.dead
+            }
+        return self._kids
 
     def _gather(self, k: int, x: float, y: float) -> None:
         """Expand what every other UAV may fly from t_k on, once for this step's checks.
@@ -213,17 +245,14 @@ class Commitments:
         tethered or gone (their failsafe loiters are gathered too)."""
         lim = self.limits
         r = lim.reach
-        near_reach = 2 * r.extent + 2 * r.step + max(lim.separation, self.contingency + lim.disk_separation)
-        far_reach = 2 * r.extent + 2 * r.step + lim.separation
+        near_reach, far_reach, anchored = self._reaches
         links = set(self.parents) | self._children()
-        trajs: list[Trajectory] = []
-        owners: list[int] = []
-        proposals: list[bool] = []
+        table: list[float] = []  # per row: its kernel row, owner, in force, loiter entry, clause
+        lone: list[float] = []  # per lone trajectory: its kernel row, the row of its owner's in force
+        count = 0
+        owners: set[int] = set()
         disks: list[tuple[float, float, float, float]] = []  # owner, cx, cy, r
         regions: list[tuple[Disk, FloatArray]] = []
-        lone: list[Trajectory] = []
-        lone_rows: list[int] = []
-        clause: list[bool] = []
         for j in self.latest:
             mine, dsk = self._possible(k, j, both=True)
             guarded = self.near[j]  # its failures can reach this UAV's layer
@@ -233,34 +262,31 @@ class Commitments:
             elif j not in links:
                 s = self.fresh[j].state if j in self.fresh else self.latest[j]
                 reach = near_reach if guarded else far_reach
-                if math.hypot(s.x - x, s.y - y) > max(
-                    [reach] + [r.extent + r.step + d[2] + lim.disk_separation for d in dsk]
-                ):
+                for d in dsk:
+                    reach = max(reach, anchored + d[2] + lim.disk_separation)
+                if math.hypot(s.x - x, s.y - y) > reach:
                     continue
             if guarded and j not in self.dead and mine and j in self.before:
-                lone.append(self.before[j])
-                lone_rows.append(len(trajs))  # the row of j's trajectory in force, mine[0]
+                lone += self.limits.kernel_row(self.before[j])[0]
+                lone += (count, 0, 0, 0)  # the row of j's trajectory in force, mine[0]
+            if mine:
+                owners.add(j)
             for t in mine:
-                trajs.append(t)
-                owners.append(j)
-                proposals.append(t is not mine[0])
-                clause.append(guarded)
-            disks += [(j, *d) for d in dsk]
-        kinematics = lim.kinematics_args
-        pts, centres = expand_with_centres(lim.rows(trajs), k, r.window + 1, kinematics)
-        turn = lim.reach.loiter_turn
-        self._gathered = (
-            pts,
-            np.array(owners, dtype=np.int64),
-            ~np.array(proposals, dtype=bool),
-            centres,
-            np.array([t.loiter_entry(turn) - k for t in trajs], dtype=np.int64),
-            np.array(lone_rows, dtype=np.int64),
-            expand_with_centres(lim.rows(lone), k, r.window, kinematics)[1],
-            np.ascontiguousarray(np.array(disks, dtype=float).reshape(-1, 4)[:, 1:]),
-            np.array([j for j, *_ in disks], dtype=np.int64),
-            np.array(clause, dtype=bool),
-        )
+                row, entry = self.limits.kernel_row(t)
+                table += row
+                table += (j, t is mine[0], entry, guarded)
+                count += 1
+            if dsk:
+                disks += [(j, *d) for d in dsk]
+        rows = np.array(table + lone, dtype=float).reshape(-1, HEAD + lim.horizon + EXTRA)
+        pts, centres, lone_centres = gathered_rows(rows, count, k, r.window, lim.kinematics_args)
+        if disks:
+            at = np.array(disks, dtype=float)
+            held = (np.ascontiguousarray(at[:, 1:]), np.array([j for j, *_ in disks], dtype=np.int64))
+        else:
+            held = self._no_disks
+        self._gathered = (rows, count, k, pts, centres, lone_centres, *held)
+        self._gathered_owners = owners
         if not regions:  # (empty arrays are never written to)
             self._regions = self._no_regions
             return
@@ -275,7 +301,12 @@ class Commitments:
 
     def _links(self) -> IntArray:
         """The tethered UAVs (parents and children) not taken as gone, ascending."""
-        return np.array(sorted((set(self.parents) | self._children()) - self.dead), dtype=np.int64)
+        if self._tethers != self.parents:
+            ids = sorted((set(self.parents) | self._children()) - self.dead)
+            if ids != self._link_ids:  # (the array is never written to)
+                self._link_ids, self._link_array = ids, np.array(ids, dtype=np.int64)
+            self._tethers = self.parents
+        return self._link_array
 
     # -- the protocol, step by step --------------------------------------------------------------
     def resolve(self, k: int, x: float, y: float, heading: float) -> Trajectory:
@@ -289,9 +320,14 @@ class Commitments:
         self._gather(k, x, y)
         links = self._links()
         if self.proposal is not None and self.proposal.start == k:
-            both = lim.rows([self.proposal, self.inforce])
-            pe, ie = (t.loiter_entry(turn) - k for t in (self.proposal, self.inforce))
-            if may_switch_from(self._gathered, links, self.uav, both, k, pe, ie, self._regions, self.rules):
+            (proposed, pe), (held, ie) = (
+                self.limits.kernel_row(self.proposal),
+                self.limits.kernel_row(self.inforce),
+            )
+            both = np.array([proposed, held], dtype=float)
+            if may_switch_from(
+                self._gathered, links, self.uav, both, k, pe - k, ie - k, self._regions, self.rules
+            ):
                 chosen = self.proposal
                 self.accepted += 1
             else:
@@ -316,19 +352,18 @@ class Commitments:
         that strayed from its plan (a companion that started late, a gust) is re-anchored where it
         is, which may put its promise outside the fence or across another's: it then takes the
         first contingency that is not, or keeps its trajectory if none is."""
-        lim = self.limits
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
-        contingencies = (
-            Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
-            for turns, side in self._contingencies
-        )
-        for option in itertools.chain((trajectory,), contingencies):
-            row = lim.rows([option])[0]
+        rows = np.array([self.limits.kernel_row(trajectory)[0]], dtype=float)
+        if flyable_from(self._gathered, links, self.uav, rows[0], k, self.rules):
+            self._held = (trajectory, rows)
+            return trajectory
+        options = self._contingency_rows.copy()
+        options[:, :4] = (k, trajectory.x, trajectory.y, trajectory.heading)
+        for (turns, side), row in zip(self._contingencies, options, strict=True):
             if flyable_from(self._gathered, links, self.uav, row, k, self.rules):
-                if option is not trajectory:
-                    self.recovered += 1
-                return option
+                self.recovered += 1
+                return Trajectory(k, trajectory.x, trajectory.y, trajectory.heading, turns, side)
         return trajectory
 
     def next_pose(self, x: float, y: float, heading: float) -> tuple[float, float, float]:
@@ -377,7 +412,7 @@ class Commitments:
             if compatible(pts, empty_o, empty_d, tethers, empty_d, *lim.clearances):
                 self.parents = (*self.parents, j)
                 self.parent_since = k
-                if j not in self._gathered[1]:  # left out as too far to matter: not as a tether
+                if j not in self._gathered_owners:  # left out as too far to matter: not as a tether
                     self._gather(k, float(position[0]), float(position[1]))
                 return
 
@@ -392,14 +427,17 @@ class Commitments:
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
         towards = self._turn_towards(x, y)
-        candidates: CandidatesArgs = (order, self._shapes[h], self._shape_centres[h], x, y, c, s, towards)
+        held, entry = self.limits.kernel_row(self.inforce)
+        reference = self._held[1] if self._held[0] is self.inforce else np.array([held], dtype=float)
+        shapes, centres = self._shapes[h], self._shape_centres[h]
+        candidates: CandidatesArgs = (order, shapes, centres, x, y, c, s, towards, *self._radii[h])
         best, side = first_allowed_from(
             self._gathered,
             self._links(),
             self.uav,
             k + 1,
-            lim.rows([self.inforce]),  # a proposal not clearing the regions keeps as far from them as this
-            self.inforce.loiter_entry(lim.reach.loiter_turn) - (k + 1),
+            reference,  # a proposal not clearing the regions keeps as far from them as this
+            entry - (k + 1),
             candidates,
             self._regions,
             self.rules,

@@ -18,6 +18,7 @@ from companion.core.safety.inputs import (
     CandidatesArgs,
     Checked,
     Expanded,
+    KinematicsArgs,
     Regions,
     RegionsArgs,
     Rules,
@@ -27,24 +28,52 @@ from companion.core.safety.proposal import first_allowed
 from companion.core.safety.separation import flyable
 from companion.core.safety.switch import may_switch
 
-# What the others may fly, expanded from t_k, a row each (`Commitments._gather`): positions
-# (n, window + 2, 2), their owners, whether each is a trajectory in force (else a proposal), their
-# loiter centres and loiter entry indices, the rows of the UAVs whose trajectories in force before
-# their latest are lone and those trajectories' loiter centres, the disks (cx, cy, r) of UAVs not
-# heard and their owners, and whether the contingency clause holds against each row (its owner's
-# layer is near). A plain tuple, as `safety.inputs.RulesArgs`.
-Gathered = tuple[
-    FloatArray,
-    IntArray,
-    BoolArray,
-    FloatArray,
-    IntArray,
-    IntArray,
-    FloatArray,
-    FloatArray,
-    IntArray,
-    BoolArray,
-]
+# What the others may fly, expanded from t_k, a row each (`Commitments._gather`): the table it
+# was expanded from (per row a kernel row, then its owner, 1 if a trajectory in force (else a
+# proposal), its loiter entry step and 1 if the contingency clause holds against it (its owner's
+# layer is near); after the first `count` rows, those of the trajectories in force before their
+# owners' latest that are lone, then the row of that owner's latest), `count`, the step t_k, the
+# positions (count, window + 2, 2) and loiter centres of the rows, the lone trajectories' loiter
+# centres, and the disks (cx, cy, r) of UAVs not heard and their owners. A plain tuple, as
+# `safety.inputs.RulesArgs`.
+Gathered = tuple[FloatArray, int, int, FloatArray, FloatArray, FloatArray, FloatArray, IntArray]
+EXTRA = 4  # columns of `Gathered`'s table after a kernel row
+
+
+@njit(cache=True)
+def gathered_rows(
+    table: FloatArray, count: int, first: int, window: int, kinematics: KinematicsArgs
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The positions and loiter centres of a step's gathering, and its lone loiter centres.
+
+    From the table of `Gathered`: the first `count` rows expanded from step `first` over
+    window + 1 steps and their loiter centres, and the loiter centres of the rest (over window)."""
+    width = table.shape[1] - EXTRA
+    rows = np.ascontiguousarray(table[:count, :width])
+    pts, centres = expand_with_centres(rows, first, window + 1, kinematics)
+    lone = np.ascontiguousarray(table[count:, :width])
+    return pts, centres, expand_with_centres(lone, first, window, kinematics)[1]
+
+
+@njit(cache=True)
+def _columns(
+    table: FloatArray, count: int, first: int
+) -> tuple[IntArray, BoolArray, IntArray, BoolArray, IntArray]:
+    """The owners, in force, loiter entry indices from `first`, clause and lone rows of the table."""
+    width = table.shape[1] - EXTRA
+    owners = np.empty(count, dtype=np.int64)
+    in_force = np.empty(count, dtype=np.bool_)
+    entries = np.empty(count, dtype=np.int64)
+    clause = np.empty(count, dtype=np.bool_)
+    for i in range(count):
+        owners[i] = int(table[i, width])
+        in_force[i] = table[i, width + 1] != 0.0
+        entries[i] = int(table[i, width + 2]) - first
+        clause[i] = table[i, width + 3] != 0.0
+    lone_rows = np.empty(table.shape[0] - count, dtype=np.int64)
+    for o in range(lone_rows.shape[0]):
+        lone_rows[o] = int(table[count + o, width])
+    return owners, in_force, entries, clause, lone_rows
 
 
 @njit(cache=True)
@@ -59,7 +88,8 @@ def select_checked(
     `proposals`, or when `resolving` only those of lower ids than `uav`; their window from t_k
     when `resolving`, else from t_k+1. Contiguous copies: the kernels are compiled for C-ordered
     arrays."""
-    pts, owners, in_force, centres, entries, lone_rows, lone, disks, disk_owners, clause = gathered
+    table, count, first, pts, centres, lone, disks, disk_owners = gathered
+    owners, in_force, entries, clause, lone_rows = _columns(table, count, first)
     n, width = pts.shape[0], pts.shape[1] - 1
     lo = 0 if resolving else 1
     keep = np.empty(n, dtype=np.bool_)

@@ -6,7 +6,7 @@ import math
 
 from numba import njit
 
-from companion.core.geometry import FloatArray, IntArray
+from companion.core.geometry import BoolArray, FloatArray, IntArray
 from companion.core.safety.fans import fan_clearance, fan_count, fan_radius, to_segment
 from companion.core.safety.inputs import Checked, Expanded, Rules
 from companion.core.trajectory import point_clearance
@@ -60,7 +60,13 @@ def contingency_clearance(
 
 @njit(cache=True)
 def keeps_contingencies(
-    mine: Expanded, reference: Expanded, checked: Checked, rules: Rules, known: FloatArray, hint: IntArray
+    mine: Expanded,
+    reference: Expanded,
+    checked: Checked,
+    rules: Rules,
+    known: FloatArray,
+    hint: IntArray,
+    far: BoolArray,
 ) -> tuple[int, float]:
     """The contingency clause: whether a trajectory clears the others' failsafe regions.
 
@@ -78,13 +84,17 @@ def keeps_contingencies(
     Between calls with the same reference (`first_allowed`'s candidates), `known` (an entry per row
     of `others`, then per `lone` centre; NaN until computed) keeps the reference's clearances, and
     hint[0] the entry that failed last (-1: none), which is tried first: the answer is 0 as soon as
-    any entry fails, whichever it is."""
-    if hint[0] >= 0:
+    any entry fails, whichever it is. Rows of `others` marked in `far` clear their regions for
+    certain (`bounds.clause_out_of_reach`) and are skipped."""
+    n = checked.others.shape[0]
+    if hint[0] >= 0 and not (hint[0] < n and far[hint[0]]):
         state, c = _against(hint[0], mine, reference, checked, rules, known)
         if state == 0:
             return 0, c
     code, worst = 2, math.inf
-    for o in range(checked.others.shape[0] + checked.lone.shape[0]):
+    for o in range(n + checked.lone.shape[0]):
+        if o < n and far[o]:
+            continue
         state, c = _against(o, mine, reference, checked, rules, known)
         if state == 0:
             hint[0] = o

@@ -18,7 +18,7 @@ KinematicsArgs = tuple[float, bool, float, float, float]  # loiter turn, grid, s
 FenceArgs = tuple[FloatArray, FloatArray, FloatArray, FloatArray]  # half-planes, keep-outs
 RulesArgs = tuple[int, int, KinematicsArgs, *FenceArgs, float, float, float, float, float]
 RegionsArgs = tuple[FloatArray, FloatArray, IntArray]
-CandidatesArgs = tuple[IntArray, FloatArray, FloatArray, float, float, float, float, FloatArray]
+CandidatesArgs = tuple[IntArray, FloatArray, FloatArray, float, float, float, float, FloatArray, float, float]
 
 
 class Rules(NamedTuple):
@@ -91,7 +91,8 @@ class Candidates(NamedTuple):
     The candidate paths of a new proposal (`proposal.first_allowed`): their `order` of
     preference, their `shapes` (n_paths, 2 sides, window + 1, 2) and loiter `centres` (n_paths,
     2 sides, 2) relative to the anchor (`Limits.shapes`), placed at (x, y) and turned by the
-    heading (cos_h, sin_h), and the point their loiters turn `towards`."""
+    heading (cos_h, sin_h), the point their loiters turn `towards`, and how far from (x, y) any
+    of their points (`radius`) and loiter centres (`centre_radius`) lies (`bounds`)."""
 
     order: IntArray
     shapes: FloatArray
@@ -101,3 +102,5 @@ class Candidates(NamedTuple):
     cos_h: float
     sin_h: float
     towards: FloatArray
+    radius: float
+    centre_radius: float

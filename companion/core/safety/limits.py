@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -14,6 +14,7 @@ from companion.core.search_area import NO_KEEPOUT
 from companion.core.trajectory import HEAD, Reach, Trajectory, expand, step_pose
 
 TURN_SIDES = (1, -1)
+KERNEL_CACHE = 512  # trajectories whose kernel rows a `Limits` keeps (`Limits.kernel_row`)
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,10 @@ class Limits:
     fence_offsets: FloatArray
     keepout: FloatArray
     fan_keepout: FloatArray
+    # `kernel_row`'s cache, shared by the UAVs of a world (one trajectory is read by all of them)
+    _kernels: dict[int, tuple[Trajectory, tuple[float, ...], int]] = field(
+        init=False, repr=False, compare=False, default_factory=dict
+    )
 
     @classmethod
     def build(
@@ -106,8 +111,22 @@ class Limits:
         """The kernel rows of `trajectories` (`Trajectory.fields`)."""
         flat: list[float] = []
         for t in trajectories:
-            flat += t.fields(self.horizon)
+            flat += self.kernel_row(t)[0]
         return np.array(flat, dtype=float).reshape(-1, HEAD + self.horizon)
+
+    def kernel_row(self, trajectory: Trajectory) -> tuple[tuple[float, ...], int]:
+        """A trajectory's kernel row (`Trajectory.fields`) and loiter entry step, computed once.
+
+        Kept by the object's id with the object itself, so that no other object can take the id
+        while the entry lasts; the UAVs of a batch run share their messages' trajectories."""
+        hit = self._kernels.get(id(trajectory))
+        if hit is None:
+            if len(self._kernels) >= KERNEL_CACHE:
+                self._kernels.clear()
+            row = trajectory.fields(self.horizon)
+            hit = (trajectory, row, trajectory.loiter_entry(self.reach.loiter_turn))
+            self._kernels[id(trajectory)] = hit
+        return hit[1], hit[2]
 
     def planned_path(self, trajectory: Trajectory) -> FloatArray:
         """Its positions from its anchor to the end of its M planned steps: (horizon + 1, 2)."""

@@ -8,6 +8,7 @@ import numpy as np
 from numba import njit
 
 from companion.core.geometry import FloatArray
+from companion.core.safety.bounds import clause_out_of_reach, separated_from, separation_out_of_reach
 from companion.core.safety.contingency import keeps_contingencies
 from companion.core.safety.failsafe_regions import clears_loiters, leaves_loiters, loiter_clearance
 from companion.core.safety.inputs import Candidates, Checked, Expanded, Regions, Rules
@@ -36,6 +37,14 @@ def first_allowed(
     pts = np.empty((candidates.shapes.shape[2], 2))
     known = np.full(checked.others.shape[0] + checked.lone.shape[0], np.nan)  # the reference's clearances
     hint = np.full(1, -1)  # the contingency region that failed the latest candidate
+    # rows out of every candidate's reach are skipped before the exact tests (`bounds`)
+    x, y, radius = candidates.x, candidates.y, candidates.radius
+    clear = np.empty(others.shape[0], dtype=np.bool_)
+    separation_out_of_reach(x, y, radius, others, separation, clear)
+    far = np.empty(checked.others.shape[0], dtype=np.bool_)
+    beyond = rules.reach + rules.disk_separation
+    clause_out_of_reach(x, y, radius, candidates.centre_radius, checked.others, checked.centres, beyond, far)
+    no_others = others[:0]
     best, best_side, farthest = -1, 0, -math.inf
     for i in candidates.order:
         first = _first_side(candidates, i, horizon)
@@ -43,9 +52,10 @@ def first_allowed(
             _place(candidates, i, side, pts)
             if not (
                 inside_fence(pts, rules.normals, rules.offsets, rules.keepout)
+                and separated_from(pts, others, clear, separation)
                 and compatible(
                     pts,
-                    others,
+                    no_others,
                     checked.disks,
                     checked.tethers,
                     checked.tether_disks,
@@ -59,7 +69,7 @@ def first_allowed(
             if not spokes_clear(pts, horizon, cx, cy, rules.fan_keepout):
                 continue
             code, worst = keeps_contingencies(
-                Expanded(pts, horizon, cx, cy), reference, checked, rules, known, hint
+                Expanded(pts, horizon, cx, cy), reference, checked, rules, known, hint, far
             )
             apart, gap = keeps_apart(pts, crowded, need)
             if code == 0 or not apart:

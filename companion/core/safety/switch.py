@@ -61,5 +61,6 @@ def may_switch(
     known, hint = np.full(checked.others.shape[0] + checked.lone.shape[0], np.nan), np.full(1, -1)
     mine = Expanded(pts, entry, loiter[0, 0], loiter[0, 1])
     reference = Expanded(inforce, reference_entry, loiter[1, 0], loiter[1, 1])
-    code, _ = keeps_contingencies(mine, reference, checked, rules, known, hint)
+    far = np.zeros(checked.others.shape[0], dtype=np.bool_)  # no row skipped
+    code, _ = keeps_contingencies(mine, reference, checked, rules, known, hint, far)
     return code != 0
