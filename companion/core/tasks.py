@@ -208,12 +208,14 @@ def auction_table(
     holds."""
     cells = sorted(set().union(*(b[1] for b in bids)))
     column = {n_tasks + c: n_tasks + i for i, c in enumerate(cells)}
-    ids = np.concatenate([np.arange(n_tasks), n_tasks + np.array(cells, dtype=np.int64)])
+    ids = np.arange(n_tasks + len(cells))
     table = np.zeros((len(bids), ids.shape[0]))
-    for row, (cvt, confirm, rewards) in enumerate(bids):
-        table[row, :n_tasks] = cvt
-        for c, r in zip(confirm, rewards, strict=True):
-            table[row, column[n_tasks + c]] = r
+    table[:, :n_tasks] = [cvt for cvt, _, _ in bids]
+    if cells:
+        ids[n_tasks:] = n_tasks + np.array(cells, dtype=np.int64)
+        for row, (_, confirm, rewards) in enumerate(bids):
+            for c, r in zip(confirm, rewards, strict=True):
+                table[row, column[n_tasks + c]] = r
     available = np.ones(ids.shape[0], dtype=bool)
     for t in held:
         if 0 <= t < n_tasks:
