@@ -78,6 +78,8 @@ def communication_costs(
     for j in range(generators.shape[0]):
         for n in range(neighbours.shape[0]):
             d = math.hypot(generators[j, 0] - neighbours[n, 0], generators[j, 1] - neighbours[n, 1])
+            if d <= r_c_attr < r_c:
+                continue  # the term is expm1(+-0) = +-0: adding it changes neither sum
             term = link_cost(d, r_c, r_c_attr)
             capped[j] += min(term, limit)
             uncapped[j] += term
