@@ -16,6 +16,7 @@ from companion.core.potential import link_cost, safety_cost
 from companion.core.routes import RouteTable, route_distance
 
 PENALTY_KNEE = 10.0
+BAND_MARGIN = 1e-9  # relative: a squared distance this far inside eq. 28's band is in it
 
 
 # Plain tuples (numba types them in C, a NamedTuple costs about a microsecond a call):
@@ -114,11 +115,17 @@ def path_expense(
     """
     n_paths, horizon = points.shape[0], points.shape[1]
     out = np.zeros(n_paths)
+    # well inside the band by the squared distance (a margin far above its rounding): no hypot
+    band = r_s < r_s_rep <= r_c_attr < r_c and r_s_rep > 0.0
+    inner, outer = (r_s_rep * (1.0 + BAND_MARGIN)) ** 2, (r_c_attr * (1.0 - BAND_MARGIN)) ** 2
     for j in range(neighbour_tracks.shape[0]):
         for i in range(n_paths):
             for m in range(horizon):
-                px, py = points[i, m, 0], points[i, m, 1]
-                d = math.hypot(px - neighbour_tracks[j, m + 1, 0], py - neighbour_tracks[j, m + 1, 1])
+                dx = points[i, m, 0] - neighbour_tracks[j, m + 1, 0]
+                dy = points[i, m, 1] - neighbour_tracks[j, m + 1, 1]
+                if band and inner <= dx * dx + dy * dy <= outer:
+                    continue
+                d = math.hypot(dx, dy)
                 if r_s < r_s_rep <= d <= r_c_attr < r_c:
                     continue  # in the band both terms are expm1(0) = 0: adding them changes nothing
                 out[i] += link_cost(d, r_c, r_c_attr) + safety_cost(d, r_s, r_s_rep)

@@ -30,6 +30,8 @@ class CostWeights(NamedTuple):
     comm_cap: float
 
 
+NEAR_MARGIN = 1e-9  # relative: a squared distance this far within R'_c is within it
+
 # `CostWeights` as the kernels take them: a plain tuple (numba types it in C, a NamedTuple costs
 # about a microsecond a call), or the NamedTuple itself
 Weights = tuple[float, float, float, float, float, float, float, float]
@@ -75,9 +77,14 @@ def communication_costs(
     capped = np.zeros(generators.shape[0])
     uncapped = np.zeros(generators.shape[0])
     limit = math.expm1(comm_cap)
+    # well within R'_c by the squared distance (a margin far above its rounding): no hypot
+    near = (r_c_attr * (1.0 - NEAR_MARGIN)) ** 2 if 0.0 < r_c_attr < r_c else -1.0
     for j in range(generators.shape[0]):
         for n in range(neighbours.shape[0]):
-            d = math.hypot(generators[j, 0] - neighbours[n, 0], generators[j, 1] - neighbours[n, 1])
+            dx, dy = generators[j, 0] - neighbours[n, 0], generators[j, 1] - neighbours[n, 1]
+            if dx * dx + dy * dy <= near:
+                continue
+            d = math.hypot(dx, dy)
             if d <= r_c_attr < r_c:
                 continue  # the term is expm1(+-0) = +-0: adding it changes neither sum
             term = link_cost(d, r_c, r_c_attr)
