@@ -223,7 +223,10 @@ def rank_paths(scores: FloatArray, region: FloatArray) -> IntArray:
     by score, then by index (the straightest first). The safety layer takes the first path of this
     order that it allows (`Commitments.first_allowed`)."""
     by_score = np.argsort(-scores, kind="mergesort")
-    return by_score[np.argsort(-region[by_score], kind="mergesort")]
+    for i in range(1, region.shape[0]):
+        if region[i] != region[0]:  # (a NaN too)
+            return by_score[np.argsort(-region[by_score], kind="mergesort")]
+    return by_score  # one region key (every path inside, as a rule): the stable sort keeps the order
 
 
 @njit(cache=True)
