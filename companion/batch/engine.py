@@ -185,6 +185,7 @@ class Scorer:
         self.holds_target[targets] = True
         self.confirmed: dict[int, int] = {}  # cell -> step some UAV first held it confirmed
         self.reports = self.false_reports = 0
+        self._pairs: dict[tuple, np.ndarray] = {}  # `record_flight`'s pairs, by which UAVs are live
 
     def confirm(self, k: int, cells: tuple[int, ...]) -> None:
         """Cells a UAV's map confirmed at step k."""
@@ -231,7 +232,10 @@ class Scorer:
         kin = self.world.kinematics
         grid = kin.mode == "grid"
         substeps = 1 if grid else APPROACH_SUBSTEPS
-        pairs = self.world.safety.near | np.logical_and.outer(live, live)
+        key = tuple(live.tolist())
+        pairs = self._pairs.get(key)
+        if pairs is None:
+            pairs = self._pairs[key] = self.world.safety.near | np.logical_and.outer(live, live)
         self.approach[k] = closest_approach(
             poses, turns, grid, kin.speed, kin.dt, kin.cell_size, substeps, pairs
         )
@@ -421,6 +425,7 @@ def _step_agents(
     outboxes: list[list[Message]] = []
     seen: list[bool] = np.any(sees, axis=1).tolist()
     loiter_turn = world.safety.limits.reach.loiter_turn
+    perfect = world.sensor.perfect
     for i, agent in enumerate(agents):
         if faults.dead_at(i, k):
             if i not in faults.dead:
@@ -429,7 +434,7 @@ def _step_agents(
             outboxes.append([])
             continue
         x, y, h = poses[i].tolist()
-        if world.sensor.perfect:
+        if perfect:
             detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
         else:
             cells = world.grid.fov_cell_list((x, y))

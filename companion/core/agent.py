@@ -346,7 +346,7 @@ class Agent(TaskPlanning):
         w, grid = self.world, self.world.grid
         x1, y1, h1 = pose
         if self.algorithm == "no-ta":
-            self._values[:-1] = self.eta * self._relative_prior
+            np.multiply(self.eta, self._relative_prior, out=self._values[:-1])
         elif self.phi is not None:
             self.phi = phero.step_field(
                 grid, self.phi, self.eta, w.prior, w.mission.algorithm.pheromone, self._values
@@ -392,7 +392,7 @@ class Agent(TaskPlanning):
         if best >= 0 and not obs.closing:
             turns = tuple(paths.sequences[best].tolist())
             proposal = Trajectory(k + 1, x1, y1, h1, turns, side)
-            plan: Track = ((x1, y1), *((float(px), float(py)) for px, py in path[: horizon - 1].tolist()))
+            plan: Track = ((x1, y1), *map(tuple, path[: horizon - 1].tolist()))
             return proposal, plan, (h1, *paths.headings_along(h1, best)[: horizon - 1])
         ahead = inforce.reanchored(k + 1, x1, y1, h1, self.commitments.limits.reach.loiter_turn)
         return None, *self.commitments.limits.track(ahead)

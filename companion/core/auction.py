@@ -25,29 +25,28 @@ def local_auction(
     `available[j]` is False for tasks already held outside the auction. Returns
     {uav: (task, reward)}; a bidder is left out only when no task with a positive reward remains.
     """
-    order = np.argsort(np.asarray(bidders), kind="stable")
+    order = sorted(range(len(bidders)), key=bidders.__getitem__)  # stable, as the ids rise
     r = np.asarray(bids, dtype=float)[order]
-    r = np.where(available[None, :] & (r > 0), r, -np.inf)
-    tasks = _auction_rounds(r).tolist()
+    tasks = _auction_rounds(r, np.asarray(available, dtype=np.bool_)).tolist()
     return {int(bidders[order[row]]): (j, float(r[row, j])) for row, j in enumerate(tasks) if j >= 0}
 
 
 @njit(cache=True)
-def _auction_rounds(r: FloatArray) -> IntArray:
+def _auction_rounds(r: FloatArray, available: np.ndarray) -> IntArray:
     """The rounds of Algorithm 2 over rewards `r` (eq. 15); returns each row's task, -1 for none.
 
-    Rows are by ascending UAV id, -inf where a bidder may not take a task. Each task goes to its
-    highest open bidder (the first row among equals), each winner keeps the best task it won (the
-    first among equals), and its row and task leave the auction.
+    Rows are by ascending UAV id; a bidder may take only an `available` task of a positive reward.
+    Each task goes to its highest open bidder (the first row among equals), each winner keeps the
+    best task it won (the first among equals), and its row and task leave the auction.
     """
     n, m = r.shape
     task = np.full(n, -1, dtype=np.int64)
     winner = np.empty(m, dtype=np.int64)
-    taken = np.zeros(m, dtype=np.bool_)
+    taken = ~available
     while True:
         winner[:] = -1
         for j in range(m):
-            best = -np.inf
+            best = 0.0  # a reward must be positive
             for i in range(n):
                 if not taken[j] and task[i] < 0 and r[i, j] > best:
                     best, winner[j] = r[i, j], i

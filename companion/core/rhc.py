@@ -16,6 +16,7 @@ from companion.core.potential import link_cost, safety_cost
 from companion.core.routes import RouteTable, route_distance
 
 PENALTY_KNEE = 10.0
+BAND_MARGIN = 1e-9  # relative: a squared distance this far inside eq. 28's band is in it
 
 
 # Plain tuples (numba types them in C, a NamedTuple costs about a microsecond a call):
@@ -73,13 +74,30 @@ def search_benefit(
                 total += values_padded[fov[i, m, c]]
         total *= delta1
         if task >= 0:
-            for m in range(horizon):
-                if point_labels[i, m] != task:
-                    x, y = points[i, m, 0], points[i, m, 1]
-                    d = route_distance(routes, task, x, y, generator[0], generator[1])
-                    total -= delta2 * soft_exp(d / circumradius)
+            total = _penalised(total, points, point_labels, i, task, generator, circumradius, delta2, routes)
         out[i] = total
     return out
+
+
+@njit(cache=True)
+def _penalised(
+    total: float,
+    points: FloatArray,
+    point_labels: IntArray,
+    i: int,
+    task: int,
+    generator: FloatArray,
+    circumradius: float,
+    delta2: float,
+    routes: RouteTable,
+) -> float:
+    """`total` less eq. 25's penalty of path i's points outside task `task`, one point at a time."""
+    for m in range(points.shape[1]):
+        if point_labels[i, m] != task:
+            x, y = points[i, m, 0], points[i, m, 1]
+            d = route_distance(routes, task, x, y, generator[0], generator[1])
+            total -= delta2 * soft_exp(d / circumradius)
+    return total
 
 
 @njit(cache=True)
@@ -97,11 +115,19 @@ def path_expense(
     """
     n_paths, horizon = points.shape[0], points.shape[1]
     out = np.zeros(n_paths)
+    # well inside the band by the squared distance (a margin far above its rounding): no hypot
+    band = r_s < r_s_rep <= r_c_attr < r_c and r_s_rep > 0.0
+    inner, outer = (r_s_rep * (1.0 + BAND_MARGIN)) ** 2, (r_c_attr * (1.0 - BAND_MARGIN)) ** 2
     for j in range(neighbour_tracks.shape[0]):
         for i in range(n_paths):
             for m in range(horizon):
-                px, py = points[i, m, 0], points[i, m, 1]
-                d = math.hypot(px - neighbour_tracks[j, m + 1, 0], py - neighbour_tracks[j, m + 1, 1])
+                dx = points[i, m, 0] - neighbour_tracks[j, m + 1, 0]
+                dy = points[i, m, 1] - neighbour_tracks[j, m + 1, 1]
+                if band and inner <= dx * dx + dy * dy <= outer:
+                    continue
+                d = math.hypot(dx, dy)
+                if r_s < r_s_rep <= d <= r_c_attr < r_c:
+                    continue  # in the band both terms are expm1(0) = 0: adding them changes nothing
                 out[i] += link_cost(d, r_c, r_c_attr) + safety_cost(d, r_s, r_s_rep)
     return out
 
@@ -114,12 +140,25 @@ def grid_path_cells(
 
     Grid mode: the cell under each path point (-1 outside), its FOV cells (eq. 3, a row of
     `fov_table`, whose last row is padding) and the number of leading points inside the region."""
+    cells, prefix = _lattice_cells(points, x0, y0, size, lattice)
+    fov = np.empty((cells.shape[0], cells.shape[1], fov_table.shape[1]), dtype=np.int64)
+    pad = fov_table.shape[0] - 1
+    for i in range(cells.shape[0]):
+        for m in range(cells.shape[1]):
+            c = cells[i, m]
+            fov[i, m, :] = fov_table[c if c >= 0 else pad]
+    return cells, fov, prefix
+
+
+@njit(cache=True)
+def _lattice_cells(
+    points: FloatArray, x0: float, y0: float, size: float, lattice: IntArray
+) -> tuple[IntArray, IntArray]:
+    """Grid mode: the cell under each path point (-1 outside) and each path's in-region prefix."""
     n_paths, horizon = points.shape[0], points.shape[1]
     ny, nx = lattice.shape
     cells = np.full((n_paths, horizon), -1, dtype=np.int64)
-    fov = np.empty((n_paths, horizon, fov_table.shape[1]), dtype=np.int64)
     prefix = np.zeros(n_paths, dtype=np.int64)
-    pad = fov_table.shape[0] - 1
     for i in range(n_paths):
         inside = True
         for m in range(horizon):
@@ -127,12 +166,10 @@ def grid_path_cells(
             row = math.floor((points[i, m, 1] - y0) / size + 0.5)
             if 0 <= col < nx and 0 <= row < ny:
                 cells[i, m] = lattice[row, col]
-            c = cells[i, m]
-            fov[i, m, :] = fov_table[c if c >= 0 else pad]
-            inside = inside and c >= 0
+            inside = inside and cells[i, m] >= 0
             if inside:
                 prefix[i] += 1
-    return cells, fov, prefix
+    return cells, prefix
 
 
 def continuous_path_cells(
@@ -186,7 +223,10 @@ def rank_paths(scores: FloatArray, region: FloatArray) -> IntArray:
     by score, then by index (the straightest first). The safety layer takes the first path of this
     order that it allows (`Commitments.first_allowed`)."""
     by_score = np.argsort(-scores, kind="mergesort")
-    return by_score[np.argsort(-region[by_score], kind="mergesort")]
+    for i in range(1, region.shape[0]):
+        if region[i] != region[0]:  # (a NaN too)
+            return by_score[np.argsort(-region[by_score], kind="mergesort")]
+    return by_score  # one region key (every path inside, as a rule): the stable sort keeps the order
 
 
 @njit(cache=True)
@@ -204,11 +244,24 @@ def rank_candidates(
 
     Eq. 22: the paths in order of chi_1 J^A - chi_2 J^B (eqs. 25, 29), region first
     (`region_key`, `rank_paths`)."""
-    delta, chi, comms, normals, offsets, cell_size = weights
+    delta = weights[0]
     task, generator, circumradius, routes = region
     benefit = search_benefit(
         points, fov, values_padded, delta[0], point_labels, task, generator, circumradius, delta[1], routes
     )
+    return _ranked(points, prefix, benefit, neighbour_tracks, weights)
+
+
+@njit(cache=True)
+def _ranked(
+    points: FloatArray,
+    prefix: IntArray,
+    benefit: FloatArray,
+    neighbour_tracks: FloatArray,
+    weights: ScoreWeights,
+) -> IntArray:
+    """Eq. 22's order of the paths given their eq. 25 benefit: chi_1 J^A - chi_2 J^B, region first."""
+    _, chi, comms, normals, offsets, cell_size = weights
     expense = path_expense(points, neighbour_tracks, comms[0], comms[1], comms[2], comms[3])
     region_keys = region_key(prefix, points, normals, offsets, cell_size)
     return rank_paths(chi[0] * benefit - chi[1] * expense, region_keys)
@@ -229,20 +282,34 @@ def rank_grid_candidates(
     """Grid mode's eq. 22 in one call: the paths of eq. 23 from (x, y), ranked.
 
     Grid mode in one call: the paths of eq. 23 from (x, y) (`offsets` is the `PathTree` table of
-    the UAV's heading), their cells and FOVs (`grid_path_cells`), and `rank_candidates`. The task of
-    each path point is read from `cell_labels` (-1 outside the region). Returns the paths' order
-    and their points."""
+    the UAV's heading), their cells and FOVs (`grid_path_cells`, the FOVs read in place from the
+    table), and `rank_candidates`. The task of each path point is read from `cell_labels` (-1
+    outside the region). Returns the paths' order and their points."""
     pts = np.empty(offsets.shape)
     for i in range(offsets.shape[0]):
         for m in range(offsets.shape[1]):
             pts[i, m, 0], pts[i, m, 1] = offsets[i, m, 0] + x, offsets[i, m, 1] + y
     x0, y0, lattice, fov_table = cells_of
-    cells, fov, prefix = grid_path_cells(pts, x0, y0, weights[5], lattice, fov_table)
-    point_labels = np.full(cells.shape, -1, dtype=np.int64)
-    if region[0] >= 0:
+    cells, prefix = _lattice_cells(pts, x0, y0, weights[5], lattice)
+    task, generator, circumradius, routes = region
+    delta1, delta2 = weights[0]
+    pad = fov_table.shape[0] - 1
+    point_labels = cells  # read only inside a task's region
+    if task >= 0:
+        point_labels = np.full(cells.shape, -1, dtype=np.int64)
         for i in range(cells.shape[0]):
             for m in range(cells.shape[1]):
                 if cells[i, m] >= 0:
                     point_labels[i, m] = cell_labels[cells[i, m]]
-    order = rank_candidates(pts, fov, prefix, values_padded, point_labels, region, neighbour_tracks, weights)
-    return order, pts
+    benefit = np.zeros(cells.shape[0])
+    for i in range(cells.shape[0]):
+        total = 0.0  # search_benefit's sum, read straight from the FOV table
+        for m in range(cells.shape[1]):
+            row = cells[i, m] if cells[i, m] >= 0 else pad
+            for c in range(fov_table.shape[1]):
+                total += values_padded[fov_table[row, c]]
+        total *= delta1
+        if task >= 0:
+            total = _penalised(total, pts, point_labels, i, task, generator, circumradius, delta2, routes)
+        benefit[i] = total
+    return _ranked(pts, prefix, benefit, neighbour_tracks, weights), pts

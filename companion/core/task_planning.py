@@ -8,6 +8,7 @@ auction (Algorithm 2) over the CVT's tasks and the confirmation tasks of candida
 from __future__ import annotations
 
 import math
+from functools import cached_property
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from companion.core.messages import UavState
 from companion.core.routes import STRAIGHT
 from companion.core.tasks import (
     TaskSet,
+    Weights,
     auction_table,
     bid_rewards,
     confirm_bids,
@@ -47,6 +49,11 @@ class TaskPlanning:
     bid_stamp: int
     _tasks: TaskSet | None
 
+    @cached_property
+    def _costs(self) -> Weights:
+        """The world's `CostWeights` as a plain tuple (a cheaper argument to the compiled kernels)."""
+        return tuple(self.world.costs)  # type: ignore[return-value]
+
     def _my_bids(self, position: FloatArray, mst_nbrs: FloatArray) -> Bids:
         """Eq. 15 rewards, filtered by eq. 21 and the task held, and the confirmation tasks' rewards.
 
@@ -59,7 +66,7 @@ class TaskPlanning:
         n_tasks = tasks[2].shape[0]
         held = self.task if self.task < n_tasks else -1
         out = bid_rewards(
-            self.eta, w.prior, self.covered, tasks, a.v_max, a.c_max, position, mst_nbrs, w.costs, held
+            self.eta, w.prior, self.covered, tasks, a.v_max, a.c_max, position, mst_nbrs, self._costs, held
         )
         out = out if out.size else np.zeros(n_tasks)  # every task complete
         floor = self._confirm_reward(position, mst_nbrs)[0] if self.task >= n_tasks else 0.0
@@ -70,7 +77,7 @@ class TaskPlanning:
             return cvt, (), ()
         cells, rewards = confirm_bids(
             self.candidates, self.belief.posterior(self.candidates), w.grid.centres, position, mst_nbrs,
-            w.costs, a.c_max,
+            self._costs, a.c_max,
         )  # fmt: skip
         if self.task >= 0:
             current = self.task_reward if self.task < n_tasks else floor
@@ -87,7 +94,7 @@ class TaskPlanning:
             return 0.0, math.inf
         gen = w.grid.centres[c : c + 1]
         capped, uncapped = task_costs(
-            position, mst_nbrs, gen, np.array([w.costs.fov_area]), w.costs, STRAIGHT, 0
+            position, mst_nbrs, gen, np.array([w.costs.fov_area]), self._costs, STRAIGHT, 0
         )
         return float(self.belief.posterior(np.array([c]))[0] / capped[0]), float(uncapped[0])
 
@@ -136,7 +143,7 @@ class TaskPlanning:
             return reward > 0 and keep_task(0.0, cost, a.v_max, a.c_max)
         completion = task_completion(int(self.covered[j]), int(tess.cell_counts[j]))
         _, holding = task_costs(
-            position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], w.costs, tess.routes, j
+            position, mst_nbrs, tess.generators[j : j + 1], tess.areas[j : j + 1], self._costs, tess.routes, j
         )
         return keep_task(completion, float(holding[0]), a.v_max, a.c_max)
 

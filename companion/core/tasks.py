@@ -30,6 +30,12 @@ class CostWeights(NamedTuple):
     comm_cap: float
 
 
+NEAR_MARGIN = 1e-9  # relative: a squared distance this far within R'_c is within it
+
+# `CostWeights` as the kernels take them: a plain tuple (numba types it in C, a NamedTuple costs
+# about a microsecond a call), or the NamedTuple itself
+Weights = tuple[float, float, float, float, float, float, float, float]
+
 # The tasks V_j a bidder bids for (eq. 15): each cell's task label, and each task's cell count,
 # generator q_j and area S_j (`cvt.Tessellation`); a plain tuple, which numba types in C
 # and the routes to each generator (`routes.RouteTable`)
@@ -41,7 +47,7 @@ def time_cost(
     position: FloatArray,
     generators: FloatArray,
     areas: FloatArray,
-    w: CostWeights,
+    w: Weights,
     routes: RouteTable,
     first: int,
 ) -> FloatArray:
@@ -49,16 +55,17 @@ def time_cost(
 
     d_ij is the route distance (`route_distance`; straight without a keep-out); `generators` are
     the tasks first, first + 1, ..."""
+    _, _, kappa, fov_area, diagonal, _, _, _ = w
     out = np.empty(generators.shape[0])
     for j in range(generators.shape[0]):
         d = route_distance(routes, first + j, position[0], position[1], generators[j, 0], generators[j, 1])
-        out[j] = d / w.diagonal + w.kappa * areas[j] / w.fov_area
+        out[j] = d / diagonal + kappa * areas[j] / fov_area
     return out
 
 
 @njit(cache=True)
 def communication_costs(
-    neighbours: FloatArray, generators: FloatArray, w: CostWeights
+    neighbours: FloatArray, generators: FloatArray, w: Weights
 ) -> tuple[FloatArray, FloatArray]:
     """Eq. 17: C^c_ij, capped for the auction and uncapped for eq. 21.
 
@@ -66,13 +73,21 @@ def communication_costs(
     twice: with each neighbour's term capped at exp(comm_cap) - 1, for the auction (a task beyond
     R_c of a neighbour is expensive, not impossible, since the swarm moves as a whole and the RHC
     keeps the links), and uncapped, for eq. 21 (beyond R_c is prohibitive)."""
+    _, _, _, _, _, r_c, r_c_attr, comm_cap = w
     capped = np.zeros(generators.shape[0])
     uncapped = np.zeros(generators.shape[0])
-    limit = math.expm1(w.comm_cap)
+    limit = math.expm1(comm_cap)
+    # well within R'_c by the squared distance (a margin far above its rounding): no hypot
+    near = (r_c_attr * (1.0 - NEAR_MARGIN)) ** 2 if 0.0 < r_c_attr < r_c else -1.0
     for j in range(generators.shape[0]):
         for n in range(neighbours.shape[0]):
-            d = math.hypot(generators[j, 0] - neighbours[n, 0], generators[j, 1] - neighbours[n, 1])
-            term = link_cost(d, w.r_c, w.r_c_attr)
+            dx, dy = generators[j, 0] - neighbours[n, 0], generators[j, 1] - neighbours[n, 1]
+            if dx * dx + dy * dy <= near:
+                continue
+            d = math.hypot(dx, dy)
+            if d <= r_c_attr < r_c:
+                continue  # the term is expm1(+-0) = +-0: adding it changes neither sum
+            term = link_cost(d, r_c, r_c_attr)
             capped[j] += min(term, limit)
             uncapped[j] += term
     return capped, uncapped
@@ -84,7 +99,7 @@ def task_costs(
     neighbours: FloatArray,
     generators: FloatArray,
     areas: FloatArray,
-    w: CostWeights,
+    w: Weights,
     routes: RouteTable,
     first: int,
 ) -> tuple[FloatArray, FloatArray]:
@@ -94,9 +109,30 @@ def task_costs(
     the auction's cost (eq. 15; eq. 17 capped) and C*_{i,k} of eq. 21 (eq. 17 uncapped, so a task
     whose generator is near or beyond R_c of an MST neighbour, keeping it threatens that link,
     costs more than any C_max)."""
-    time = w.beta1 * time_cost(position, generators, areas, w, routes, first)
+    beta1, beta2 = w[0], w[1]
+    time = beta1 * time_cost(position, generators, areas, w, routes, first)
     capped, uncapped = communication_costs(neighbours, generators, w)
-    return time + w.beta2 * capped, time + w.beta2 * uncapped
+    return time + beta2 * capped, time + beta2 * uncapped
+
+
+@njit(cache=True)
+def task_income(labels: IntArray, eta: FloatArray, prior: FloatArray, n: int) -> FloatArray:
+    """Eq. 15's income of each task: eta * Pr summed over its cells, in cell order.
+
+    The running sum of a run of cells with one label stays in a register (the sums, and their
+    order of addition, are those of adding each cell's term to its task's total in turn)."""
+    income = np.zeros(n)
+    if labels.shape[0] == 0:
+        return income
+    task, total = labels[0], 0.0
+    for c in range(labels.shape[0]):
+        if labels[c] != task:
+            income[task] = total
+            task = labels[c]
+            total = income[task]
+        total += eta[c] * prior[c]
+    income[task] = total
+    return income
 
 
 @njit(cache=True)
@@ -109,7 +145,7 @@ def bid_rewards(
     c_max: float,
     position: FloatArray,
     neighbours: FloatArray,
-    w: CostWeights,
+    w: Weights,
     held: int,
 ) -> FloatArray:
     """A bidder's rewards R_ij (eq. 15), filtered by eq. 21 and the task held.
@@ -126,10 +162,7 @@ def bid_rewards(
     if done.all():
         return np.empty(0)
     auction, holding = task_costs(position, neighbours, generators, areas, w, routes, 0)
-    income = np.zeros(n)
-    for c in range(labels.shape[0]):
-        income[labels[c]] += eta[c] * prior[c]
-    reward = income / auction
+    reward = task_income(labels, eta, prior, n) / auction
     out = np.empty(n)
     for j in range(n):
         worthless = done[j] or holding[j] > c_max or (held >= 0 and reward[j] <= reward[held])
@@ -156,7 +189,7 @@ def confirm_bids(
     centres: FloatArray,
     position: FloatArray,
     neighbours: FloatArray,
-    w: CostWeights,
+    w: Weights,
     c_max: float,
 ) -> tuple[IntArray, FloatArray]:
     """Eq. 15 for the confirmation task of each candidate cell: R = P_p / C (eq. 18), best first.
@@ -166,7 +199,7 @@ def confirm_bids(
     cell's centre and S_j the FOV area S_A (one look of search). Zero where keeping it would cost
     more than C_max (eq. 21); at most MAX_CONFIRM_BIDS of them."""
     gens = centres[cells]
-    areas = np.full(cells.shape[0], w.fov_area)
+    areas = np.full(cells.shape[0], w[3])
     auction, holding = task_costs(position, neighbours, gens, areas, w, STRAIGHT, 0)
     rewards = np.where(holding <= c_max, posteriors / auction, 0.0)
     best = np.argsort(-rewards, kind="stable")[:MAX_CONFIRM_BIDS]
@@ -184,12 +217,14 @@ def auction_table(
     holds."""
     cells = sorted(set().union(*(b[1] for b in bids)))
     column = {n_tasks + c: n_tasks + i for i, c in enumerate(cells)}
-    ids = np.concatenate([np.arange(n_tasks), n_tasks + np.array(cells, dtype=np.int64)])
+    ids = np.arange(n_tasks + len(cells))
     table = np.zeros((len(bids), ids.shape[0]))
-    for row, (cvt, confirm, rewards) in enumerate(bids):
-        table[row, :n_tasks] = cvt
-        for c, r in zip(confirm, rewards, strict=True):
-            table[row, column[n_tasks + c]] = r
+    table[:, :n_tasks] = [cvt for cvt, _, _ in bids]
+    if cells:
+        ids[n_tasks:] = n_tasks + np.array(cells, dtype=np.int64)
+        for row, (_, confirm, rewards) in enumerate(bids):
+            for c, r in zip(confirm, rewards, strict=True):
+                table[row, column[n_tasks + c]] = r
     available = np.ones(ids.shape[0], dtype=bool)
     for t in held:
         if 0 <= t < n_tasks:
