@@ -5,7 +5,8 @@ another checkout, interleaved with this one so that the machine's drift hits bot
 (`uavsearch bench --against`; docs/performance.md, "Against an older commit", gives the loop).
 CPU time (`time.process_time`), not wall time: other processes on the machine slow a run's wall
 time, much less its CPU time. It uses only `load_mission`, `Mission.with_algorithm` and `simulate`,
-and the timed checkout's own mission files.
+and the timed checkout's own mission files; `load_mission` is looked up where the timed checkout
+keeps it.
 """
 
 from __future__ import annotations
@@ -18,7 +19,11 @@ from pathlib import Path
 def main() -> None:
     import companion
     from companion.batch.engine import simulate
-    from companion.core.feasibility import load_mission
+
+    try:
+        from companion.core.feasibility import load_mission
+    except ImportError:  # a checkout from before the layers (e1523f9, the issue 38 baseline)
+        from companion.mission import load_mission  # type: ignore[no-redef]
 
     root = Path(companion.__file__).resolve().parents[1]  # the checkout timed, its own mission files
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
