@@ -111,7 +111,8 @@ class Commitments:
         self._tethers: tuple[int, ...] | None = None  # the parents `_links` holds for, till `observe`
         self._link_ids: list[int] = []
         self._link_array = np.zeros(0, dtype=np.int64)
-        self._held: tuple[Trajectory | None, FloatArray] = (None, np.zeros((1, 0)))  # the in force's row
+        # the trajectory in force's kernel row (`_flyable`) and loiter entry step
+        self._held: tuple[Trajectory | None, FloatArray, int] = (None, np.zeros((1, 0)), 0)
         self._tables(world)
 
     def _tables(self, world: World) -> None:
@@ -152,10 +153,11 @@ class Commitments:
                     self.before[s.uav] = old.committed
         self.left -= fresh.keys()
         self._kids = self._tethers = None
+        left, stale = self.left, k - 1 - self.timeout
         self.dead = {
             j
             for j, s in self.latest.items()
-            if not s.steered or (j not in fresh and (j in self.left or s.stamp < k - 1 - self.timeout))
+            if not s.steered or (j not in fresh and (j in left or s.stamp < stale))
         }
 
     def gone(self, uav: int) -> None:
@@ -175,10 +177,13 @@ class Commitments:
         s = self.latest[j]
         if k == 0:
             return [s.committed] if s.committed is not None else [], []
-        if j in self.fresh:
-            mine = self.fresh[j].state
-            trajs = [mine.committed] + ([mine.proposal] if both and mine.proposal is not None else [])
-            return [t for t in trajs if t is not None], []
+        msg = self.fresh.get(j)
+        if msg is not None:
+            committed, proposal = msg.state.committed, msg.state.proposal
+            trajs = [] if committed is None else [committed]
+            if both and proposal is not None:
+                trajs.append(proposal)
+            return trajs, []
         if j in self.dead:
             return [t for t in (s.committed, s.proposal) if t is not None], []
         r = self.limits.reach
@@ -245,40 +250,48 @@ class Commitments:
         tethered or gone (their failsafe loiters are gathered too)."""
         lim = self.limits
         r = lim.reach
+        kernel_row = lim.kernel_row
         near_reach, far_reach, anchored = self._reaches
         links = set(self.parents) | self._children()
+        fresh, dead, before = self.fresh, self.dead, self.before
         table: list[float] = []  # per row: its kernel row, owner, in force, loiter entry, clause
         lone: list[float] = []  # per lone trajectory: its kernel row, the row of its owner's in force
         count = 0
         owners: set[int] = set()
         disks: list[tuple[float, float, float, float]] = []  # owner, cx, cy, r
         regions: list[tuple[Disk, FloatArray]] = []
-        for j in self.latest:
+        for j, latest in self.latest.items():
             mine, dsk = self._possible(k, j, both=True)
             guarded = self.near[j]  # its failures can reach this UAV's layer
-            if j in self.dead and k > 0:
-                if guarded or not self.latest[j].steered:  # nobody steers it: it may leave its layer
+            gone = j in dead
+            if gone and k > 0:
+                if guarded or not latest.steered:  # nobody steers it: it may leave its layer
                     regions += self.failsafe_regions(k, j)
             elif j not in links:
-                s = self.fresh[j].state if j in self.fresh else self.latest[j]
+                s = fresh[j].state if j in fresh else latest
                 reach = near_reach if guarded else far_reach
                 for d in dsk:
                     reach = max(reach, anchored + d[2] + lim.disk_separation)
                 if math.hypot(s.x - x, s.y - y) > reach:
                     continue
-            if guarded and j not in self.dead and mine and j in self.before:
-                lone += self.limits.kernel_row(self.before[j])[0]
+            if not mine:
+                if dsk:
+                    disks += [(j, *d) for d in dsk]
+                continue
+            if guarded and not gone and j in before:
+                lone += kernel_row(before[j])[0]
                 lone += (count, 0, 0, 0)  # the row of j's trajectory in force, mine[0]
-            if mine:
-                owners.add(j)
+            owners.add(j)
             for t in mine:
-                row, entry = self.limits.kernel_row(t)
+                row, entry = kernel_row(t)
                 table += row
                 table += (j, t is mine[0], entry, guarded)
                 count += 1
             if dsk:
                 disks += [(j, *d) for d in dsk]
-        rows = np.array(table + lone, dtype=float).reshape(-1, HEAD + lim.horizon + EXTRA)
+        if lone:
+            table += lone
+        rows = np.array(table, dtype=float).reshape(-1, HEAD + lim.horizon + EXTRA)
         pts, centres, lone_centres = gathered_rows(rows, count, k, r.window, lim.kinematics_args)
         if disks:
             at = np.array(disks, dtype=float)
@@ -354,9 +367,10 @@ class Commitments:
         first contingency that is not, or keeps its trajectory if none is."""
         # the others' trajectories in force at k-1: whatever each decides at k, the invariant makes ours
         # compatible with them (their proposals are theirs to check; a disk only bounds what is unknown)
-        rows = np.array([self.limits.kernel_row(trajectory)[0]], dtype=float)
+        row, entry = self.limits.kernel_row(trajectory)
+        rows = np.array([row], dtype=float)
         if flyable_from(self._gathered, links, self.uav, rows[0], k, self.rules):
-            self._held = (trajectory, rows)
+            self._held = (trajectory, rows, entry)
             return trajectory
         options = self._contingency_rows.copy()
         options[:, :4] = (k, trajectory.x, trajectory.y, trajectory.heading)
@@ -378,33 +392,30 @@ class Commitments:
         Make-before-break re-tethering: name the nearest UAV of a lower rank as a second parent
         when it is clearly nearer than the parent and the trajectories in force keep the link; drop
         the old parent once the new one has heard it named; drop parents that are gone."""
-        self.parents = tuple(p for p in self.parents if p not in self.dead)
-        if len(self.parents) == 2:
-            new = self.parents[1]
+        dead = self.dead
+        parents = self.parents = tuple(p for p in self.parents if p not in dead)
+        if len(parents) == 2:
+            new = parents[1]
             msg = self.fresh.get(new)
             if msg is not None and self.uav in msg.heard and k - ACK_STEPS >= self.parent_since:
                 self.parents = (new,)
             return
-        rank = self.ranks[self.uav]
+        ranks, latest = self.ranks, self.latest
+        rank = ranks[self.uav]
         if rank == 0:
             return
         lim = self.limits
-
-        def distance(j: int) -> float:
-            """How far UAV j was last known to be from `position`."""
-            s = self.latest[j]
-            return math.hypot(s.x - position[0], s.y - position[1])
-
-        current = distance(self.parents[0]) if self.parents else math.inf
-        better = [
-            j
-            for j in self.fresh
-            if self.ranks[j] < rank
-            and j not in self.parents
-            and j not in self.dead
-            and distance(j) < current - 0.1 * lim.link
-        ]
-        for j in sorted(better, key=distance):
+        px, py = float(position[0]), float(position[1])  # how far a UAV was last known to be from it
+        current = math.hypot(latest[parents[0]].x - px, latest[parents[0]].y - py) if parents else math.inf
+        bound = current - 0.1 * lim.link
+        better: list[tuple[float, int]] = []
+        for j in self.fresh:
+            if ranks[j] < rank and j not in parents and j not in dead:
+                d = math.hypot(latest[j].x - px, latest[j].y - py)
+                if d < bound:
+                    better.append((d, j))
+        better.sort(key=lambda pair: pair[0])  # stable: ties keep the order heard
+        for _, j in better:
             trajs, _ = self._possible(k, j, both=True)
             pts = lim.expand(lim.rows([self.inforce]), k)[0]
             tethers = lim.expand(lim.rows(trajs), k)
@@ -427,8 +438,10 @@ class Commitments:
         h = round(heading / (math.pi / 4)) % 8 if lim.grid else 0
         c, s = (1.0, 0.0) if lim.grid else (math.cos(heading), math.sin(heading))
         towards = self._turn_towards(x, y)
-        held, entry = self.limits.kernel_row(self.inforce)
-        reference = self._held[1] if self._held[0] is self.inforce else np.array([held], dtype=float)
+        held, reference, entry = self._held
+        if held is not self.inforce:
+            row, entry = self.limits.kernel_row(self.inforce)
+            reference = np.array([row], dtype=float)
         shapes, centres = self._shapes[h], self._shape_centres[h]
         candidates: CandidatesArgs = (order, shapes, centres, x, y, c, s, towards, *self._radii[h])
         best, side = first_allowed_from(

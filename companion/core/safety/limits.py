@@ -42,10 +42,12 @@ class Limits:
     fence_offsets: FloatArray
     keepout: FloatArray
     fan_keepout: FloatArray
-    # `kernel_row`'s cache, shared by the UAVs of a world (one trajectory is read by all of them)
-    _kernels: dict[int, tuple[Trajectory, tuple[float, ...], int]] = field(
+    # `kernel_row`'s cache, shared by the UAVs of a world (one trajectory is read by all of them):
+    # by the object's id, its row and loiter entry, and the object itself
+    _kernels: dict[int, tuple[tuple[float, ...], int]] = field(
         init=False, repr=False, compare=False, default_factory=dict
     )
+    _kept: dict[int, Trajectory] = field(init=False, repr=False, compare=False, default_factory=dict)
 
     @classmethod
     def build(
@@ -123,10 +125,11 @@ class Limits:
         if hit is None:
             if len(self._kernels) >= KERNEL_CACHE:
                 self._kernels.clear()
-            row = trajectory.fields(self.horizon)
-            hit = (trajectory, row, trajectory.loiter_entry(self.reach.loiter_turn))
+                self._kept.clear()
+            hit = (trajectory.fields(self.horizon), trajectory.loiter_entry(self.reach.loiter_turn))
             self._kernels[id(trajectory)] = hit
-        return hit[1], hit[2]
+            self._kept[id(trajectory)] = trajectory
+        return hit
 
     def planned_path(self, trajectory: Trajectory) -> FloatArray:
         """Its positions from its anchor to the end of its M planned steps: (horizon + 1, 2)."""
