@@ -81,10 +81,16 @@ class Commitments:
         self.first_asked = self.first_refused = 0  # the RHC's first choices, and those refused
         # this step's gathering (`_gather`): what the others may fly, expanded from t_k, a row each
         # (`Gathered`), and the loiter centres of live UAVs' trajectories in force before their latest
+        # (into buffers with a row for each trajectory an other may have, `gathered_rows`)
         no_rows = np.zeros((0, HEAD + plan.limits.horizon + EXTRA))
-        no_pts, no_centres = np.zeros((0, plan.limits.reach.window + 2, 2)), np.zeros((0, 2))
+        others = len(plan.start) - 1
+        self._buffers = (
+            np.zeros((2 * others, plan.limits.reach.window + 2, 2)),  # in force and proposal each
+            np.zeros((2 * others, 2)),
+            np.zeros((others, 2)),  # a lone trajectory each
+        )
         self._no_disks = (np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
-        self._gathered: Gathered = (no_rows, 0, 0, no_pts, no_centres, no_centres, *self._no_disks)
+        self._gathered: Gathered = (no_rows, 0, 0, *self._buffers, *self._no_disks)
         self._gathered_owners: set[int] = set()  # the UAVs with rows in it
         # where gone UAVs' aircraft fly (`failsafe_regions`): (cx, cy, r), the fans' paths and lengths
         no_paths = np.zeros((0, plan.limits.horizon + 1, 2))
@@ -292,13 +298,13 @@ class Commitments:
         if lone:
             table += lone
         rows = np.array(table, dtype=float).reshape(-1, HEAD + lim.horizon + EXTRA)
-        pts, centres, lone_centres = gathered_rows(rows, count, k, r.window, lim.kinematics_args)
+        gathered_rows(rows, count, k, r.window, lim.kinematics_args, *self._buffers)
         if disks:
             at = np.array(disks, dtype=float)
             held = (np.ascontiguousarray(at[:, 1:]), np.array([j for j, *_ in disks], dtype=np.int64))
         else:
             held = self._no_disks
-        self._gathered = (rows, count, k, pts, centres, lone_centres, *held)
+        self._gathered = (rows, count, k, *self._buffers, *held)
         self._gathered_owners = owners
         if not regions:  # (empty arrays are never written to)
             self._regions = self._no_regions

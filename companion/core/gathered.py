@@ -35,24 +35,36 @@ from companion.core.safety.switch import may_switch
 # owners' latest that are lone, then the row of that owner's latest), `count`, the step t_k, the
 # positions (count, window + 2, 2) and loiter centres of the rows, the lone trajectories' loiter
 # centres, and the disks (cx, cy, r) of UAVs not heard and their owners. A plain tuple, as
-# `safety.inputs.RulesArgs`.
+# `safety.inputs.RulesArgs`. The positions and centres are buffers kept from step to step
+# (`gathered_rows` fills them: a kernel that returns arrays costs microseconds to box them): only
+# their leading rows, as many as the table's, are this step's.
 Gathered = tuple[FloatArray, int, int, FloatArray, FloatArray, FloatArray, FloatArray, IntArray]
 EXTRA = 4  # columns of `Gathered`'s table after a kernel row
 
 
 @njit(cache=True)
 def gathered_rows(
-    table: FloatArray, count: int, first: int, window: int, kinematics: KinematicsArgs
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The positions and loiter centres of a step's gathering, and its lone loiter centres.
+    table: FloatArray,
+    count: int,
+    first: int,
+    window: int,
+    kinematics: KinematicsArgs,
+    pts: FloatArray,
+    centres: FloatArray,
+    lone: FloatArray,
+) -> None:
+    """Write the positions and loiter centres of a step's gathering and its lone loiter centres.
 
-    From the table of `Gathered`: the first `count` rows expanded from step `first` over
-    window + 1 steps and their loiter centres, and the loiter centres of the rest (over window)."""
+    From the table of `Gathered`, into the leading rows of the buffers `pts`, `centres` and
+    `lone`: the first `count` rows expanded from step `first` over window + 1 steps and their
+    loiter centres, and the loiter centres of the rest (over window)."""
     width = table.shape[1] - EXTRA
     rows = np.ascontiguousarray(table[:count, :width])
-    pts, centres = expand_with_centres(rows, first, window + 1, kinematics)
-    lone = np.ascontiguousarray(table[count:, :width])
-    return pts, centres, expand_with_centres(lone, first, window, kinematics)[1]
+    expanded, rows_centres = expand_with_centres(rows, first, window + 1, kinematics)
+    pts[:count] = expanded
+    centres[:count] = rows_centres
+    rest = np.ascontiguousarray(table[count:, :width])
+    lone[: rest.shape[0]] = expand_with_centres(rest, first, window, kinematics)[1]
 
 
 @njit(cache=True)
@@ -88,9 +100,9 @@ def select_checked(
     `proposals`, or when `resolving` only those of lower ids than `uav`; their window from t_k
     when `resolving`, else from t_k+1. Contiguous copies: the kernels are compiled for C-ordered
     arrays."""
-    table, count, first, pts, centres, lone, disks, disk_owners = gathered
+    table, count, first, pts, centres, lone_buffer, disks, disk_owners = gathered
     owners, in_force, entries, clause, lone_rows = _columns(table, count, first)
-    n, width = pts.shape[0], pts.shape[1] - 1
+    n, width = count, pts.shape[1] - 1
     lo = 0 if resolving else 1
     keep = np.empty(n, dtype=np.bool_)
     for i in range(n):
@@ -124,7 +136,7 @@ def select_checked(
         disks,
         tethers,
         tether_disks,
-        lone,
+        np.ascontiguousarray(lone_buffer[: lone_rows.shape[0]]),
         lone_owners,
         clause[rows],
     )
