@@ -65,6 +65,7 @@ class Agent(TaskPlanning):
     def __init__(self, world: World, uav: int) -> None:
         m = world.mission
         self.world, self.uav = world, uav
+        self._grid, self._dt = world.grid, world.kinematics.dt
         self.algorithm = m.algorithm.name
         n = world.grid.n_cells
         self._eta_padded = np.zeros(n + 1)  # eta followed by the 0 that FOV padding gathers (eq. 25)
@@ -92,7 +93,7 @@ class Agent(TaskPlanning):
         horizon = m.algorithm.horizon
         self._horizon = horizon
         self._rows: dict[int, tuple[float, ...]] = {}  # each peer's state as a `swarm_view` row
-        self._order: list[int] | None = []  # `_rows`' keys ascending; None once they changed
+        self._order: list[int] = []  # `_rows`' keys ascending; empty once they changed
         self._timeout = m.comms.peer_timeout_steps
         self._turns: dict[int, tuple[float, ...]] = {}  # each path's turns (`_plan_of`), as read
         self.rejected = 0
@@ -125,8 +126,8 @@ class Agent(TaskPlanning):
     def forget(self, uav: int) -> None:
         """Drop what is known of a UAV that has left (its task is free for the next auction)."""
         self.peers.pop(uav, None)
-        if self._rows.pop(uav, None) is not None:
-            self._order = None
+        self._rows.pop(uav, None)
+        self._order = []
         self.commitments.gone(uav)
 
     def _remember(self, states: Iterable[UavState]) -> None:
@@ -151,7 +152,7 @@ class Agent(TaskPlanning):
             if len(heads) < horizon:
                 heads += (heads or (state.heading,))[-1:] * (horizon - len(heads))
             if old is None:
-                self._order = None
+                self._order = []
             flat = chain.from_iterable(plan)
             rows[u] = (state.stamp, state.x, state.y, *flat, state.heading, *heads)
 
@@ -274,9 +275,7 @@ class Agent(TaskPlanning):
         rows = self._rows
         if not rows:
             return np.zeros((0, 2)), np.zeros((0, self._horizon + 1, 2))
-        order = self._order
-        if order is None:
-            order = self._order = sorted(rows)
+        order = self._order = self._order or sorted(rows)
         return swarm_view(np.array([rows[u] for u in order]), k, position)
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
@@ -286,7 +285,7 @@ class Agent(TaskPlanning):
         force, plan the task (Algorithm 2, eqs. 20-21) and the path (eq. 22) from the pose at t_k+1,
         and answer the command for [t_k, t_k+1] and the outbox stamped k."""
         k = obs.step
-        own = self.world.grid.fov_cell_list((obs.x, obs.y))
+        own = self._grid.fov_cell_list((obs.x, obs.y))
         own_cells = tuple(own.tolist())
         looks = array("q", own.tobytes())  # int64: a buffer numpy reads without converting each int
         known = self._found
@@ -316,7 +315,7 @@ class Agent(TaskPlanning):
         command = Command(
             step=k,
             turn=turn,
-            heading_rate=turn / self.world.kinematics.dt,
+            heading_rate=turn / self._dt,
             heading=pose[2],
             waypoint=pose[:2],
             path=plan,
@@ -398,11 +397,9 @@ class Agent(TaskPlanning):
 
         With no path allowed, or the mission closing, no proposal and the trajectory in force's track."""
         x1, y1, h1 = pose
-        horizon, paths = self._horizon, self.world.paths
+        horizon, paths, known = self._horizon, self.world.paths, self._turns
         if best >= 0 and not obs.closing:
-            turns = self._turns.get(best)
-            if turns is None:
-                turns = self._turns[best] = tuple(paths.sequences[best].tolist())
+            turns = known.get(best) or known.setdefault(best, tuple(paths.sequences[best].tolist()))
             proposal = Trajectory(k + 1, x1, y1, h1, turns, side)
             plan: Track = ((x1, y1), *map(tuple, path[: horizon - 1].tolist()))
             return proposal, plan, (h1, *paths.headings_along(h1, best)[: horizon - 1])
