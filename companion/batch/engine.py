@@ -415,7 +415,7 @@ def _step_agents(
     scorer: Scorer,
     instance: tuple[int, int],
     inboxes: list[list[Message]],
-) -> tuple[np.ndarray, list[list[Message]], np.ndarray]:
+) -> tuple[np.ndarray, list[list[Message]], list[int]]:
     """Step k of every UAV: the turns flown, the outboxes and each agent's task.
 
     Step k of every UAV from `poses`, each agent with its inbox and what its camera reports: the
@@ -425,11 +425,11 @@ def _step_agents(
     unsteered one the loiter turn), the outboxes (empty for the dead) and each agent's task (-1 for
     the dead)."""
     n = len(agents)
-    turns, commanded = np.empty(n), np.full(n, -1, dtype=np.int64)
+    turns, commanded = np.empty(n), [-1] * n
     outboxes: list[list[Message]] = []
     loiter_turn = world.safety.limits.reach.loiter_turn
     perfect = world.sensor.perfect
-    seen: list[bool] = np.any(sees, axis=1).tolist() if perfect else []
+    seen: list[bool] = np.logical_or.reduce(sees, axis=1).tolist() if perfect else []
     faulty = bool(faults.death or faults.held)
     for i, ((x, y, h), agent) in enumerate(zip(poses.tolist(), agents, strict=True)):
         if faulty and faults.dead_at(i, k):
