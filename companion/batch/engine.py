@@ -214,9 +214,10 @@ class Scorer:
             m.comms.range,
         )
         self.n_covered += new
-        if self._before is not None and self.keepout.shape[0]:
-            self.entries += keepout_entries(self._before, positions, self.keepout)
-        self._before = np.array(positions[:, :2], dtype=float)
+        if self.keepout.shape[0]:
+            if self._before is not None:
+                self.entries += keepout_entries(self._before, positions, self.keepout)
+            self._before = np.array(positions[:, :2], dtype=float)
         self.found[k], self.lam[k], self.mind[k] = found, lam, mind
         self.cov[k] = self.n_covered / grid.n_cells
         self.unc[k] = uncertainty
@@ -367,6 +368,7 @@ def simulate(
         steps,
     )
     last = np.zeros(n)  # each vehicle's latest turn: the command a dead companion leaves held
+    everyone = np.ones(n, dtype=bool)  # `live` of a run without faults
     for k in range(steps):
         sees = scorer.record(k, poses[:, :2])
         stepped = _step_agents(k, agents, world, faults, poses, last, sees, scorer, (seed, run), inboxes)
@@ -379,7 +381,9 @@ def simulate(
         if traj is not None:
             traj[k] = poses
         inboxes = radio.deliver(poses[:, :2], outboxes)
-        live = np.array([not faults.dead_at(i, k) and faults.steered_at(i, k) for i in range(n)])
+        live = everyone
+        if faults.death or faults.held:
+            live = np.array([not faults.dead_at(i, k) and faults.steered_at(i, k) for i in range(n)])
         scorer.record_flight(k, poses, turns, live)
         last = turns
         poses = world.kinematics.advance_poses(poses, turns)
@@ -411,7 +415,7 @@ def _step_agents(
     scorer: Scorer,
     instance: tuple[int, int],
     inboxes: list[list[Message]],
-) -> tuple[np.ndarray, list[list[Message]], np.ndarray]:
+) -> tuple[np.ndarray, list[list[Message]], list[int]]:
     """Step k of every UAV: the turns flown, the outboxes and each agent's task.
 
     Step k of every UAV from `poses`, each agent with its inbox and what its camera reports: the
@@ -421,19 +425,19 @@ def _step_agents(
     unsteered one the loiter turn), the outboxes (empty for the dead) and each agent's task (-1 for
     the dead)."""
     n = len(agents)
-    turns, commanded = np.empty(n), np.full(n, -1, dtype=np.int64)
+    turns, commanded = np.empty(n), [-1] * n
     outboxes: list[list[Message]] = []
-    seen: list[bool] = np.any(sees, axis=1).tolist()
     loiter_turn = world.safety.limits.reach.loiter_turn
     perfect = world.sensor.perfect
-    for i, agent in enumerate(agents):
-        if faults.dead_at(i, k):
+    seen: list[bool] = np.logical_or.reduce(sees, axis=1).tolist() if perfect else []
+    faulty = bool(faults.death or faults.held)
+    for i, ((x, y, h), agent) in enumerate(zip(poses.tolist(), agents, strict=True)):
+        if faulty and faults.dead_at(i, k):
             if i not in faults.dead:
                 faults.dead[i] = DeadVehicle.of(world, k, float(last[i]), agent.commitments.inforce)
-            turns[i] = faults.dead[i].turn(k, *poses[i].tolist())
+            turns[i] = faults.dead[i].turn(k, x, y, h)
             outboxes.append([])
             continue
-        x, y, h = poses[i].tolist()
         if perfect:
             detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
         else:
@@ -444,7 +448,7 @@ def _step_agents(
             detections = reported_positions(grid.centres, cells, truth, world.sensor, look, (x, y))
             if detections:
                 scorer.reported(world.grid.cell_at(np.array(detections)))
-        steered = faults.steered_at(i, k)
+        steered = not faulty or faults.steered_at(i, k)
         obs = Observation(step=k, x=x, y=y, heading=h, detections=detections, steered=steered)
         command, outbox = agent.step(obs, inboxes[i])
         if agent.newly_confirmed:

@@ -65,6 +65,7 @@ class Agent(TaskPlanning):
     def __init__(self, world: World, uav: int) -> None:
         m = world.mission
         self.world, self.uav = world, uav
+        self._grid, self._dt = world.grid, world.kinematics.dt
         self.algorithm = m.algorithm.name
         n = world.grid.n_cells
         self._eta_padded = np.zeros(n + 1)  # eta followed by the 0 that FOV padding gathers (eq. 25)
@@ -92,6 +93,9 @@ class Agent(TaskPlanning):
         horizon = m.algorithm.horizon
         self._horizon = horizon
         self._rows: dict[int, tuple[float, ...]] = {}  # each peer's state as a `swarm_view` row
+        self._order: list[int] = []  # `_rows`' keys ascending; empty once they changed
+        self._timeout = m.comms.peer_timeout_steps
+        self._turns: dict[int, tuple[float, ...]] = {}  # each path's turns (`_plan_of`), as read
         self.rejected = 0
         self.task = -1
         self.task_reward = 0.0
@@ -123,6 +127,7 @@ class Agent(TaskPlanning):
         """Drop what is known of a UAV that has left (its task is free for the next auction)."""
         self.peers.pop(uav, None)
         self._rows.pop(uav, None)
+        self._order = []
         self.commitments.gone(uav)
 
     def _remember(self, states: Iterable[UavState]) -> None:
@@ -130,12 +135,13 @@ class Agent(TaskPlanning):
 
         Keep the newest state of each peer, and its `swarm_view` row: a plan shorter than the
         horizon goes on at its last velocity, headings past the plan stay at the last one."""
-        horizon = self._horizon
+        horizon, peers, rows, me = self._horizon, self.peers, self._rows, self.uav
         for state in states:
-            old = self.peers.get(state.uav)
-            if state.uav == self.uav or (old is not None and state.stamp <= old.stamp):
+            u = state.uav
+            old = peers.get(u)
+            if u == me or (old is not None and state.stamp <= old.stamp):
                 continue
-            self.peers[state.uav] = state
+            peers[u] = state
             plan, heads = state.plan[:horizon], state.plan_headings[:horizon]
             if len(plan) < horizon:
                 track = [(state.x, state.y), *plan]
@@ -145,8 +151,10 @@ class Agent(TaskPlanning):
                 plan = tuple(track[1:])
             if len(heads) < horizon:
                 heads += (heads or (state.heading,))[-1:] * (horizon - len(heads))
+            if old is None:
+                self._order = []
             flat = chain.from_iterable(plan)
-            self._rows[state.uav] = (state.stamp, state.x, state.y, *flat, state.heading, *heads)
+            rows[u] = (state.stamp, state.x, state.y, *flat, state.heading, *heads)
 
     def _ingest(
         self, inbox: Iterable[Message], k: int, looks: MutableSequence[int], coverage: list[CoverageMsg]
@@ -159,26 +167,26 @@ class Agent(TaskPlanning):
         bids of this auction round. Messages are validated where they enter (`messages.check`);
         here only their timing counts."""
         bids: dict[int, Bids] = {}
-        oldest = k - self.world.mission.comms.peer_timeout_steps
+        oldest, me, previous = k - self._timeout, self.uav, k - 1
         states: list[UavState] = []
         fresh: dict[int, StateMsg] = {}
         self.neighbours = neighbours = {}
         for msg in inbox:
-            if msg.sender == self.uav or not oldest <= msg.stamp <= k:
+            if msg.sender == me or not oldest <= msg.stamp <= k:
                 self.rejected += 1
-                continue
-            if isinstance(msg, StateMsg):
+            elif type(msg) is StateMsg:
                 states.append(msg.state)
-                if msg.stamp == k - 1:
+                if msg.stamp == previous:
                     neighbours[msg.sender] = msg.heard
                     fresh[msg.sender] = msg
-            elif isinstance(msg, CoverageMsg):
+            elif type(msg) is CoverageMsg:
                 looks.extend(msg.cells)
                 coverage.append(msg)
-            elif isinstance(msg, BidsMsg):
-                if msg.stamp == k - 1:
+            elif type(msg) is BidsMsg:
+                if msg.stamp == previous:
                     bids[msg.sender] = (msg.rewards, msg.confirm, msg.confirm_rewards)
             else:
+                assert isinstance(msg, ClaimsMsg)
                 states.extend(msg.known)
         self._remember(states)
         self.commitments.observe(k, fresh, states)
@@ -264,10 +272,11 @@ class Agent(TaskPlanning):
     # -- mission planning ----------------------------------------------------------------------
     def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
         """`swarm_view` of what this UAV knows, at t_k (eq. 26 and the neighbours' predicted motion)."""
-        if not self._rows:
+        rows = self._rows
+        if not rows:
             return np.zeros((0, 2)), np.zeros((0, self._horizon + 1, 2))
-        table = np.array([self._rows[u] for u in sorted(self._rows)])
-        return swarm_view(table, k, position)
+        order = self._order = self._order or sorted(rows)
+        return swarm_view(np.array([rows[u] for u in order]), k, position)
 
     def step(self, obs: Observation, inbox: Iterable[Message]) -> tuple[Command, list[Message]]:
         """Step k of the algorithm: `step(observation, inbox) -> (command, outbox)`.
@@ -276,7 +285,7 @@ class Agent(TaskPlanning):
         force, plan the task (Algorithm 2, eqs. 20-21) and the path (eq. 22) from the pose at t_k+1,
         and answer the command for [t_k, t_k+1] and the outbox stamped k."""
         k = obs.step
-        own = self.world.grid.fov_cell_list((obs.x, obs.y))
+        own = self._grid.fov_cell_list((obs.x, obs.y))
         own_cells = tuple(own.tolist())
         looks = array("q", own.tobytes())  # int64: a buffer numpy reads without converting each int
         known = self._found
@@ -306,7 +315,7 @@ class Agent(TaskPlanning):
         command = Command(
             step=k,
             turn=turn,
-            heading_rate=turn / self.world.kinematics.dt,
+            heading_rate=turn / self._dt,
             heading=pose[2],
             waypoint=pose[:2],
             path=plan,
@@ -388,9 +397,9 @@ class Agent(TaskPlanning):
 
         With no path allowed, or the mission closing, no proposal and the trajectory in force's track."""
         x1, y1, h1 = pose
-        horizon, paths = self._horizon, self.world.paths
+        horizon, paths, known = self._horizon, self.world.paths, self._turns
         if best >= 0 and not obs.closing:
-            turns = tuple(paths.sequences[best].tolist())
+            turns = known.get(best) or known.setdefault(best, tuple(paths.sequences[best].tolist()))
             proposal = Trajectory(k + 1, x1, y1, h1, turns, side)
             plan: Track = ((x1, y1), *map(tuple, path[: horizon - 1].tolist()))
             return proposal, plan, (h1, *paths.headings_along(h1, best)[: horizon - 1])
