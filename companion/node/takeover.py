@@ -2,8 +2,8 @@
 
 Without `--takeover` the companion never arms the vehicle or changes its mode. With it:
 
-- a vehicle disarmed on the ground (below `ON_GROUND_M`) takes off, arming retried, and climbs to
-  `CLIMBED` of the UAV's altitude: ArduPilot by TKOFF_ALT and mode TAKEOFF; PX4 by
+- a vehicle disarmed on the ground (below `ON_GROUND_M`) takes off, arming retried, and climbs
+  to within `ALTITUDE_KEEPING` of its layer: ArduPilot by TKOFF_ALT and mode TAKEOFF; PX4 by
   MAV_CMD_NAV_TAKEOFF (AUTO.TAKEOFF) once its altitude reference reached the ground (`px4_ready_at`);
 - PX4 OFFBOARD: the OFFBOARD-loss failsafe becomes Hold if it was a stick-flown mode;
 - then the guided mode (ArduPilot GUIDED; PX4 OFFBOARD, or Hold for `reposition`) and arming,
@@ -19,6 +19,7 @@ import math
 import threading
 import time
 
+from companion.contracts.mission import ALTITUDE_KEEPING
 from companion.node.guidance import STREAM_PERIOD_S, Guidance
 from companion.node.vehicle_link import (
     ARDUPILOT_GUIDED,
@@ -34,7 +35,6 @@ log = logging.getLogger("companion")
 TAKEOVER_TIMEOUT_S = 30.0  # wall seconds to get the guided mode and arming once airborne
 TAKEOFF_TIMEOUT_S = 300.0  # wall seconds for a take-off (GPS, EKF and pre-arm checks first)
 ON_GROUND_M = 10.0
-CLIMBED = 0.8
 PX4_REFERENCE_RATE = "FW_T_CLMB_R_SP"  # m/s: how fast PX4's altitude reference climbs before take-off
 PX4_REFERENCE_MARGIN_S = 5.0
 OFFBOARD_LOSS, OFFBOARD_LOSS_MANUAL, OFFBOARD_LOSS_HOLD = "COM_OBL_RC_ACT", 2, 5
@@ -124,9 +124,12 @@ def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event
 
 
 def climb(link: VehicleLink, altitude: float, uav: int, stop: threading.Event, deadline: float) -> bool:
-    """Wait until the vehicle has climbed `CLIMBED` of `altitude`; False if it did not in time."""
+    """Wait until the vehicle is within `ALTITUDE_KEEPING` of its layer; False if not in time.
+
+    Within `ALTITUDE_KEEPING` below `altitude`: a companion that steered from lower down could fly
+    its plans, which keep apart only the UAVs of a layer, through the layers below its own."""
     s = link.state
-    while not stop.is_set() and not s.up >= CLIMBED * altitude:
+    while not stop.is_set() and not s.up >= altitude - ALTITUDE_KEEPING:
         if time.monotonic() > deadline or not s.armed:
             log.warning("uav %d: take-off failed at %.0f m (armed %s)", uav, s.up, s.armed)
             return False
