@@ -81,7 +81,7 @@ class Agent(TaskPlanning):
         self._sensor = (s.pd, s.pd_edge, s.pf, s.radius)  # a plain tuple: numba types it faster
         self._gamma = m.uncertainty.gamma
         self.found: set[int] = set()  # cells confirmed (`Belief.confirmed`)
-        self._found: tuple[int, ...] = ()  # `found` ascending; another tuple only when it changed
+        self._found: tuple[int, ...] = ()  # `found` ascending
         self._misses = np.zeros(0, dtype=np.bool_)  # no camera report (`_sense`)
         self.candidates = np.zeros(0, dtype=np.int64)  # cells a detection left undecided
         self._settled = -1  # the belief's version `_settle` last read
@@ -264,10 +264,8 @@ class Agent(TaskPlanning):
             h = -(p * np.log2(p) + (1.0 - p) * np.log2(1.0 - p))
             eta0 = self.world.mission.uncertainty.eta0
             self.eta[self.candidates] = np.maximum(self.eta[self.candidates], eta0 * h)
-        found = tuple(confirmed.tolist())  # ascending
-        self.found = set(found)
-        if found != self._found:
-            self._found = found
+        self._found = tuple(confirmed.tolist())  # ascending
+        self.found = set(self._found)
 
     # -- mission planning ----------------------------------------------------------------------
     def _swarm(self, k: int, position: FloatArray) -> tuple[FloatArray, FloatArray]:
