@@ -3,8 +3,10 @@
 Run as a script so that `companion` is imported from PYTHONPATH, once per checkout, and compare
 the last lines (docs/performance.md gives the commands). It flies the checkout's scenario files
 (and scenario 1 in continuous mode) with each algorithm, runs 0-2 (run 2 kills UAV 1's companion
-at step 100 and takes UAV 2's vehicle from its companion at step 150), and with `--missions DIR`
-also every mission file in DIR (run 0, UAV 1's companion killed at step 120). Every field of each
+at step 100 and takes UAV 2's vehicle from its companion at step 150), with `--sensor PD,PF` also
+scenarios 1-continuous, 1 and 3 with that imperfect sensor (the candidates and confirmation bids'
+paths), and with `--missions DIR` also every mission file in DIR (each of these run 0, UAV 1's
+companion killed at step 120). Every field of each
 `RunResult` but its wall time and the figures it lacks (None) is hashed: trajectories, tasks, the
 metric curves, target steps and the protocol's counters.
 """
@@ -19,6 +21,7 @@ from typing import TypedDict
 import numpy as np
 
 SCENARIOS = ("scenario1", "scenario2", "scenario3", "scenario1_continuous")
+IMPERFECT = ("scenario1_continuous", "scenario1", "scenario3")  # `--sensor`: these, in this order
 ALGORITHMS = ("proposed", "no-ta", "pheromone")
 
 
@@ -32,26 +35,41 @@ class Faults(TypedDict, total=False):
 def main() -> None:
     import companion
     from companion.batch.engine import simulate
+    from companion.batch.sensing_study import with_sensor
+    from companion.contracts.mission import Mission
     from companion.core.feasibility import load_mission
 
     root = Path(companion.__file__).resolve().parents[1]  # the checkout hashed, its own mission files
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--sensor", type=_sensor, help=f"PD,PF: also {', '.join(IMPERFECT)} with this sensor")
     parser.add_argument("--missions", type=Path, help="also every *.toml in this directory")
     args = parser.parse_args()
     faulty: Faults = {"kills": {1: 100}, "takeovers": {2: 150}}
     none: Faults = {}
-    cases: list[tuple[Path, int, Faults]] = [
-        (root / "mission_files" / f"{name}.toml", run, faulty if run == 2 else none)
+    files = root / "mission_files"
+    cases: list[tuple[str, Mission, int, Faults]] = [
+        (name, load_mission(files / f"{name}.toml"), run, faulty if run == 2 else none)
         for name in SCENARIOS
         for run in (0, 1, 2)
     ]
+    killed = Faults(kills={1: 120})
+    if args.sensor is not None:
+        pd, pf = args.sensor
+        cases += [
+            (
+                f"{name}_pd{pd:g}_pf{pf:g}",
+                with_sensor(load_mission(files / f"{name}.toml"), pd, pf),
+                0,
+                killed,
+            )
+            for name in IMPERFECT
+        ]
     if args.missions is not None:
-        cases += [(path, 0, Faults(kills={1: 120})) for path in sorted(args.missions.glob("*.toml"))]
+        cases += [(path.stem, load_mission(path), 0, killed) for path in sorted(args.missions.glob("*.toml"))]
     total = hashlib.sha256()
-    for path, run, faults in cases:
-        mission = load_mission(path)
+    for label, mission, run, faults in cases:
         for algorithm in ALGORITHMS:
             flown = mission.with_algorithm(algorithm)
             result = simulate(flown, args.seed, run, args.steps, record=True, **faults)
@@ -61,8 +79,17 @@ def main() -> None:
                     one.update(name.encode())
                     one.update(value.tobytes() if isinstance(value, np.ndarray) else repr(value).encode())
             total.update(one.digest())
-            print(f"{path.stem} {algorithm} run {run}: {one.hexdigest()[:16]}", flush=True)
+            print(f"{label} {algorithm} run {run}: {one.hexdigest()[:16]}", flush=True)
     print(f"all {total.hexdigest()}")
+
+
+def _sensor(text: str) -> tuple[float, float]:
+    """`--sensor PD,PF`: two probabilities."""
+    try:
+        pd, pf = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected PD,PF, two numbers such as 0.8,0.02") from None
+    return pd, pf
 
 
 if __name__ == "__main__":
