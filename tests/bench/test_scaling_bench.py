@@ -39,7 +39,10 @@ def test_the_command_prints_writes_and_plots(tmp_path: Path) -> None:
     assert "proposed: CPU per step grows as N^" in proc.stdout
     figures = json.loads((out / "scaling.json").read_text())
     assert [(p["algorithm"], p["uavs"]) for p in figures["points"]] == [
-        ("proposed", 2), ("proposed", 4), ("no-ta", 2), ("no-ta", 4)
+        ("proposed", 2),
+        ("proposed", 4),
+        ("no-ta", 2),
+        ("no-ta", 4),
     ]
     assert all(p["cpu_s"] > 0 and p["steps"] == 10 for p in figures["points"])
     assert set(figures["exponents"]) == {"proposed", "no-ta"}

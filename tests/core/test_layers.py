@@ -87,6 +87,7 @@ def test_uavs_sharing_a_layer_start_far_apart(starts: list[tuple[float, float]],
     assert all(0 <= layer < count for layer in layers)
     assert len(set(layers)) == min(count, len(starts))  # an empty layer is taken before a shared one
     for i in range(len(starts)):
+
         def nearest(layer: int, i: int = i) -> float:
             return min(
                 (math.dist(starts[i], starts[j]) for j in range(i) if layers[j] == layer), default=math.inf

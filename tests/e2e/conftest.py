@@ -33,7 +33,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from companion.app.loopback import free_ports
-from companion.contracts.mission import Mission
+from companion.contracts.mission import ALTITUDE_KEEPING, Mission
 from companion.core.feasibility import load_mission
 from tests.thread_signal import signal_another_thread
 
@@ -428,6 +428,17 @@ def read_csv(path: Path) -> list[dict[str, float]]:
             except (TypeError, ValueError):
                 continue
     return rows
+
+
+def assert_handed_over_at_layer(m: Mission, uav: int, rows: dict[int, dict[str, float]]) -> None:
+    """The companion steered its vehicle first within `ALTITUDE_KEEPING` of its layer, not on the climb.
+
+    Its plans keep apart only the UAVs of its own layer: steered from lower down, it could fly them
+    through the layers below (`takeover.climb`). `rows`: its uav{i}.csv by step."""
+    steered = [rows[k] for k in sorted(rows) if rows[k]["steered"]]
+    assert steered, f"uav{uav} never steered"
+    up, layer = steered[0]["up"], m.altitude_of(uav)
+    assert up >= layer - ALTITUDE_KEEPING, f"uav{uav} first steered at {up:.1f} m, its layer {layer:g} m"
 
 
 def searched(rows: list[dict[str, float]]) -> list[dict[str, float]]:

@@ -5,9 +5,9 @@ companions taking off by themselves to their altitude layers and flying the plan
 (position-target). The run is stopped with Ctrl-C once every UAV steered STEPS steps and the swarm
 found a target as the run's score counts it (a camera frame between sampling moments may see a
 target at the edge of the field of view that the score, which looks at the sampling moments, does
-not), and is scored: targets found, every logged pose
-inside the fence, each UAV at its altitude layer, the plan kept within the mission's safety buffer
-(on 95 % of steps), and the horizontal separation R_s kept between every two UAVs along the flown
+not), and is scored: targets found, every logged pose inside the fence, each UAV at its altitude layer
+(from its first steered step on), the plan kept within the mission's safety buffer (on 95 % of
+steps), and the horizontal separation R_s kept between every two UAVs along the flown
 tracks (approach.csv).
 """
 
@@ -21,7 +21,7 @@ from pathlib import Path
 from companion.app.evaluation import CompanionLogs, evaluate, read_approach, truth_cells
 from companion.app.px4_sitl import Px4Build
 from companion.core.world import World, build_world
-from tests.e2e.conftest import PY, Proc, Procs, read_csv, wait_rows
+from tests.e2e.conftest import PY, Proc, Procs, assert_handed_over_at_layer, read_csv, wait_rows
 from tests.px4.conftest import SWARM_SPEEDUP, first_instance, write_mission
 
 UAVS, STEPS, MAX_STEPS = 3, 40, 400
@@ -73,6 +73,7 @@ def test_swarm_on_px4_sitl(px4_build: Px4Build, tmp_path: Path) -> None:
         assert abs(statistics.median(r["up"] for r in flown) - m.altitude_of(i)) < 5.0, (
             f"uav{i} off its layer"
         )
+        assert_handed_over_at_layer(m, i, rows)
     # separation along the flown tracks (the stand-alone camera's time-aligned position streams): each
     # PX4 instance keeps its own clock, so the poses the companions log at step k are not simultaneous
     approach = read_approach(out / "approach.csv")

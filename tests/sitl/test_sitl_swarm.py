@@ -1,25 +1,25 @@
 """A whole swarm on ArduPlane SITL with one command: `uavsearch run --autopilot ardupilot-sitl`.
 
-The mission is the no-fly example's area (scenario1_nofly: a no-fly band across scenario 1's
-middle, from the operator's .plan). Four SITL instances (speed-up 4, ADS-B on as the run sets it),
-the stand-alone camera, four companions taking off by themselves
-at their altitude layers (one each), each arming its autopilot's failsafe for its own silence and
-keeping it on the loiter of its trajectory in force. UAV 1 starts 140 m from UAV 2, on the layer
-next to it. A radio partition ({0, 1} against {2, 3}, the fault matrix's partition row) cuts that
-pair apart while both are in range, and UAV 1's companion is then killed mid-partition: its aircraft
-flies its last guidance for `safety.failsafe_timeout` (one step, the default), then ArduPlane's GCS
-failsafe switches it to AUTO and it circles that loiter (seen on a ground station of our own, SITL's
-SERIAL2), within `safety.failsafe_reach` of the loiter's centre. The others fly on; the run,
-stopped with Ctrl-C, is scored: targets found, every logged pose inside the fence, each UAV at its
-altitude layer, and separation in three dimensions (docs/algorithm.md, "Separation in three
+The mission is the no-fly example's area (scenario1_nofly: a no-fly band across scenario 1's middle,
+from the operator's .plan). Four SITL instances (speed-up 4, ADS-B on as the run sets it), the
+stand-alone camera, four companions taking off by themselves at their altitude layers (one each),
+each arming its autopilot's failsafe for its own silence and keeping it on the loiter of its
+trajectory in force. UAV 1 starts 140 m from UAV 2, on the layer next to it. A radio partition ({0,
+1} against {2, 3}, the fault matrix's partition row) cuts that pair apart while both are in range,
+and UAV 1's companion is then killed mid-partition: its aircraft flies its last guidance for
+`safety.failsafe_timeout` (one step, the default), then ArduPlane's GCS failsafe switches it to AUTO
+and it circles that loiter (seen on a ground station of our own, SITL's SERIAL2), within
+`safety.failsafe_reach` of the loiter's centre. The others fly on; the run, stopped with Ctrl-C, is
+scored: targets found, every logged pose inside the fence, each UAV at its altitude layer (from its
+first steered step on), and separation in three dimensions (docs/algorithm.md, "Separation in three
 dimensions"): in the camera's record of every pair's closest approach (approach.csv, from the
 vehicles' position streams at 10 Hz, with their altitudes) no two aircraft are within R_s
-horizontally and closer vertically than the layers' floor, at any time; and no logged pose
-entered the band inflated by `safety.margin` (criteria.json; the survivors fly on until one works at
-the band's side). MAVProxy on survivor uav2's SERIAL2,
-while the swarm flies, sees the companion's progress values and HEARTBEAT, the peers as ArduPlane's
-own ADSB_VEHICLE traffic and, for a target found while it watches, the detection's STATUSTEXT; the
-fence read back there by plain pymavlink is the mission's, the band as the .plan draws it.
+horizontally and closer vertically than the layers' floor, at any time; and no logged pose entered
+the band inflated by `safety.margin` (criteria.json; the survivors fly on until one works at the
+band's side). MAVProxy on survivor uav2's SERIAL2, while the swarm flies, sees the companion's
+progress values and HEARTBEAT, the peers as ArduPlane's own ADSB_VEHICLE traffic and, for a target
+found while it watches, the detection's STATUSTEXT; the fence read back there by plain pymavlink is
+the mission's, the band as the .plan draws it.
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ from tests.e2e.conftest import (
     SCENARIO1_NOFLY,
     Proc,
     Procs,
+    assert_handed_over_at_layer,
     companion_pid,
     mavproxy_argv,
     read_csv,
@@ -206,6 +207,7 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
         assert abs(statistics.median(r["up"] for r in flown) - m.altitude_of(i)) < 5.0, (
             f"uav{i} off its layer"
         )
+        assert_handed_over_at_layer(m, i, rows)
 
     # ground truth of separation after the kill, while the survivors flew the mission
     flown_to = min(max(rows) for i, rows in logs.items() if i != VICTIM)
