@@ -58,7 +58,7 @@ class GroundStationFeed:
         """
         self.link.system_status = mavlink.MAV_STATE_ACTIVE if steered else mavlink.MAV_STATE_STANDBY
         self._targets(agent)
-        progress = search_progress(agent.seen, agent.eta, agent.world.prior, agent.found)
+        progress = search_progress(agent.seen, agent.eta, agent.belief.posterior(), agent.found)
         self._progress(progress)
         self._health()
         for state in sorted(agent.peers.values(), key=lambda s: s.uav):
