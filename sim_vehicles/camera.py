@@ -19,7 +19,7 @@ from companion.contracts.keys import SwarmKeys
 from companion.contracts.mission import Mission
 from companion.core.geometry import Grid
 from companion.core.prior import draw_targets
-from companion.core.sensing import reported_positions, sensor_model
+from companion.core.sensing import reported_cells, sensor_model
 from companion.core.world import Stream, build_grid, build_prior, instance_rng
 
 LOOPBACK_PREFIXES = (
@@ -82,7 +82,7 @@ class Camera:
 
     A perfect sensor (the paper's) reports every target cell whose centre is within the sensor
     radius. An imperfect one draws each look at each cell in view from (seed, run 0, vehicle,
-    sampling step, cell), as the batch engine does (`sensing.reported_positions`): an exposure at
+    sampling step, cell), as the batch engine does (`sensing.reported_cells`): an exposure at
     simulated time t is the look of step floor(t / dT). `frame` builds the CameraFrame of an
     exposure (the bundled simulator's camera and the stand-alone camera both publish these).
     """
@@ -108,8 +108,7 @@ class Camera:
             return self.targets[d2 <= self.r2]
         cells = self.grid.fov_cell_list((x, y))
         look = (self.seed, 0, uav, time_usec // self.step_usec)
-        reported = reported_positions(self.grid.centres, cells, self.holds_target, self.model, look, (x, y))
-        return self.grid.cell_at(np.array(reported, dtype=float).reshape(-1, 2))
+        return reported_cells(self.grid.centres, cells, self.holds_target, self.model, look, (x, y))
 
     def frame(
         self,

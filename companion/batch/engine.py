@@ -22,7 +22,7 @@ from companion.core.geometry import IntArray
 from companion.core.messages import Message, decode, encode
 from companion.core.prior import draw_targets
 from companion.core.search_area import keepout_entries, keepout_pieces
-from companion.core.sensing import reported_positions
+from companion.core.sensing import reported_cells
 from companion.core.trajectory import segment_clearance, step_pose
 from companion.core.uncertainty import global_average_uncertainty, mark_seen
 from companion.core.world import Stream, World, build_world, instance_rng
@@ -419,7 +419,7 @@ def _step_agents(
     """Step k of every UAV: the turns flown, the outboxes and each agent's task.
 
     Step k of every UAV from `poses`, each agent with its inbox and what its camera reports: the
-    targets it `sees` (a perfect sensor), or `reported_positions`' draws for run `instance`
+    targets it `sees` (a perfect sensor), or `reported_cells`' draws for run `instance`
     (seed, run); the scorer learns the reports and each agent's confirmations. The turns flown
     over [t_k, t_k+1] (a dead companion's vehicle flies its `DeadVehicle` from its `last` turn; an
     unsteered one the loiter turn), the outboxes (empty for the dead) and each agent's task (-1 for
@@ -428,7 +428,7 @@ def _step_agents(
     turns, commanded = np.empty(n), [-1] * n
     outboxes: list[list[Message]] = []
     loiter_turn = world.safety.limits.reach.loiter_turn
-    perfect = world.sensor.perfect
+    perfect, model = world.sensor.perfect, world.sensor
     seen: list[bool] = np.logical_or.reduce(sees, axis=1).tolist() if perfect else []
     faulty = bool(faults.death or faults.held)
     for i, ((x, y, h), agent) in enumerate(zip(poses.tolist(), agents, strict=True)):
@@ -441,13 +441,14 @@ def _step_agents(
         if perfect:
             detections = tuple(map(tuple, scorer.target_xy[sees[i]].tolist())) if seen[i] else ()
         else:
-            cells = world.grid.fov_cell_list((x, y))
-            look = (*instance, i, k)
             grid = world.grid
-            truth = scorer.holds_target
-            detections = reported_positions(grid.centres, cells, truth, world.sensor, look, (x, y))
+            cells = grid.fov_cell_list((x, y))
+            reported = reported_cells(
+                grid.centres, cells, scorer.holds_target, model, (*instance, i, k), (x, y)
+            )
+            detections = tuple(map(tuple, grid.centres[reported].tolist())) if reported.size else ()
             if detections:
-                scorer.reported(world.grid.cell_at(np.array(detections)))
+                scorer.reported(reported)
         steered = not faulty or faults.steered_at(i, k)
         obs = Observation(step=k, x=x, y=y, heading=h, detections=detections, steered=steered)
         command, outbox = agent.step(obs, inboxes[i])

@@ -4,7 +4,8 @@ Each round runs `cpu_per_run.py` (one 1,000-step run of each scenario file and a
 time) once with the other checkout's `companion` on PYTHONPATH and once with this one's, in fresh
 processes, interleaved so that the machine's drift hits both alike, or with `concurrent` both at
 the same time, one per core (the drift then hits both within the same seconds); a cell's figure
-is its minimum over the rounds. CPU time, not wall time: other work on the machine slows a run's wall
+is its minimum over the rounds; with `sensor` (Pd, Pf) both fly the scenarios with that imperfect sensor.
+CPU time, not wall time: other work on the machine slows a run's wall
 time much more than its CPU time (docs/performance.md).
 """
 
@@ -28,6 +29,7 @@ class Against:
     old: list[float]  # per cell, CPU seconds (minimum over the rounds)
     new: list[float]
     concurrent: bool = False  # both checkouts timed at the same time, else one after the other
+    sensor: tuple[float, float] | None = None  # (Pd, Pf) given to every scenario; None: the files'
 
     @property
     def ratio(self) -> float:
@@ -45,9 +47,10 @@ def checkout(path: Path) -> Path:
     return root
 
 
-def _start(root: Path, steps: int) -> subprocess.Popen[str]:
+def _start(root: Path, steps: int, sensor: tuple[float, float] | None) -> subprocess.Popen[str]:
+    extra = [] if sensor is None else ["--sensor", f"{sensor[0]!r},{sensor[1]!r}"]
     return subprocess.Popen(
-        [sys.executable, str(SCRIPT), "--steps", str(steps)],
+        [sys.executable, str(SCRIPT), "--steps", str(steps), *extra],
         env={**os.environ, "PYTHONPATH": str(root)},
         cwd=root,
         stdout=subprocess.PIPE,
@@ -64,7 +67,13 @@ def _cells(proc: subprocess.Popen[str], root: Path) -> list[float]:
     return [float(c) for c in cells]
 
 
-def cpu_against(other: Path, rounds: int = 2, steps: int = 1000, concurrent: bool = False) -> Against:
+def cpu_against(
+    other: Path,
+    rounds: int = 2,
+    steps: int = 1000,
+    concurrent: bool = False,
+    sensor: tuple[float, float] | None = None,
+) -> Against:
     """Time both checkouts `rounds` times each (`steps` per run): interleaved, or side by side."""
     if rounds < 1 or steps < 1:
         raise ValueError(f"--rounds and --steps must be at least 1 (got {rounds} and {steps})")
@@ -72,7 +81,7 @@ def cpu_against(other: Path, rounds: int = 2, steps: int = 1000, concurrent: boo
     olds, news = [], []
     for _ in range(rounds):
         if concurrent:
-            both = _start(root, steps), _start(HERE, steps)
+            both = _start(root, steps, sensor), _start(HERE, steps, sensor)
             try:
                 olds.append(_cells(both[0], root))
                 news.append(_cells(both[1], HERE))
@@ -82,21 +91,23 @@ def cpu_against(other: Path, rounds: int = 2, steps: int = 1000, concurrent: boo
                         proc.kill()
                         proc.wait()
         else:
-            olds.append(_cells(_start(root, steps), root))
-            news.append(_cells(_start(HERE, steps), HERE))
+            olds.append(_cells(_start(root, steps, sensor), root))
+            news.append(_cells(_start(HERE, steps, sensor), HERE))
     return Against(
         root,
         rounds,
         [min(c) for c in zip(*olds, strict=True)],
         [min(c) for c in zip(*news, strict=True)],
         concurrent,
+        sensor,
     )
 
 
 def format_against(result: Against) -> str:
     kind = "concurrent" if result.concurrent else "interleaved"
     lines = [
-        f"CPU seconds per run, minimum of {result.rounds} {kind} rounds",
+        f"CPU seconds per run, minimum of {result.rounds} {kind} rounds"
+        + ("" if result.sensor is None else f", sensor Pd {result.sensor[0]:g}, Pf {result.sensor[1]:g}"),
         "cell               other    this   ratio",
     ]
     for cell, old, new in zip(CELLS, result.old, result.new, strict=True):

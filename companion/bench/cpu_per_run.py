@@ -6,7 +6,7 @@ another checkout, interleaved with this one so that the machine's drift hits bot
 CPU time (`time.process_time`), not wall time: other processes on the machine slow a run's wall
 time, much less its CPU time. It uses only `load_mission`, `Mission.with_algorithm` and `simulate`,
 and the timed checkout's own mission files; `load_mission` is looked up where the timed checkout
-keeps it.
+keeps it. `--sensor PD,PF` replaces each file's sensor (a checkout without one cannot take it).
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+
+import msgspec
 
 
 def main() -> None:
@@ -31,10 +33,17 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--run", type=int, default=0)
+    parser.add_argument("--sensor", help="PD,PF: every scenario with this sensor, Pd flat")
     args = parser.parse_args()
     cells = []
     for s in (1, 2, 3):
         mission = load_mission(root / "mission_files" / f"scenario{s}.toml")
+        if args.sensor is not None:
+            if not hasattr(mission, "sensor"):
+                raise SystemExit(f"{root}: its missions have no sensor (a checkout before imperfect sensing)")
+            pd, pf = (float(v) for v in args.sensor.split(","))
+            sensor = msgspec.structs.replace(mission.sensor, pd=pd, pf=pf, pd_edge=None)
+            mission = msgspec.structs.replace(mission, sensor=sensor)
         simulate(mission, args.seed, args.run, steps=20)  # numba's kernels loaded before timing
         for algorithm in ("proposed", "no-ta", "pheromone"):
             flown = mission.with_algorithm(algorithm)

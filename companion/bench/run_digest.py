@@ -36,6 +36,7 @@ def main() -> None:
     import companion
     from companion.batch.engine import simulate
     from companion.batch.sensing_study import with_sensor
+    from companion.contracts.arguments import sensor_pair
     from companion.contracts.mission import Mission
     from companion.core.feasibility import load_mission
 
@@ -43,7 +44,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--sensor", type=_sensor, help=f"PD,PF: also {', '.join(IMPERFECT)} with this sensor")
+    parser.add_argument(
+        "--sensor", type=sensor_pair, help=f"PD,PF: also {', '.join(IMPERFECT)} with this sensor"
+    )
     parser.add_argument("--missions", type=Path, help="also every *.toml in this directory")
     args = parser.parse_args()
     faulty: Faults = {"kills": {1: 100}, "takeovers": {2: 150}}
@@ -81,15 +84,6 @@ def main() -> None:
             total.update(one.digest())
             print(f"{label} {algorithm} run {run}: {one.hexdigest()[:16]}", flush=True)
     print(f"all {total.hexdigest()}")
-
-
-def _sensor(text: str) -> tuple[float, float]:
-    """`--sensor PD,PF`: two probabilities."""
-    try:
-        pd, pf = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected PD,PF, two numbers such as 0.8,0.02") from None
-    return pd, pf
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ from pathlib import Path
 import msgspec
 
 from companion.cli.options import Subparsers, add_executor_arguments
-from companion.contracts.arguments import count, mission_argument, names, natural, step_count
+from companion.contracts.arguments import count, mission_argument, names, natural, sensor_pair, step_count
 from companion.contracts.mission import ALGORITHMS
 from companion.core.feasibility import load_mission
 
@@ -18,6 +18,9 @@ CLUSTER_NEEDS = (
     "error: uavsearch cluster-bench needs Dask distributed, which a plain install leaves out: "
     "pip install 'uavsearch[cluster]'"
 )
+
+
+DEFAULT_MISSIONS = [f"mission_files/scenario{i}.toml" for i in (1, 2, 3)]
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -28,9 +31,16 @@ def _bench(args: argparse.Namespace) -> int:
     if args.against is not None:
         from companion.bench.against import cpu_against, format_against
 
-        print(format_against(cpu_against(Path(args.against), args.rounds, args.steps, args.concurrent)))
+        if args.missions is not None:
+            raise SystemExit("bench: --missions with --against: each checkout flies its own scenario files")
+        against = cpu_against(Path(args.against), args.rounds, args.steps, args.concurrent, args.sensor)
+        print(format_against(against))
         return 0
-    missions = [load_mission(m) for m in args.missions]
+    missions = [load_mission(m) for m in args.missions or DEFAULT_MISSIONS]
+    if args.sensor is not None:
+        from companion.batch.sensing_study import with_sensor
+
+        missions = [with_sensor(m, *args.sensor) for m in missions]
     with open_executor(args.scheduler, args.workers) as executor:
         result = bench(
             missions, args.runs, args.steps, args.seed, study_runs=args.study_runs, executor=executor
@@ -92,8 +102,16 @@ def register(sub: Subparsers) -> None:
     be.add_argument(
         "--missions",
         nargs="+",
-        default=[f"mission_files/scenario{i}.toml" for i in (1, 2, 3)],
-        help="mission files",
+        default=None,
+        help=f"mission files (default: {' '.join(DEFAULT_MISSIONS)}; not with --against, which flies each "
+        "checkout's own scenario files)",
+    )
+    be.add_argument(
+        "--sensor",
+        type=sensor_pair,
+        default=None,
+        help="PD,PF: every mission flown with this imperfect sensor, Pd flat (with --against too) "
+        "(default: the files' sensors)",
     )
     be.add_argument("--runs", type=count, default=3, help="timed runs per mission and algorithm")
     be.add_argument("--steps", type=step_count, default=1000, help="sampling moments per run")

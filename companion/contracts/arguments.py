@@ -71,6 +71,14 @@ def fraction(text: str) -> float:
     return _real(text, lambda v: 0 <= v <= 1, "in [0, 1]")
 
 
+def sensor_pair(text: str) -> tuple[float, float]:
+    """'PD,PF': a probability of detection and a false-alarm rate per look, each in [0, 1]."""
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"expected PD,PF, two probabilities such as 0.8,0.02: {text!r}")
+    return fraction(parts[0].strip()), fraction(parts[1].strip())
+
+
 def _span(text: str, parse: Callable[[str], float], least: float, most: float) -> tuple[float, float]:
     low, _, high = text.partition("-")
     try:

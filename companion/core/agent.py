@@ -46,7 +46,7 @@ from companion.core.rhc import (
     rank_grid_candidates,
 )
 from companion.core.routes import STRAIGHT
-from companion.core.sensing import LLR_QUANTUM
+from companion.core.sensing import LLR_QUANTUM, with_reports
 from companion.core.swarm_view import swarm_view
 from companion.core.task_planning import Bids, TaskPlanning
 from companion.core.tasks import TaskSet
@@ -228,10 +228,7 @@ class Agent(TaskPlanning):
             self._misses = np.zeros(cells.shape[0], dtype=np.bool_)
         hits = self._misses  # no report: every look a miss
         if obs.detections:
-            detected = grid.cell_at(np.array(obs.detections, dtype=float))
-            detected = np.unique(detected[detected >= 0])
-            cells = np.union1d(cells, detected)
-            hits = np.isin(cells, detected)
+            cells, hits = with_reports(cells, grid.cell_at(np.array(obs.detections, dtype=float)))
         values = b.look(obs.step, cells, hits, (obs.x, obs.y), grid.centres, self._sensor)
         evidence = tuple((values if cells is own else b.evidence[self.uav, own]).tolist())
         mine = (cells, values)

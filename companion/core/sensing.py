@@ -122,24 +122,38 @@ def sensor_model(pd: float, pd_edge: float | None, pf: float, radius: float) -> 
     return SensorModel(pd, pd if pd_edge is None else pd_edge, pf, radius)
 
 
-def cell_distances(centres: FloatArray, cells: IntArray, x: float, y: float) -> FloatArray:
-    """Distance from (x, y) to each cell's centre."""
-    d = centres[cells] - (x, y)
-    return np.hypot(d[:, 0], d[:, 1])
+@njit(cache=True)
+def with_reports(looked: IntArray, reported: IntArray) -> tuple[IntArray, np.ndarray]:
+    """One picture's looks: the cells in view and those reported (-1: outside every cell), and the hits.
+
+    The sorted union of `looked` and the reported cells (a report from the camera's own position
+    outside the FOV is a look at its cell too), and which of them were reported."""
+    hit = np.unique(reported[reported >= 0])
+    cells = np.unique(np.concatenate((looked, hit)))
+    hits = np.zeros(cells.shape[0], dtype=np.bool_)
+    j = 0
+    for i in range(cells.shape[0]):
+        while j < hit.shape[0] and hit[j] < cells[i]:
+            j += 1
+        hits[i] = j < hit.shape[0] and hit[j] == cells[i]
+    return cells, hits
 
 
-def reported_positions(
+@njit(cache=True)
+def reported_cells(
     centres: FloatArray,
     cells: IntArray,
     holds_target: np.ndarray,
-    model: SensorModel,
+    model: tuple[float, float, float, float],
     look: tuple[int, int, int, int],
     at: tuple[float, float],
-) -> tuple[tuple[float, float], ...]:
-    """The centres of the `cells` in view that the detector reports, for look (seed, run, uav, step).
+) -> IntArray:
+    """The `cells` in view that the detector reports, for look (seed, run, uav, step) from `at`.
 
-    `at` is the UAV's position (x, y); `draw_reports` decides each cell."""
+    `at` is the UAV's position (x, y); `draw_reports` decides each cell at the distance from `at`
+    to its centre."""
+    distances = np.empty(cells.shape[0])
+    for i in range(cells.shape[0]):
+        distances[i] = math.hypot(centres[cells[i], 0] - at[0], centres[cells[i], 1] - at[1])
     seed, run, uav, step = look
-    distances = cell_distances(centres, cells, *at)
-    reported = cells[draw_reports(seed, run, uav, step, cells, distances, holds_target, model)]
-    return tuple((float(x), float(y)) for x, y in centres[reported].tolist())
+    return cells[draw_reports(seed, run, uav, step, cells, distances, holds_target, model)]

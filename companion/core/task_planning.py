@@ -90,7 +90,7 @@ class TaskPlanning:
         w = self.world
         assert self.world.tessellation is not None
         c = self.task - self.world.tessellation.n_tasks
-        if c not in set(self.candidates.tolist()):
+        if not (self.candidates == c).any():
             return 0.0, math.inf
         gen = w.grid.centres[c : c + 1]
         capped, uncapped = task_costs(

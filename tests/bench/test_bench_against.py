@@ -42,3 +42,19 @@ def test_bench_against_a_directory_that_is_not_a_checkout_says_so(tmp_path: Path
     proc = uavsearch("bench", "--against", str(tmp_path), "--rounds", "1", "--steps", "10")
     assert proc.returncode == 2
     assert f"--against {tmp_path}: not a checkout" in proc.stderr
+
+
+def test_bench_against_with_a_sensor_flies_it_in_both_checkouts() -> None:
+    proc = uavsearch(
+        "bench", "--against", str(ROOT), "--rounds", "1", "--steps", "20", "--sensor", "0.7,0.05"
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0] == "CPU seconds per run, minimum of 1 interleaved rounds, sensor Pd 0.7, Pf 0.05"
+    assert len(lines) == 12 and lines[11].startswith("total")
+
+
+def test_bench_against_refuses_mission_files_it_would_not_fly() -> None:
+    proc = uavsearch("bench", "--against", str(ROOT), "--missions", "mission_files/scenario1.toml")
+    assert proc.returncode != 0
+    assert "--missions with --against" in proc.stderr
