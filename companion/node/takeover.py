@@ -3,7 +3,7 @@
 Without `--takeover` the companion never arms the vehicle or changes its mode. With it:
 
 - a vehicle disarmed on the ground (below `ON_GROUND_M`) takes off, arming retried, and climbs
-  to within `ALTITUDE_KEEPING` of its layer: ArduPilot by TKOFF_ALT and mode TAKEOFF; PX4 by
+  until it has levelled off at its layer (`Levelling`): ArduPilot by TKOFF_ALT and mode TAKEOFF; PX4 by
   MAV_CMD_NAV_TAKEOFF (AUTO.TAKEOFF) once its altitude reference reached the ground (`px4_ready_at`);
 - PX4 OFFBOARD: the OFFBOARD-loss failsafe becomes Hold if it was a stick-flown mode;
 - then the guided mode (ArduPilot GUIDED; PX4 OFFBOARD, or Hold for `reposition`) and arming,
@@ -38,6 +38,9 @@ ON_GROUND_M = 10.0
 PX4_REFERENCE_RATE = "FW_T_CLMB_R_SP"  # m/s: how fast PX4's altitude reference climbs before take-off
 PX4_REFERENCE_MARGIN_S = 5.0
 OFFBOARD_LOSS, OFFBOARD_LOSS_MANUAL, OFFBOARD_LOSS_HOLD = "COM_OBL_RC_ACT", 2, 5
+LEVEL_M = 1.0  # m below the layer at which a climb counts as levelled off
+LEVEL_GAIN_M, LEVEL_S = 0.5, 5.0  # or: no more gain than this over these vehicle seconds, within 5 m
+SETTLE_S = 10.0  # vehicle seconds of the autopilot's own level flight before the companion steers
 
 
 def guided_mode(link: VehicleLink, command_mode: str) -> int:
@@ -124,18 +127,48 @@ def take_off(link: VehicleLink, altitude: float, uav: int, stop: threading.Event
 
 
 def climb(link: VehicleLink, altitude: float, uav: int, stop: threading.Event, deadline: float) -> bool:
-    """Wait until the vehicle is within `ALTITUDE_KEEPING` of its layer; False if not in time.
+    """Wait until the vehicle has levelled off at its layer and flown on level (`Levelling`).
 
-    Within `ALTITUDE_KEEPING` below `altitude`: a companion that steered from lower down could fly
-    its plans, which keep apart only the UAVs of a layer, through the layers below its own."""
+    False if not in time. A companion that steered from lower down could fly its plans, which keep
+    apart only the UAVs of a layer, through the layers below its own; one that steered as soon as
+    the climb ended would see the aircraft sink as it trades height for cruise speed (PX4 SIH:
+    4-7 m below the layer in the first steps after hand-overs at 1-5 m below it; after `SETTLE_S`
+    of the autopilot's own level flight, at most 2.8 m)."""
     s = link.state
-    while not stop.is_set() and not s.up >= altitude - ALTITUDE_KEEPING:
+    level = Levelling(altitude)
+    while not stop.is_set() and not level.reached(s.time_s, s.up):
         if time.monotonic() > deadline or not s.armed:
             log.warning("uav %d: take-off failed at %.0f m (armed %s)", uav, s.up, s.armed)
             return False
         link.poll(0.1)
-    log.info("uav %d: airborne at %.0f m", uav, s.up)
+    log.info("uav %d: airborne at %.1f m (layer %.0f m)", uav, s.up, altitude)
     return not stop.is_set()
+
+
+class Levelling:
+    """Whether a climbing aircraft has levelled off at `altitude` and flown on level since.
+
+    Levelled: within `LEVEL_M` of `altitude`, or within `ALTITUDE_KEEPING` and gaining no more than
+    `LEVEL_GAIN_M` over `LEVEL_S` of vehicle time (an autopilot that holds its take-off altitude a
+    little low). Then `SETTLE_S` of vehicle time more, still within `ALTITUDE_KEEPING`: the
+    autopilot's own level flight brings it to cruise speed. Leaving the band starts over."""
+
+    def __init__(self, altitude: float) -> None:
+        self.altitude = altitude
+        self.since: tuple[float, float] | None = None  # (vehicle time, altitude) the last gain began
+        self.level_at: float | None = None  # the vehicle time it levelled off
+
+    def reached(self, t: float, up: float) -> bool:
+        """Feed one position (vehicle time `t`, altitude `up`); True once levelled and settled."""
+        if not up >= self.altitude - ALTITUDE_KEEPING:
+            self.since = self.level_at = None
+            return False
+        if self.level_at is None:
+            if self.since is None or up > self.since[1] + LEVEL_GAIN_M or t < self.since[0]:
+                self.since = (t, up)
+            if up >= self.altitude - LEVEL_M or t - self.since[0] >= LEVEL_S:
+                self.level_at = t
+        return self.level_at is not None and t - self.level_at >= SETTLE_S
 
 
 def px4_ready_at(home_amsl: float, rate: float) -> float:

@@ -431,14 +431,18 @@ def read_csv(path: Path) -> list[dict[str, float]]:
 
 
 def assert_handed_over_at_layer(m: Mission, uav: int, rows: dict[int, dict[str, float]]) -> None:
-    """The companion steered its vehicle first within `ALTITUDE_KEEPING` of its layer, not on the climb.
+    """Every step the companion steered, from the first on, within `ALTITUDE_KEEPING` of its layer.
 
-    Its plans keep apart only the UAVs of its own layer: steered from lower down, it could fly them
-    through the layers below (`takeover.climb`). `rows`: its uav{i}.csv by step."""
-    steered = [rows[k] for k in sorted(rows) if rows[k]["steered"]]
+    The bound the layers' vertical floor rests on. A hand-over on the climb (its plans keep apart
+    only the UAVs of its own layer) or before the aircraft gathered speed (it sinks) breaks it
+    (`takeover.Levelling`). `rows`: its uav{i}.csv by step."""
+    steered = [(k, rows[k]["up"]) for k in sorted(rows) if rows[k]["steered"]]
     assert steered, f"uav{uav} never steered"
-    up, layer = steered[0]["up"], m.altitude_of(uav)
-    assert up >= layer - ALTITUDE_KEEPING, f"uav{uav} first steered at {up:.1f} m, its layer {layer:g} m"
+    layer = m.altitude_of(uav)
+    k, up = max(steered, key=lambda row: abs(row[1] - layer))
+    assert abs(up - layer) <= ALTITUDE_KEEPING, (
+        f"uav{uav} steered at {up:.1f} m at step {k} (first steered: {steered[0][0]}), its layer {layer:g} m"
+    )
 
 
 def searched(rows: list[dict[str, float]]) -> list[dict[str, float]]:
