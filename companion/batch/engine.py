@@ -428,7 +428,7 @@ def _step_agents(
     turns, commanded = np.empty(n), [-1] * n
     outboxes: list[list[Message]] = []
     loiter_turn = world.safety.limits.reach.loiter_turn
-    perfect, model = world.sensor.perfect, world.sensor
+    perfect = world.sensor.perfect
     seen: list[bool] = np.logical_or.reduce(sees, axis=1).tolist() if perfect else []
     faulty = bool(faults.death or faults.held)
     for i, ((x, y, h), agent) in enumerate(zip(poses.tolist(), agents, strict=True)):
@@ -443,9 +443,8 @@ def _step_agents(
         else:
             grid = world.grid
             cells = grid.fov_cell_list((x, y))
-            reported = reported_cells(
-                grid.centres, cells, scorer.holds_target, model, (*instance, i, k), (x, y)
-            )
+            look = (*instance, i, k)
+            reported = reported_cells(grid.centres, cells, scorer.holds_target, world.sensor, look, (x, y))
             detections = tuple(map(tuple, grid.centres[reported].tolist())) if reported.size else ()
             if detections:
                 scorer.reported(reported)

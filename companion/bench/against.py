@@ -1,12 +1,12 @@
 """`uavsearch bench --against CHECKOUT`: CPU seconds per batch run of this checkout against another's.
 
-Each round runs `cpu_per_run.py` (one 1,000-step run of each scenario file and algorithm, CPU
-time) once with the other checkout's `companion` on PYTHONPATH and once with this one's, in fresh
-processes, interleaved so that the machine's drift hits both alike, or with `concurrent` both at
-the same time, one per core (the drift then hits both within the same seconds); a cell's figure
-is its minimum over the rounds; with `sensor` (Pd, Pf) both fly the scenarios with that imperfect sensor.
-CPU time, not wall time: other work on the machine slows a run's wall
-time much more than its CPU time (docs/performance.md).
+Each round runs `cpu_per_run.py` (one 1,000-step run of each scenario file and algorithm, CPU time)
+once with the other checkout's `companion` on PYTHONPATH and once with this one's, in fresh
+processes, interleaved so that the machine's drift hits both alike, or with `concurrent` both at the
+same time, one per core (the drift then hits both within the same seconds); a cell's figure is its
+minimum over the rounds; with `sensor` (Pd, Pf) both fly the scenarios with that imperfect sensor.
+CPU time, not wall time: other work on the machine slows a run's wall time much more than its CPU
+time (docs/performance.md).
 """
 
 from __future__ import annotations

@@ -1,14 +1,13 @@
 """A hash of every figure of seeded batch runs: whether a change keeps runs bit-identical.
 
-Run as a script so that `companion` is imported from PYTHONPATH, once per checkout, and compare
-the last lines (docs/performance.md gives the commands). It flies the checkout's scenario files
-(and scenario 1 in continuous mode) with each algorithm, runs 0-2 (run 2 kills UAV 1's companion
-at step 100 and takes UAV 2's vehicle from its companion at step 150), with `--sensor PD,PF` also
-scenarios 1-continuous, 1 and 3 with that imperfect sensor (the candidates and confirmation bids'
-paths), and with `--missions DIR` also every mission file in DIR (each of these run 0, UAV 1's
-companion killed at step 120). Every field of each
-`RunResult` but its wall time and the figures it lacks (None) is hashed: trajectories, tasks, the
-metric curves, target steps and the protocol's counters.
+Run as a script so that `companion` is imported from PYTHONPATH, once per checkout, and compare the
+last lines (docs/performance.md gives the commands). It flies the checkout's scenario files (and
+scenario 1 in continuous mode) with each algorithm, runs 0-2 (run 2 kills UAV 1's companion at step
+100 and takes UAV 2's vehicle from its companion at step 150), with `--sensor PD,PF` also scenarios
+1-continuous, 1 and 3 with that imperfect sensor (the candidates and confirmation bids' paths), and
+with `--missions DIR` also every mission file in DIR (each of these run 0, UAV 1's companion killed
+at step 120). Every field of each `RunResult` but its wall time and the figures it lacks (None) is
+hashed: trajectories, tasks, the metric curves, target steps and the protocol's counters.
 """
 
 from __future__ import annotations
