@@ -56,11 +56,16 @@ class Sweep(msgspec.Struct, frozen=True):
 
 
 class AlgorithmTime(msgspec.Struct, frozen=True):
-    """`bench`: one mission and algorithm's compute time on one core."""
+    """`bench`: one mission and algorithm's compute time on one core, with the sensor it flew.
+
+    `pd`, `pd_edge` and `pf`: the mission's detector (`Sensor`; 1, 1, 0 the paper's camera)."""
 
     mission: str
     algorithm: str
     seconds_per_1000_steps: float
+    pd: float
+    pd_edge: float
+    pf: float
 
 
 class Throughput(msgspec.Struct, frozen=True):
@@ -205,7 +210,10 @@ def bench(
             m = mission.with_algorithm(a)
             simulate(m, seed, 0, 5)  # compile numba kernels and warm caches outside the timing
             secs = [simulate(m, seed, r, steps).seconds for r in range(runs)]
-            rows.append(AlgorithmTime(mission.name, a, 1000 * float(np.mean(secs)) / steps))
+            sensor = mission.sensor
+            edge = sensor.pd if sensor.pd_edge is None else sensor.pd_edge
+            seconds = 1000 * float(np.mean(secs)) / steps
+            rows.append(AlgorithmTime(mission.name, a, seconds, sensor.pd, edge, sensor.pf))
     executor = executor or LocalPool(workers)
     workers = executor.workers
     specs = [
@@ -235,9 +243,9 @@ def bench(
 
 def format_bench(result: Bench) -> str:
     """`bench`'s result as the lines `uavsearch bench` prints."""
-    lines = ["mission     algorithm    s / 1,000 steps (one core)"]
+    lines = ["mission     algorithm    s / 1,000 steps (one core)  sensor"]
     for r in result.per_algorithm:
-        lines.append(f"{r.mission:<11} {r.algorithm:<12} {r.seconds_per_1000_steps:.3f}")
+        lines.append(f"{r.mission:<11} {r.algorithm:<12} {r.seconds_per_1000_steps:<27.3f} {_sensor_text(r)}")
     t = result.throughput
     lines.append(
         f"Monte Carlo throughput (study mix): {t.runs_per_minute:.1f} runs of {t.steps} steps per "
@@ -248,6 +256,14 @@ def format_bench(result: Bench) -> str:
         f"whole study, {result.study_definition} (estimate): {result.study_estimate_minutes:.1f} min"
     )
     return "\n".join(lines)
+
+
+def _sensor_text(row: AlgorithmTime) -> str:
+    """'perfect', or Pd (under the UAV to the edge of the view) and Pf."""
+    if row.pd == row.pd_edge == 1.0 and row.pf == 0.0:
+        return "perfect"
+    pd = f"{row.pd:g}" if row.pd == row.pd_edge else f"{row.pd:g}-{row.pd_edge:g}"
+    return f"Pd {pd}, Pf {row.pf:g}"
 
 
 def sweep_values(text: str) -> list[str]:

@@ -133,7 +133,7 @@ def climb(link: VehicleLink, altitude: float, uav: int, stop: threading.Event, d
     apart only the UAVs of a layer, through the layers below its own; one that steered as soon as
     the climb ended would see the aircraft sink as it trades height for cruise speed (PX4 SIH:
     4-7 m below the layer in the first steps after hand-overs at 1-5 m below it; after `SETTLE_S`
-    of the autopilot's own level flight, at most 2.8 m)."""
+    of the autopilot's own level flight, 2.1-2.8 m at most over the runs measured)."""
     s = link.state
     level = Levelling(altitude)
     while not stop.is_set() and not level.reached(s.time_s, s.up):

@@ -173,6 +173,35 @@ def test_bench_cli_prints_figures(tmp_path: Path) -> None:
     assert t["runs"] == 8 * 3 and 0 < t["startup_seconds"] <= t["wall_seconds"]
     assert result["study_estimate_minutes"] > 0
     assert result["study_definition"].startswith("1 mission x 3 algorithms x 1,000 runs")
+    assert {(r["pd"], r["pd_edge"], r["pf"]) for r in result["per_algorithm"]} == {(1.0, 1.0, 0.0)}
+    assert "perfect" in proc.stdout
+
+
+def test_bench_sensor_flies_every_mission_with_that_detector(tmp_path: Path) -> None:
+    """`bench --sensor PD,PF` without --against: the rows and the JSON name the sensor flown."""
+    proc = uavsearch(
+        "bench",
+        "--missions",
+        "mission_files/scenario1.toml",
+        "mission_files/scenario3.toml",
+        "--sensor",
+        "0.7,0.05",
+        "--runs",
+        "1",
+        "--steps",
+        "10",
+        "--study-runs",
+        "1",
+        "--workers",
+        "1",
+        "--json",
+        str(tmp_path / "bench.json"),
+    )
+    assert proc.returncode == 0, proc.stderr
+    rows = json.loads((tmp_path / "bench.json").read_text())["per_algorithm"]
+    assert {r["mission"] for r in rows} == {"scenario1", "scenario3"}
+    assert {(r["pd"], r["pd_edge"], r["pf"]) for r in rows} == {(0.7, 0.7, 0.05)}
+    assert proc.stdout.count("Pd 0.7, Pf 0.05") == 6
 
 
 def test_bad_mission_file_is_a_clear_error_without_traceback(tmp_path: Path) -> None:

@@ -430,7 +430,7 @@ def read_csv(path: Path) -> list[dict[str, float]]:
     return rows
 
 
-def assert_handed_over_at_layer(m: Mission, uav: int, rows: dict[int, dict[str, float]]) -> None:
+def assert_at_layer_while_steered(m: Mission, uav: int, rows: dict[int, dict[str, float]]) -> None:
     """Every step the companion steered, from the first on, within `ALTITUDE_KEEPING` of its layer.
 
     The bound the layers' vertical floor rests on. A hand-over on the climb (its plans keep apart

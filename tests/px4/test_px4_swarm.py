@@ -23,7 +23,7 @@ from pathlib import Path
 from companion.app.evaluation import CompanionLogs, evaluate, losses_3d, truth_cells
 from companion.app.px4_sitl import Px4Build
 from companion.core.world import World, build_world
-from tests.e2e.conftest import PY, Proc, Procs, assert_handed_over_at_layer, read_csv, wait_rows
+from tests.e2e.conftest import PY, Proc, Procs, assert_at_layer_while_steered, read_csv, wait_rows
 from tests.px4.conftest import SWARM_SPEEDUP, first_instance, write_mission
 
 UAVS, STEPS, MAX_STEPS = 3, 40, 400
@@ -75,7 +75,7 @@ def test_swarm_on_px4_sitl(px4_build: Px4Build, tmp_path: Path) -> None:
         assert abs(statistics.median(r["up"] for r in flown) - m.altitude_of(i)) < 5.0, (
             f"uav{i} off its layer"
         )
-        assert_handed_over_at_layer(m, i, rows)
+        assert_at_layer_while_steered(m, i, rows)
     # separation along the flown tracks (the stand-alone camera's time-aligned position streams): each
     # PX4 instance keeps its own clock, so the poses the companions log at step k are not simultaneous.
     # In three dimensions over the whole record, take-offs included (`losses_3d`: within R_s

@@ -49,7 +49,7 @@ from tests.e2e.conftest import (
     SCENARIO1_NOFLY,
     Proc,
     Procs,
-    assert_handed_over_at_layer,
+    assert_at_layer_while_steered,
     companion_pid,
     mavproxy_argv,
     read_csv,
@@ -207,7 +207,7 @@ def test_swarm_on_sitl_with_a_companion_killed(sitl_binary: Path, tmp_path: Path
         assert abs(statistics.median(r["up"] for r in flown) - m.altitude_of(i)) < 5.0, (
             f"uav{i} off its layer"
         )
-        assert_handed_over_at_layer(m, i, rows)
+        assert_at_layer_while_steered(m, i, rows)
 
     # ground truth of separation after the kill, while the survivors flew the mission
     flown_to = min(max(rows) for i, rows in logs.items() if i != VICTIM)
