@@ -92,7 +92,11 @@ def test_scripted_mission_scenario1_sped_up_passes_its_criteria(tmp_path: Path, 
     assert tracks == set(range(m.n_uavs))
     assert (out / "operator.kml").read_text().lstrip().startswith("<")
     assert json.loads((out / "sectors.plan").read_text())["fileType"] == "Plan"
-    for i in range(m.n_uavs):  # real time plans from the predicted start of each step: no lag
+    # Real time plans from the predicted start of each step: no lag. A plan one step late would
+    # leave the vehicle off it on every step whose turn differs from the last (about half of them
+    # here); a companion starved of the CPU on a busy machine misses a few steps (up to 7 % seen
+    # beside other flights), so the bound tells the two apart without timing the machine.
+    for i in range(m.n_uavs):
         with (out / f"uav{i}.csv").open() as f:
             rows = list(csv.DictReader(f))
         pairs = [(a, b) for a, b in itertools.pairwise(rows) if int(b["step"]) == int(a["step"]) + 1]
@@ -100,7 +104,9 @@ def test_scripted_mission_scenario1_sped_up_passes_its_criteria(tmp_path: Path, 
             abs(float(b["x"]) - float(a["cmd_x"])) < 1 and abs(float(b["y"]) - float(a["cmd_y"])) < 1
             for a, b in pairs
         )
-        assert flown >= 0.95 * len(pairs), f"uav {i} flew {flown} of {len(pairs)} planned steps"
+        turned = sum(float(a["turn"]) != float(b["turn"]) for a, b in pairs)
+        assert turned >= 0.3 * len(pairs), f"uav {i} turned on {turned} of {len(pairs)} steps: no test of lag"
+        assert flown >= 0.8 * len(pairs), f"uav {i} flew {flown} of {len(pairs)} planned steps"
     for i in range(m.n_uavs):  # a real MAVLink log of what the companion heard and said
         log = mavutil.mavlink_connection(str(out / f"uav{i}.tlog"))
         kinds = set()
