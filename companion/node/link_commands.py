@@ -108,7 +108,14 @@ class Commands:
         )
 
     def position_target(self, lat: float, lon: float, up: float) -> None:
-        """SET_POSITION_TARGET_GLOBAL_INT, position only, relative altitude (PX4 OFFBOARD)."""
+        """SET_POSITION_TARGET_GLOBAL_INT, position only, `up` metres above home as AMSL (PX4 OFFBOARD).
+
+        AMSL: home's altitude as GLOBAL_POSITION_INT gives it (alt - relative_alt) plus `up`, which
+        PX4 turns into the local setpoint ref_alt - alt, so that the relative altitude it reports
+        settles at `up`. PX4's GLOBAL_RELATIVE_ALT_INT conversion (mavlink_receiver: z = home alt -
+        alt - ref_alt) is off by twice home's height in its local frame (a few metres in SIH: one
+        aircraft flew 3-5 m above its layer). Relative, as before, until home is known.
+        """
         mask = (
             mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
             | mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE
@@ -119,14 +126,20 @@ class Commands:
             | mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
             | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
         )
+        home = self.link.state.home_amsl
+        frame, z = (
+            (mavlink.MAV_FRAME_GLOBAL_INT, home + up)
+            if math.isfinite(home)
+            else (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, up)
+        )
         self.link.mav.set_position_target_global_int_send(
             0,
             self.link.state.system,
             mavlink.MAV_COMP_ID_AUTOPILOT1,
-            mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            frame,
             mask,
             round(lat * 1e7),
             round(lon * 1e7),
-            up,
+            z,
             *([0] * 8),
         )
