@@ -275,9 +275,13 @@ class Belief:
 
     # -- what it says ----------------------------------------------------------------------------
     def posterior(self, cells: IntArray | None = None) -> FloatArray:
-        """P(target in cell | every look fused) for `cells` (all cells by default)."""
+        """P(target in cell | every look fused) for `cells` (all cells by default).
+
+        A cell cleared by hundreds of misses has log-odds below -709, where exp overflows to inf
+        and the posterior is exactly 0: numpy's warning about it is silenced."""
         lo = self.logodds if cells is None else self.logodds[cells]
-        return 1.0 / (1.0 + np.exp(-lo))
+        with np.errstate(over="ignore"):
+            return 1.0 / (1.0 + np.exp(-lo))
 
     def confirmed(self) -> IntArray:
         """Cells whose posterior reaches the confirmation threshold."""
